@@ -1,0 +1,76 @@
+#pragma once
+/// \file
+/// The filter state of one robot (eq. 18): a sliding window of body poses and the positions of
+/// object landmarks, with one joint covariance over the error state
+///   [eps_0 .. eps_{c-1}, p~_0 .. p~_{m-1}],  T_world_body = T_hat * exp(eps^),  p = p_hat + p~.
+/// Objects that left the joint state (archived) are kept as independent marginals.
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+#include <deque>
+#include <map>
+#include <vector>
+
+#include "concord/estimator/types.h"
+
+namespace concord {
+
+/// One body pose in the window.
+struct PoseClone {
+  int frame = 0;
+  Eigen::Isometry3d T_world_body = Eigen::Isometry3d::Identity();
+};
+
+/// One object landmark in the joint state.
+struct ObjectLandmark {
+  LandmarkId id = 0;
+  Eigen::Vector3d p_world = Eigen::Vector3d::Zero();
+  int last_observed_frame = 0;
+};
+
+class State {
+ public:
+  static constexpr int kPoseDim = 6;
+  static constexpr int kLandmarkDim = 3;
+
+  /// Poses in the window, oldest first.
+  std::deque<PoseClone> poses;
+  /// Object landmarks in the joint state, in covariance order.
+  std::vector<ObjectLandmark> landmarks;
+  /// Objects outside the joint state: independent Gaussian marginals, by id.
+  std::map<LandmarkId, ObjectEstimate> archived;
+  /// Last frame each archived object was observed (for bookkeeping and output).
+  std::map<LandmarkId, int> archived_last_observed;
+
+  /// Joint covariance, (6 * poses + 3 * landmarks) square.
+  Eigen::MatrixXd covariance;
+
+  int dimension() const { return pose_block_size() + kLandmarkDim * num_landmarks(); }
+  int num_poses() const { return static_cast<int>(poses.size()); }
+  int num_landmarks() const { return static_cast<int>(landmarks.size()); }
+  int pose_block_size() const { return kPoseDim * num_poses(); }
+  /// Covariance index of pose slot i (0 = oldest).
+  int pose_index(int slot) const { return kPoseDim * slot; }
+  /// Covariance index of landmark slot i.
+  int landmark_index(int slot) const { return pose_block_size() + kLandmarkDim * slot; }
+
+  /// Slot of the pose of a frame in the window, or -1.
+  int pose_slot(int frame) const;
+  /// Slot of an in-state landmark, or -1.
+  int landmark_slot(LandmarkId id) const;
+
+  const PoseClone& newest_pose() const { return poses.back(); }
+
+  /// Every object the robot holds, joint and archived, sorted by id.
+  std::vector<LandmarkId> object_ids() const;
+  /// Estimates of every object the robot holds, sorted by id.
+  std::vector<ObjectEstimate> objects() const;
+
+  /// Keeps the slot index current; called by whoever edits landmarks.
+  void rebuild_landmark_index();
+
+ private:
+  std::map<LandmarkId, int> landmark_slots_;
+};
+
+}  // namespace concord

@@ -1,0 +1,82 @@
+#pragma once
+/// \file
+/// Value types at the estimator's edges: what goes in (odometry, stereo observations, the camera)
+/// and what comes out (object estimates, marginals for consensus). Frames are in the names:
+/// T_a_b maps coordinates in frame b into frame a; p_a is a point in frame a.
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+#include <cstdint>
+#include <optional>
+#include <vector>
+
+namespace concord {
+
+/// Global object id (data association is given; the same id is the same object for every robot)
+/// or a robot-private point-feature track id.
+using LandmarkId = std::int64_t;
+
+/// A calibrated stereo pair, rectified or not.
+struct StereoCamera {
+  /// Intrinsics shared by both cameras; observations are in the image units K maps to
+  /// (pixels, or normalized coordinates when K is the identity).
+  Eigen::Matrix3d K = Eigen::Matrix3d::Identity();
+  /// Maps body coordinates into the left optical frame: p_cam0 = T_cam0_body * p_body.
+  Eigen::Isometry3d T_cam0_body = Eigen::Isometry3d::Identity();
+  /// Pose of the right camera in the left camera frame.
+  Eigen::Isometry3d T_cam0_cam1 = Eigen::Isometry3d::Identity();
+
+  /// Maps body coordinates into the right optical frame.
+  Eigen::Isometry3d T_cam1_body() const { return T_cam0_cam1.inverse() * T_cam0_body; }
+  /// Image units per normalized unit (mean focal length), to convert noise and thresholds.
+  double focal_length() const { return 0.5 * (K(0, 0) + K(1, 1)); }
+  /// Stereo baseline in metres.
+  double baseline() const { return T_cam0_cam1.translation().norm(); }
+  /// Image coordinates (u_left, v_left, u_right, v_right) to normalized coordinates.
+  Eigen::Vector4d normalize(const Eigen::Vector4d& uv) const;
+  /// Normalized coordinates back to image coordinates.
+  Eigen::Vector4d denormalize(const Eigen::Vector4d& xy) const;
+};
+
+/// One stereo observation of a landmark, in image units: (u_left, v_left, u_right, v_right).
+struct StereoObservation {
+  LandmarkId id = 0;
+  Eigen::Vector4d uv = Eigen::Vector4d::Zero();
+};
+
+/// Everything a robot measures at one frame.
+struct FrameInput {
+  int frame = 0;
+  /// Measured motion from the previous frame to this one, T_body(k-1)_body(k). Absent at the
+  /// first frame (the known start).
+  std::optional<Eigen::Isometry3d> T_previous_current;
+  /// Object detections with global ids (persistent features, kept in the state).
+  std::vector<StereoObservation> objects;
+  /// Point-feature observations with robot-private track ids (opportunistic, MSCKF update).
+  std::vector<StereoObservation> features;
+};
+
+/// An object landmark estimate: world position and its marginal covariance.
+struct ObjectEstimate {
+  LandmarkId id = 0;
+  Eigen::Vector3d p_world = Eigen::Vector3d::Zero();
+  Eigen::Matrix3d covariance = Eigen::Matrix3d::Identity();
+};
+
+/// A joint Gaussian marginal over a set of object landmarks: what robots exchange (§V-B).
+/// mean stacks the positions in the order of ids; covariance is 3k x 3k.
+struct Marginal {
+  std::vector<LandmarkId> ids;
+  Eigen::VectorXd mean;
+  Eigen::MatrixXd covariance;
+
+  std::size_t size() const { return ids.size(); }
+};
+
+/// A neighbour's marginal with its consensus weight A_ij (eq. 19).
+struct WeightedMarginal {
+  double weight = 0.0;
+  Marginal marginal;
+};
+
+}  // namespace concord

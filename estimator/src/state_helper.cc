@@ -1,0 +1,159 @@
+#include "concord/estimator/state_helper.h"
+
+#include <Eigen/Cholesky>
+
+#include "concord/estimator/lie.h"
+
+namespace concord {
+
+namespace {
+
+/// Columns of H that hold a non-zero entry.
+std::vector<int> nonzero_columns(const Eigen::MatrixXd& H) {
+  std::vector<int> columns;
+  for (Eigen::Index c = 0; c < H.cols(); ++c) {
+    if (!H.col(c).isZero(0.0)) columns.push_back(static_cast<int>(c));
+  }
+  return columns;
+}
+
+/// P H^T using only the non-zero columns of H: n x m in O(n * k * m).
+Eigen::MatrixXd covariance_times_jacobian_transpose(const Eigen::MatrixXd& P,
+                                                    const Eigen::MatrixXd& H,
+                                                    const std::vector<int>& columns) {
+  return P(Eigen::all, columns) * H(Eigen::all, columns).transpose();
+}
+
+}  // namespace
+
+void StateHelper::apply_correction(State& state, const Eigen::VectorXd& correction) {
+  for (int slot = 0; slot < state.num_poses(); ++slot) {
+    auto& pose = state.poses[slot].T_world_body;
+    pose = lie::orthonormalized(
+        pose * lie::se3_exp(correction.segment<State::kPoseDim>(state.pose_index(slot))));
+  }
+  for (int slot = 0; slot < state.num_landmarks(); ++slot) {
+    state.landmarks[slot].p_world += correction.segment<3>(state.landmark_index(slot));
+  }
+}
+
+bool StateHelper::update(State& state, const Eigen::MatrixXd& H, const Eigen::VectorXd& residual,
+                         const Eigen::MatrixXd& noise, const Eigen::MatrixXd* correlation) {
+  if (H.rows() == 0) return true;
+  Eigen::MatrixXd& P = state.covariance;
+  const std::vector<int> columns = nonzero_columns(H);
+
+  // 1. U = P H^T + S and the innovation covariance H P H^T + V + H S + S^T H^T (eq. 26-27).
+  Eigen::MatrixXd U = covariance_times_jacobian_transpose(P, H, columns);
+  Eigen::MatrixXd innovation = H(Eigen::all, columns) * U(columns, Eigen::all) + noise;
+  if (correlation != nullptr) {
+    const Eigen::MatrixXd HS = H * (*correlation);
+    innovation += HS + HS.transpose();
+    U += *correlation;
+  }
+  const Eigen::LLT<Eigen::MatrixXd> llt(innovation);
+  if (llt.info() != Eigen::Success) return false;
+
+  // 2. Correction K r with K = U innovation^-1 (eq. 26, 28).
+  const Eigen::VectorXd correction = U * llt.solve(residual);
+
+  // 3. P <- P - U innovation^-1 U^T = P - W^T W with W = L^-1 U^T (eq. 66), on one triangle.
+  const Eigen::MatrixXd W = llt.matrixL().solve(U.transpose());
+  P.selfadjointView<Eigen::Lower>().rankUpdate(W.transpose(), -1.0);
+  P.triangularView<Eigen::StrictlyUpper>() = P.transpose();
+
+  apply_correction(state, correction);
+  return true;
+}
+
+double StateHelper::mahalanobis_squared(const State& state, const Eigen::MatrixXd& H,
+                                        const Eigen::VectorXd& residual,
+                                        const Eigen::MatrixXd& noise) {
+  const std::vector<int> columns = nonzero_columns(H);
+  const Eigen::MatrixXd Hc = H(Eigen::all, columns);
+  const Eigen::MatrixXd innovation =
+      Hc * state.covariance(columns, columns) * Hc.transpose() + noise;
+  const Eigen::LLT<Eigen::MatrixXd> llt(innovation);
+  if (llt.info() != Eigen::Success) return std::numeric_limits<double>::infinity();
+  return residual.dot(llt.solve(residual));
+}
+
+void StateHelper::augment_landmark(State& state, LandmarkId id, const Eigen::Vector3d& p_world,
+                                   int frame, const Eigen::MatrixXd& H_state1,
+                                   const Eigen::Matrix3d& R1, const Eigen::Matrix3d& noise1) {
+  const int n = state.dimension();
+  Eigen::MatrixXd& P = state.covariance;
+  const std::vector<int> columns = nonzero_columns(H_state1);
+  const Eigen::MatrixXd PHt = covariance_times_jacobian_transpose(P, H_state1, columns);  // n x 3
+  const Eigen::Matrix3d R1_inverse = R1.inverse();
+
+  // eq. (30): Sigma_sp = -Sigma H1^T R1^-T,  Sigma_p = R1^-1 (H1 Sigma H1^T + V1) R1^-T.
+  const Eigen::MatrixXd cross = -PHt * R1_inverse.transpose();
+  const Eigen::Matrix3d H1PH1t = H_state1(Eigen::all, columns) * PHt(columns, Eigen::all);
+  Eigen::Matrix3d landmark_covariance = R1_inverse * (H1PH1t + noise1) * R1_inverse.transpose();
+  landmark_covariance = 0.5 * (landmark_covariance + landmark_covariance.transpose()).eval();
+
+  P.conservativeResize(n + 3, n + 3);
+  P.block(0, n, n, 3) = cross;
+  P.block(n, 0, 3, n) = cross.transpose();
+  P.block<3, 3>(n, n) = landmark_covariance;
+  state.landmarks.push_back({id, p_world, frame});
+  state.rebuild_landmark_index();
+}
+
+void StateHelper::insert_independent_landmark(State& state, const ObjectEstimate& estimate,
+                                              int frame) {
+  const int n = state.dimension();
+  Eigen::MatrixXd& P = state.covariance;
+  P.conservativeResize(n + 3, n + 3);
+  P.block(0, n, n, 3).setZero();
+  P.block(n, 0, 3, n).setZero();
+  P.block<3, 3>(n, n) = estimate.covariance;
+  state.landmarks.push_back({estimate.id, estimate.p_world, frame});
+  state.rebuild_landmark_index();
+}
+
+void StateHelper::remove_landmarks(State& state, const std::vector<int>& slots) {
+  if (slots.empty()) return;
+  std::vector<bool> removed(state.num_landmarks(), false);
+  for (int slot : slots) removed[slot] = true;
+  std::vector<int> keep;
+  keep.reserve(state.dimension());
+  for (int i = 0; i < state.pose_block_size(); ++i) keep.push_back(i);
+  std::vector<ObjectLandmark> kept_landmarks;
+  for (int slot = 0; slot < state.num_landmarks(); ++slot) {
+    if (removed[slot]) continue;
+    kept_landmarks.push_back(state.landmarks[slot]);
+    for (int k = 0; k < 3; ++k) keep.push_back(state.landmark_index(slot) + k);
+  }
+  state.covariance = state.covariance(keep, keep).eval();
+  state.landmarks = std::move(kept_landmarks);
+  state.rebuild_landmark_index();
+}
+
+void StateHelper::remove_oldest_pose(State& state) {
+  const int n = state.dimension();
+  state.covariance = state.covariance.bottomRightCorner(n - 6, n - 6).eval();
+  state.poses.pop_front();
+}
+
+Marginal StateHelper::landmark_marginal(const State& state, const std::vector<int>& slots) {
+  Marginal marginal;
+  std::vector<int> indices;
+  indices.reserve(3 * slots.size());
+  marginal.mean.resize(3 * static_cast<Eigen::Index>(slots.size()));
+  for (std::size_t i = 0; i < slots.size(); ++i) {
+    const int slot = slots[i];
+    marginal.ids.push_back(state.landmarks[slot].id);
+    marginal.mean.segment<3>(3 * static_cast<Eigen::Index>(i)) = state.landmarks[slot].p_world;
+    for (int k = 0; k < 3; ++k) indices.push_back(state.landmark_index(slot) + k);
+  }
+  marginal.covariance = state.covariance(indices, indices);
+  return marginal;
+}
+
+void StateHelper::symmetrize(State& state) {
+  state.covariance = 0.5 * (state.covariance + state.covariance.transpose()).eval();
+}
+
+}  // namespace concord

@@ -1,0 +1,33 @@
+#!/usr/bin/env bash
+# Installs the Debian packages Concord needs to build and test, and only those missing.
+# Idempotent: a second run installs nothing. Used by both README commands and by .ci/run.
+set -euo pipefail
+
+packages=(
+  build-essential cmake ninja-build ccache pkg-config
+  libeigen3-dev            # estimator (the only dependency of estimator/)
+  libyaml-cpp-dev          # configuration files
+  libcli11-dev             # command-line parsing
+  nlohmann-json3-dev       # metrics.json, dataset.json, HTTP bodies
+  libopencv-core-dev libopencv-imgproc-dev libopencv-imgcodecs-dev  # trajectory plots (PNG)
+  libgtest-dev libgmock-dev  # tests
+)
+
+missing=()
+for package in "${packages[@]}"; do
+  if ! dpkg-query -W -f='${Status}' "$package" 2>/dev/null | grep -q 'install ok installed'; then
+    missing+=("$package")
+  fi
+done
+
+if [ ${#missing[@]} -eq 0 ]; then
+  echo "install-deps: all ${#packages[@]} packages already installed" >&2
+  exit 0
+fi
+
+echo "install-deps: installing ${missing[*]}" >&2
+sudo_cmd=()
+if [ "$(id -u)" -ne 0 ]; then sudo_cmd=(sudo); fi
+export DEBIAN_FRONTEND=noninteractive
+"${sudo_cmd[@]}" apt-get update -qq
+"${sudo_cmd[@]}" apt-get install -y -qq --no-install-recommends "${missing[@]}"
