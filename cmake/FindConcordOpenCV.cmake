@@ -1,0 +1,14 @@
+# Finds the three OpenCV modules Concord uses (core, imgproc, imgcodecs) without the full
+# libopencv-dev package (which alone ships OpenCVConfig.cmake and pulls in every module).
+# Defines imported targets opencv_core, opencv_imgproc and opencv_imgcodecs.
+find_path(CONCORD_OPENCV_INCLUDE_DIR opencv2/core.hpp PATH_SUFFIXES opencv4 REQUIRED)
+foreach(module core imgproc imgcodecs)
+  find_library(CONCORD_OPENCV_${module}_LIBRARY opencv_${module} REQUIRED)
+  if(NOT TARGET opencv_${module})
+    add_library(opencv_${module} UNKNOWN IMPORTED)
+    set_target_properties(opencv_${module} PROPERTIES
+      IMPORTED_LOCATION "${CONCORD_OPENCV_${module}_LIBRARY}"
+      INTERFACE_INCLUDE_DIRECTORIES "${CONCORD_OPENCV_INCLUDE_DIR}")
+  endif()
+endforeach()
+message(STATUS "OpenCV modules: ${CONCORD_OPENCV_core_LIBRARY}, imgproc, imgcodecs")

@@ -1,0 +1,42 @@
+#pragma once
+/// \file
+/// EstimatorOptions from and to YAML. The keys are exactly the field names of EstimatorOptions
+/// (window_size, object_sigma, ...), with a nested map `consensus:` holding the ConsensusOptions
+/// field names; feature_odometry_correlation is a sequence of 24 numbers (the 6x4 matrix,
+/// row-major). Example:
+///
+///     window_size: 30
+///     object_sigma: 4.0
+///     consensus:
+///       max_mean_shift: 1.0
+
+#include <filesystem>
+#include <stdexcept>
+#include <string>
+
+#include "concord/estimator/options.h"
+
+namespace concord::config {
+
+/// A configuration file that cannot be used. The message names the file, and for each problem
+/// (one per line) the key and the bad value.
+class ConfigError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+/// Loads EstimatorOptions from a YAML file. Missing keys keep the in-class defaults; unknown keys
+/// (typo protection), repeated keys and values of the wrong type are errors; after loading,
+/// EstimatorOptions::validate() runs. Every problem is reported in one ConfigError.
+EstimatorOptions load_estimator_options(const std::filesystem::path& file);
+
+/// As load_estimator_options, from YAML text; `source_name` names the text in error messages.
+EstimatorOptions parse_estimator_options(const std::string& yaml_text,
+                                         const std::string& source_name);
+
+/// The options as YAML text with every key, in the format the loader reads (to print at start-up
+/// or save next to results). Numbers are written in their shortest exact form, so
+/// parse_estimator_options(to_yaml(options)) gives back the same values.
+std::string to_yaml(const EstimatorOptions& options);
+
+}  // namespace concord::config

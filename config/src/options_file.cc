@@ -1,0 +1,268 @@
+#include "concord/config/options_file.h"
+
+#include <yaml-cpp/yaml.h>
+
+#include <array>
+#include <charconv>
+#include <cmath>
+#include <fstream>
+#include <iterator>
+#include <set>
+#include <string_view>
+#include <vector>
+
+namespace concord::config {
+
+namespace {
+
+constexpr std::string_view kConsensusKey = "consensus";
+
+/// Calls visit(key, field) for every field of ConsensusOptions (const or not): the one list of
+/// consensus keys, shared by the loader and the writer.
+template <typename Consensus, typename Visitor>
+void for_each_consensus_field(Consensus& consensus, Visitor&& visit) {
+  visit("max_mean_shift", consensus.max_mean_shift);
+  visit("max_condition_number", consensus.max_condition_number);
+  visit("disagreement_gate", consensus.disagreement_gate);
+}
+
+/// Calls visit(key, field) for every top-level field of EstimatorOptions except `consensus`, in
+/// declaration order: the one list of keys, shared by the loader and the writer.
+template <typename Options, typename Visitor>
+void for_each_field(Options& options, Visitor&& visit) {
+  visit("window_size", options.window_size);
+  visit("initial_position_sigma", options.initial_position_sigma);
+  visit("initial_rotation_sigma", options.initial_rotation_sigma);
+  visit("odometry_translation_sigma", options.odometry_translation_sigma);
+  visit("odometry_rotation_sigma", options.odometry_rotation_sigma);
+  visit("use_objects", options.use_objects);
+  visit("object_sigma", options.object_sigma);
+  visit("object_min_observations", options.object_min_observations);
+  visit("object_min_distance", options.object_min_distance);
+  visit("object_max_distance", options.object_max_distance);
+  visit("object_init_max_reprojection_error", options.object_init_max_reprojection_error);
+  visit("object_update_gate", options.object_update_gate);
+  visit("object_chi2_probability", options.object_chi2_probability);
+  visit("object_archive_after_frames", options.object_archive_after_frames);
+  visit("use_point_features", options.use_point_features);
+  visit("feature_sigma", options.feature_sigma);
+  visit("feature_min_observations", options.feature_min_observations);
+  visit("feature_max_reprojection_error", options.feature_max_reprojection_error);
+  visit("feature_min_distance", options.feature_min_distance);
+  visit("feature_max_distance", options.feature_max_distance);
+  visit("feature_chi2_probability", options.feature_chi2_probability);
+  visit("feature_odometry_correlation", options.feature_odometry_correlation);
+}
+
+using Correlation = decltype(EstimatorOptions::feature_odometry_correlation);
+
+/// A YAML node as a user wrote it, for error messages.
+std::string describe(const YAML::Node& node) {
+  if (node.IsScalar()) return "'" + node.Scalar() + "'";
+  if (node.IsSequence()) return "a sequence";
+  if (node.IsMap()) return "a map";
+  return "nothing (null)";
+}
+
+/// "line N" of a node (yaml-cpp counts from 0), or an empty string when unknown.
+std::string line_of(const YAML::Node& node) {
+  const YAML::Mark mark = node.Mark();
+  if (mark.is_null()) return {};
+  return "line " + std::to_string(mark.line + 1) + ": ";
+}
+
+/// Reads values into fields, collecting every problem instead of stopping at the first.
+class Loader {
+ public:
+  void read(const YAML::Node& node, const std::string& key, int& field) {
+    read_scalar(node, key, field, "an integer");
+  }
+  void read(const YAML::Node& node, const std::string& key, double& field) {
+    read_scalar(node, key, field, "a number");
+  }
+  void read(const YAML::Node& node, const std::string& key, bool& field) {
+    read_scalar(node, key, field, "true or false");
+  }
+  void read(const YAML::Node& node, const std::string& key, Correlation& field) {
+    if (!node.IsSequence() || node.size() != field.size()) {
+      const std::string found = node.IsSequence()
+                                    ? "a sequence of " + std::to_string(node.size()) + " entries"
+                                    : describe(node);
+      add(node, key + " = " + found + ": expected a sequence of " + std::to_string(field.size()) +
+                    " numbers");
+      return;
+    }
+    Correlation values = field;
+    bool all_read = true;
+    for (std::size_t index = 0; index < values.size(); ++index) {
+      all_read &= read_scalar(node[index], key + "[" + std::to_string(index) + "]", values[index],
+                              "a number");
+    }
+    if (all_read) field = values;
+  }
+
+  /// Reads a top-level map of option keys into `options`.
+  void read_options(const YAML::Node& map, EstimatorOptions& options) {
+    for_each_entry(map, "", [&](const std::string& name, const YAML::Node& key_node,
+                                const YAML::Node& value) {
+      if (name == kConsensusKey) {
+        read_consensus(value, options.consensus);
+      } else if (!read_field(options, name, name, value,
+                             [](auto& target, auto&& visit) { for_each_field(target, visit); })) {
+        add(key_node, "unknown key " + name);
+      }
+    });
+  }
+
+  void add(const YAML::Node& node, const std::string& problem) {
+    problems_.push_back(line_of(node) + problem);
+  }
+  void add(const std::string& problem) { problems_.push_back(problem); }
+  const std::vector<std::string>& problems() const { return problems_; }
+
+ private:
+  /// Reads the nested `consensus:` map.
+  void read_consensus(const YAML::Node& map, ConsensusOptions& consensus) {
+    const std::string prefix = std::string(kConsensusKey) + ".";
+    if (!map.IsMap()) {
+      add(map, std::string(kConsensusKey) + " = " + describe(map) +
+                   ": expected a map of consensus options");
+      return;
+    }
+    for_each_entry(map, prefix, [&](const std::string& name, const YAML::Node& key_node,
+                                    const YAML::Node& value) {
+      if (!read_field(consensus, name, prefix + name, value, [](auto& target, auto&& visit) {
+            for_each_consensus_field(target, visit);
+          })) {
+        add(key_node, "unknown key " + prefix + name);
+      }
+    });
+  }
+
+  /// Calls handle(name, key node, value node) for each entry of `map`, reporting keys that are
+  /// not plain names or appear twice.
+  template <typename Handle>
+  void for_each_entry(const YAML::Node& map, const std::string& prefix, Handle&& handle) {
+    std::set<std::string> seen;
+    for (const auto& entry : map) {
+      if (!entry.first.IsScalar()) {
+        add(entry.first, "key " + prefix + describe(entry.first) + " is not a plain name");
+        continue;
+      }
+      const std::string name = entry.first.Scalar();
+      if (!seen.insert(name).second) {
+        add(entry.first, "key " + prefix + name + " appears more than once");
+        continue;
+      }
+      handle(name, entry.first, entry.second);
+    }
+  }
+
+  /// Reads `value` into the field of `target` called `name` (offered by for_each); false if there
+  /// is no such field.
+  template <typename Target, typename ForEach>
+  bool read_field(Target& target, const std::string& name, const std::string& key,
+                  const YAML::Node& value, ForEach&& for_each) {
+    bool known = false;
+    for_each(target, [&](std::string_view field_name, auto& field) {
+      if (field_name != name) return;
+      known = true;
+      read(value, key, field);
+    });
+    return known;
+  }
+
+  template <typename Value>
+  bool read_scalar(const YAML::Node& node, const std::string& key, Value& field,
+                   std::string_view expected) {
+    if (node.IsScalar()) {
+      try {
+        field = node.as<Value>();
+        return true;
+      } catch (const YAML::BadConversion&) {
+      }
+    }
+    add(node, key + " = " + describe(node) + ": expected " + std::string(expected));
+    return false;
+  }
+
+  std::vector<std::string> problems_;
+};
+
+/// Shortest YAML text that reads back as exactly `value`.
+std::string format_number(double value) {
+  if (std::isnan(value)) return ".nan";
+  if (std::isinf(value)) return value > 0.0 ? ".inf" : "-.inf";
+  char buffer[32];
+  const auto result = std::to_chars(buffer, buffer + sizeof(buffer), value);
+  return std::string(buffer, result.ptr);
+}
+
+std::string format_value(int value) { return std::to_string(value); }
+std::string format_value(double value) { return format_number(value); }
+std::string format_value(bool value) { return value ? "true" : "false"; }
+/// Flow sequence, one row of the 6x4 matrix per line.
+std::string format_value(const Correlation& values) {
+  constexpr std::size_t kColumns = 4;
+  std::string text = "[";
+  for (std::size_t index = 0; index < values.size(); ++index) {
+    if (index > 0) text += index % kColumns == 0 ? ",\n  " : ", ";
+    text += format_number(values[index]);
+  }
+  return text + "]";
+}
+
+}  // namespace
+
+EstimatorOptions parse_estimator_options(const std::string& yaml_text,
+                                         const std::string& source_name) {
+  YAML::Node root;
+  try {
+    root = YAML::Load(yaml_text);
+  } catch (const YAML::ParserException& error) {
+    throw ConfigError(source_name + ":" + std::to_string(error.mark.line + 1) +
+                      ": invalid YAML: " + error.msg);
+  }
+
+  EstimatorOptions options;
+  Loader loader;
+  if (root.IsMap()) {
+    loader.read_options(root, options);
+  } else if (!root.IsNull()) {
+    loader.add(root, "expected a map of option keys, found " + describe(root));
+  }
+  for (const std::string& problem : options.validate()) loader.add(problem);
+
+  if (!loader.problems().empty()) {
+    std::string message = source_name + ": invalid estimator options:";
+    for (const std::string& problem : loader.problems()) message += "\n  " + problem;
+    throw ConfigError(message);
+  }
+  return options;
+}
+
+EstimatorOptions load_estimator_options(const std::filesystem::path& file) {
+  std::ifstream stream(file, std::ios::binary);
+  if (!stream || !std::filesystem::is_regular_file(file)) {
+    throw ConfigError(file.string() + ": cannot open the options file");
+  }
+  const std::string text((std::istreambuf_iterator<char>(stream)),
+                         std::istreambuf_iterator<char>());
+  return parse_estimator_options(text, file.string());
+}
+
+std::string to_yaml(const EstimatorOptions& options) {
+  std::string text =
+      "# Estimator options (keys: the fields of concord::EstimatorOptions, "
+      "estimator/include/concord/estimator/options.h)\n";
+  for_each_field(options, [&](std::string_view key, const auto& field) {
+    text += std::string(key) + ": " + format_value(field) + "\n";
+  });
+  text += std::string(kConsensusKey) + ":\n";
+  for_each_consensus_field(options.consensus, [&](std::string_view key, const auto& field) {
+    text += "  " + std::string(key) + ": " + format_value(field) + "\n";
+  });
+  return text;
+}
+
+}  // namespace concord::config

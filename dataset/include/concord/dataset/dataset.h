@@ -1,0 +1,100 @@
+#pragma once
+/// \file
+/// Reader and writer of the shared plain-text multi-robot dataset layout (see
+/// shared/datasets/README.md):
+///
+///     <dataset>/dataset.json        camera model and facts about the set
+///     <dataset>/objects_gt.csv      id,x,y,z   ground-truth object positions (optional)
+///     <dataset>/robot_NN/groundtruth.kitti   N poses T_world_body
+///     <dataset>/robot_NN/odometry.kitti      N-1 poses T_body(k-1)_body(k)
+///     <dataset>/robot_NN/objects.csv         frame,id,u_left,v_left,u_right,v_right
+///     <dataset>/robot_NN/features.csv        same columns, point-feature tracks (optional)
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+#include <filesystem>
+#include <map>
+#include <optional>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "concord/estimator/types.h"
+
+namespace concord::dataset {
+
+/// Thrown on bad input; what() names the file and (where relevant) the 1-based line and what is
+/// wrong, as "<file>:<line>: <problem>".
+class DatasetError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+/// Everything one robot recorded.
+struct RobotData {
+  /// The NN of the robot_NN folder.
+  int index = 0;
+  /// T_world_body per frame (N entries).
+  std::vector<Eigen::Isometry3d> groundtruth;
+  /// T_body(k-1)_body(k): entry k-1 is the measured motion from frame k-1 to frame k (N-1 entries).
+  std::vector<Eigen::Isometry3d> odometry;
+  /// Object observations per frame (N entries), in image units as in the file.
+  std::vector<std::vector<StereoObservation>> objects;
+  /// Point-feature observations per frame (N entries); empty vectors when there is no
+  /// features.csv.
+  std::vector<std::vector<StereoObservation>> features;
+  /// Whether features.csv was present (and loaded).
+  bool has_features = false;
+
+  /// N, the number of frames (ground-truth poses).
+  int num_frames() const;
+  /// FrameInput for frame k: odometry k-1 -> k (absent at k = 0), objects, features.
+  /// Throws std::out_of_range unless 0 <= frame < num_frames().
+  FrameInput frame_input(int frame) const;
+};
+
+/// A whole multi-robot dataset in memory.
+struct Dataset {
+  /// dataset.json "name" (or the folder name if absent).
+  std::string name;
+  /// The folder the dataset was read from (as given to read_dataset).
+  std::filesystem::path root;
+  /// From dataset.json "camera": K, T_cam_body -> T_cam0_body, T_cam0_cam1.
+  StereoCamera camera;
+  /// Ground-truth object positions in the world frame, from objects_gt.csv (empty when the file
+  /// is absent).
+  std::map<LandmarkId, Eigen::Vector3d> objects_groundtruth;
+  /// robot_00, robot_01, ... in order.
+  std::vector<RobotData> robots;
+};
+
+/// What read_dataset loads.
+struct ReadOptions {
+  /// Keep only frames < max_frames (observations of later frames are dropped, odometry is cut to
+  /// max_frames - 1 entries). Must be >= 1 when set.
+  std::optional<int> max_frames;
+  /// Keep only the first max_robots robots. Must be >= 1 when set.
+  std::optional<int> max_robots;
+  /// Read features.csv where present.
+  bool load_features = true;
+};
+
+/// Reads and validates a dataset folder. Throws DatasetError on any missing or malformed file,
+/// std::invalid_argument on max_frames or max_robots < 1.
+Dataset read_dataset(const std::filesystem::path& directory, const ReadOptions& options = {});
+
+/// Writes a dataset in the same layout (dataset.json, objects_gt.csv, robot_XX/{groundtruth.kitti,
+/// odometry.kitti, objects.csv[, features.csv]}), creating the folder if needed and replacing each
+/// file atomically. Numbers are written in their shortest exact form, so read_dataset gives back
+/// the same values bit for bit. Robot i goes to robot_<i> whatever its index. Used to cut slices
+/// and by the simulator. Throws std::invalid_argument on inconsistent robot data, DatasetError if
+/// the folder holds robot folders beyond the ones written (they would be read back as robots), and
+/// std::runtime_error if a file cannot be written.
+void write_dataset(const Dataset& dataset, const std::filesystem::path& directory);
+
+/// Copy of a dataset cut to the first `frames` frames and the first `robots` robots (objects_gt
+/// kept whole). Counts larger than available keep everything; counts < 1 throw
+/// std::invalid_argument.
+Dataset slice(const Dataset& dataset, int frames, int robots);
+
+}  // namespace concord::dataset

@@ -1,0 +1,40 @@
+#pragma once
+/// \file
+/// Files of a result folder: estimated trajectories (KITTI pose format, as in the datasets, so
+/// trajectory tools such as `evo` read them) and object estimates with their covariances (CSV).
+/// Every writer replaces its file atomically, so a reader never sees a half-written file.
+
+#include <Eigen/Geometry>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include "concord/dataset/dataset.h"
+#include "concord/estimator/types.h"
+
+namespace concord::dataset {
+
+/// Writes one pose per line: the top 3x4 block of the matrix, row-major, 12 numbers in their
+/// shortest exact form. Throws std::runtime_error if the file cannot be written.
+void write_trajectory_kitti(const std::filesystem::path& file,
+                            const std::vector<Eigen::Isometry3d>& poses);
+
+/// Reads a KITTI pose file; rotation blocks with small errors are re-orthonormalized. Throws
+/// DatasetError on bad input (naming the file and line).
+std::vector<Eigen::Isometry3d> read_trajectory_kitti(const std::filesystem::path& file);
+
+/// Writes object estimates under the header "id,x,y,z,cxx,cxy,cxz,cyy,cyz,czz" (the upper
+/// triangle of the covariance), one row per object, rows sorted by id. Throws std::runtime_error if
+/// the file cannot be written.
+void write_objects_csv(const std::filesystem::path& file, const std::vector<ObjectEstimate>& objects);
+
+/// Reads a file written by write_objects_csv (the covariance is filled symmetrically), in file
+/// order. Throws DatasetError on bad input (naming the file and line), including a repeated id.
+std::vector<ObjectEstimate> read_objects_csv(const std::filesystem::path& file);
+
+/// Writes `content` to a temporary file in the same folder, then renames it over `file` (atomic
+/// replace on POSIX file systems). The folder must exist. Throws std::runtime_error on failure,
+/// leaving no temporary file behind.
+void write_file_atomically(const std::filesystem::path& file, const std::string& content);
+
+}  // namespace concord::dataset

@@ -1,0 +1,54 @@
+#pragma once
+/// \file
+/// The consensus step (§V-B): marginals of common landmarks out, the information-form weighted
+/// average of the robot's own and its neighbours' marginals (eq. 19), reconstruction of the
+/// joint by Proposition 2 and the pose correction of eq. (21).
+///
+/// Landmarks held by only some neighbours: a neighbour that does not hold a landmark is treated
+/// as agreeing with the robot, i.e. its weight A_ij goes to the robot's own marginal for that
+/// landmark. Landmarks are grouped by the set of neighbours holding them; each group is averaged
+/// jointly (the full joint marginal over the group), groups one after another. Archived objects
+/// (outside the joint state) are averaged one by one.
+
+#include <vector>
+
+#include "concord/estimator/options.h"
+#include "concord/estimator/state.h"
+#include "concord/estimator/types.h"
+
+namespace concord {
+
+/// What one consensus step did.
+struct ConsensusReport {
+  int landmarks_fused = 0;        ///< landmarks whose marginal was replaced by an average
+  int groups = 0;                 ///< jointly averaged groups
+  int neighbours_skipped = 0;     ///< neighbour marginals rejected (malformed or ill-conditioned)
+  int landmarks_gated = 0;        ///< (landmark, neighbour) pairs left out by the disagreement gate
+  int mean_shifts_limited = 0;    ///< landmark steps shortened by max_mean_shift
+  double largest_mean_shift = 0.0;  ///< metres, after limiting
+};
+
+class Consensus {
+ public:
+  /// Joint marginal of any subset of the objects the robot holds (in-state block of the joint
+  /// covariance; archived objects independent). Unknown ids are skipped.
+  static Marginal marginal(const State& state, const std::vector<LandmarkId>& ids);
+
+  /// Averages the robot's marginals with its neighbours' (eq. 19) and reconstructs the joint
+  /// (Proposition 2, eq. 21). Each neighbour carries its weight A_ij; the robot's own weight is
+  /// 1 - sum of its neighbours' weights.
+  static ConsensusReport fuse(State& state, const std::vector<WeightedMarginal>& neighbours,
+                              const ConsensusOptions& options);
+
+  /// Proposition 2: replaces the marginal of in-state landmarks (slots) by N(mean, covariance),
+  /// keeping the conditional of the rest of the state, and corrects poses by eq. (21).
+  /// Returns false (state unchanged) if the current marginal is not positive definite.
+  static bool replace_marginal(State& state, const std::vector<int>& slots,
+                               const Eigen::VectorXd& mean, const Eigen::MatrixXd& covariance);
+
+  /// Metropolis-Hastings weight of edge (i, j): 1 / (1 + max(degree_i, degree_j)). Doubly
+  /// stochastic on any undirected graph; 1/n on the complete graph of n robots.
+  static double metropolis_weight(int degree_i, int degree_j);
+};
+
+}  // namespace concord

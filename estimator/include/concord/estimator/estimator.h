@@ -1,0 +1,67 @@
+#pragma once
+/// \file
+/// One robot's distributed MSCKF (Algorithm 1): a thin orchestrator of the propagator, the
+/// point-feature and object updaters and the consensus step. No I/O, no clocks, deterministic.
+///
+/// Per frame k a robot calls process(frame k) (propagation from k-1, feature and object updates,
+/// object initialization), then exchanges marginals and calls fuse() (consensus round k). Doing
+/// the consensus after the update of frame k is Algorithm 1's consensus-before-propagation of
+/// frame k+1.
+
+#include <memory>
+#include <vector>
+
+#include "concord/estimator/consensus.h"
+#include "concord/estimator/feature_updater.h"
+#include "concord/estimator/object_updater.h"
+#include "concord/estimator/options.h"
+#include "concord/estimator/propagator.h"
+#include "concord/estimator/state.h"
+#include "concord/estimator/types.h"
+
+namespace concord {
+
+/// What process() did for one frame.
+struct FrameReport {
+  int frame = 0;
+  ObjectUpdateStats objects;
+  FeatureUpdateStats features;
+};
+
+class Estimator {
+ public:
+  /// Starts at the known pose T_world_body of first_frame (the paper's known start). Throws
+  /// std::invalid_argument if options.validate() reports a problem.
+  Estimator(const EstimatorOptions& options, const StereoCamera& camera,
+            const Eigen::Isometry3d& T_world_body_start, int first_frame = 0);
+
+  /// Propagates to input.frame (which must be the next frame, with odometry) and updates.
+  /// The first call may carry the start frame itself without odometry.
+  FrameReport process(const FrameInput& input);
+
+  /// Every object held (joint and archived), sorted by id: what a robot announces.
+  std::vector<LandmarkId> object_ids() const { return state_.object_ids(); }
+  /// Joint marginal of the given objects (unknown ids skipped): what a robot sends.
+  Marginal marginal(const std::vector<LandmarkId>& ids) const;
+  /// Consensus step with neighbours' marginals and weights A_ij (eq. 19-21).
+  ConsensusReport fuse(const std::vector<WeightedMarginal>& neighbours);
+
+  const State& state() const { return state_; }
+  const EstimatorOptions& options() const { return options_; }
+  int frame() const { return state_.newest_pose().frame; }
+  /// Latest pose estimate T_world_body and its 6x6 covariance on [rho; phi].
+  Eigen::Isometry3d current_pose() const { return state_.newest_pose().T_world_body; }
+  Eigen::Matrix<double, 6, 6> current_pose_covariance() const;
+  std::vector<ObjectEstimate> objects() const { return state_.objects(); }
+
+ private:
+  EstimatorOptions options_;
+  StereoCamera camera_;
+  State state_;
+  Propagator propagator_;
+  ObjectUpdater object_updater_;
+  FeatureUpdater feature_updater_;
+  bool started_ = false;
+};
+
+}  // namespace concord

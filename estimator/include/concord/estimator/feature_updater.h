@@ -1,0 +1,44 @@
+#pragma once
+/// \file
+/// The MSCKF update with point-feature tracks (opportunistic features, §V-D, eq. 24-28): tracks
+/// that ended or fill the window are triangulated, linearized, projected onto the left null
+/// space of their point Jacobian, chi-square gated, stacked, compressed and applied at once.
+
+#include <map>
+#include <vector>
+
+#include "concord/estimator/options.h"
+#include "concord/estimator/state.h"
+#include "concord/estimator/updater_helper.h"
+
+namespace concord {
+
+struct FeatureUpdateStats {
+  int observations = 0;
+  int tracks_used = 0;       ///< tracks that entered the update
+  int tracks_rejected = 0;   ///< triangulation, distance or chi-square failures
+  int rows = 0;              ///< residual rows after null-space projection, before compression
+};
+
+class FeatureUpdater {
+ public:
+  FeatureUpdater(const EstimatorOptions& options, const StereoCamera& camera);
+
+  /// Adds the observations of the state's newest frame and runs the update with the tracks that
+  /// ended (not seen this frame) or have as many observations as the window has poses.
+  FeatureUpdateStats process(State& state, const std::vector<StereoObservation>& features);
+
+  /// Tracks currently held (for tests and metrics).
+  std::size_t num_tracks() const { return tracks_.size(); }
+
+ private:
+  EstimatorOptions options_;
+  StereoCamera camera_;
+  double noise_variance_;
+  /// S^T of eq. (25) for one observation, 4 x 6, in normalized units.
+  Eigen::Matrix<double, 4, 6> correlation_transposed_;
+  bool has_correlation_;
+  std::map<LandmarkId, std::vector<TrackObservation>> tracks_;
+};
+
+}  // namespace concord

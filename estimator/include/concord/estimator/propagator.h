@@ -1,0 +1,29 @@
+#pragma once
+/// \file
+/// State propagation from a relative-pose odometry measurement (§V-C, eq. 22-23).
+
+#include <Eigen/Geometry>
+
+#include "concord/estimator/options.h"
+#include "concord/estimator/state.h"
+
+namespace concord {
+
+class Propagator {
+ public:
+  explicit Propagator(const EstimatorOptions& options);
+
+  /// Appends the pose of `frame` = newest pose * T_previous_current, drops the oldest pose
+  /// beyond the window, and propagates the covariance through the adjoint:
+  ///   eps_new = Ad(dT^-1) eps_newest + w,  w ~ N(0, W)   (eq. 23).
+  void propagate(State& state, const Eigen::Isometry3d& T_previous_current, int frame) const;
+
+  /// W, the per-frame odometry noise covariance on [rho; phi].
+  const Eigen::Matrix<double, 6, 6>& odometry_noise() const { return odometry_noise_; }
+
+ private:
+  int window_size_;
+  Eigen::Matrix<double, 6, 6> odometry_noise_;
+};
+
+}  // namespace concord

@@ -1,0 +1,89 @@
+#pragma once
+/// \file
+/// Stateless kernels shared by the object and point-feature updaters (after OpenVINS's
+/// UpdaterHelper): the stereo projection model with its Jacobians, triangulation, linearization
+/// of a track against the window, null-space projection (eq. 24), measurement compression and
+/// the chi-square gate.
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+#include <optional>
+#include <vector>
+
+#include "concord/estimator/state.h"
+#include "concord/estimator/types.h"
+
+namespace concord {
+
+/// A stereo observation at one frame in normalized image coordinates (x_l, y_l, x_r, y_r).
+struct TrackObservation {
+  int frame = 0;
+  Eigen::Vector4d xy = Eigen::Vector4d::Zero();
+};
+
+/// Predicted stereo observation of a world point and its Jacobians.
+struct StereoProjection {
+  Eigen::Vector4d xy = Eigen::Vector4d::Zero();  ///< normalized (x_l, y_l, x_r, y_r)
+  /// d xy / d eps, right perturbation of T_world_body, eps = [rho; phi].
+  Eigen::Matrix<double, 4, 6> jacobian_pose = Eigen::Matrix<double, 4, 6>::Zero();
+  /// d xy / d p_world.
+  Eigen::Matrix<double, 4, 3> jacobian_point = Eigen::Matrix<double, 4, 3>::Zero();
+  double depth_left = 0.0;
+  double depth_right = 0.0;
+};
+
+/// A track linearized against the window: residual = H_state x~ + H_point p~ + v.
+struct LinearizedTrack {
+  Eigen::MatrixXd H_state;  ///< rows x state dimension
+  Eigen::MatrixXd H_point;  ///< rows x 3
+  Eigen::VectorXd residual;
+  /// Rows of the newest frame's observation (for the correlated-noise term S), or -1.
+  int newest_frame_row = -1;
+};
+
+class UpdaterHelper {
+ public:
+  /// Projects p_world into both cameras of a body at T_world_body. Returns nothing when the
+  /// point is not in front of both cameras (depth below min_depth).
+  static std::optional<StereoProjection> project(const StereoCamera& camera,
+                                                 const Eigen::Isometry3d& T_world_body,
+                                                 const Eigen::Vector3d& p_world,
+                                                 double min_depth = 1e-3);
+
+  /// Triangulates a point from stereo observations at known body poses: linear least squares
+  /// over every ray (both cameras), then Gauss-Newton refinement. Returns nothing when the
+  /// problem is degenerate or the point ends behind a camera.
+  static std::optional<Eigen::Vector3d> triangulate(
+      const StereoCamera& camera, const std::vector<Eigen::Isometry3d>& T_world_bodies,
+      const std::vector<Eigen::Vector4d>& observations);
+
+  /// RMS reprojection error of a point over observations, in normalized units; infinity when
+  /// the point is behind a camera.
+  static double rms_reprojection_error(const StereoCamera& camera,
+                                       const std::vector<Eigen::Isometry3d>& T_world_bodies,
+                                       const std::vector<Eigen::Vector4d>& observations,
+                                       const Eigen::Vector3d& p_world);
+
+  /// Linearizes the observations (frames must be in the window) of a point at p_world against
+  /// the state. landmark_slot >= 0 places H_point into H_state as well (in-state object).
+  static std::optional<LinearizedTrack> linearize(const State& state, const StereoCamera& camera,
+                                                  const std::vector<TrackObservation>& track,
+                                                  const Eigen::Vector3d& p_world,
+                                                  int landmark_slot = -1);
+
+  /// eq. (24): left-multiplies H_state, residual (and the rows of extra, if given) by the
+  /// transpose of an orthonormal basis of the left null space of H_point (rows - 3 rows remain).
+  static void nullspace_project_inplace(Eigen::MatrixXd& H_state, Eigen::MatrixXd& H_point,
+                                        Eigen::VectorXd& residual,
+                                        Eigen::MatrixXd* extra = nullptr);
+
+  /// Replaces a tall system (H, r, extra rows) by an equivalent one with at most as many rows as
+  /// H has non-zero columns (thin QR); isotropic noise stays isotropic.
+  static void measurement_compress_inplace(Eigen::MatrixXd& H, Eigen::VectorXd& residual,
+                                           Eigen::MatrixXd* extra = nullptr);
+
+  /// Quantile of the chi-square distribution with dof degrees of freedom.
+  static double chi2_quantile(double probability, int dof);
+};
+
+}  // namespace concord

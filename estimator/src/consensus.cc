@@ -1,0 +1,271 @@
+#include "concord/estimator/consensus.h"
+
+#include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
+#include <algorithm>
+#include <map>
+#include <set>
+
+#include "concord/estimator/state_helper.h"
+
+namespace concord {
+
+namespace {
+
+/// A neighbour's marginal checked once: its weight and where each id sits in it.
+struct CheckedNeighbour {
+  double weight = 0.0;
+  const Marginal* marginal = nullptr;
+  std::map<LandmarkId, int> position;
+};
+
+bool well_conditioned(const Eigen::MatrixXd& covariance, double max_condition_number) {
+  if (!covariance.allFinite()) return false;
+  const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eigen(covariance, Eigen::EigenvaluesOnly);
+  if (eigen.info() != Eigen::Success) return false;
+  const double smallest = eigen.eigenvalues().minCoeff();
+  const double largest = eigen.eigenvalues().maxCoeff();
+  return smallest > 0.0 && largest / smallest <= max_condition_number;
+}
+
+/// Mean and covariance of the given positions (landmark order) of a marginal.
+void sub_marginal(const Marginal& marginal, const std::vector<int>& positions,
+                  Eigen::VectorXd& mean, Eigen::MatrixXd& covariance) {
+  std::vector<int> indices;
+  indices.reserve(3 * positions.size());
+  for (int position : positions) {
+    for (int k = 0; k < 3; ++k) indices.push_back(3 * position + k);
+  }
+  mean = marginal.mean(indices);
+  covariance = marginal.covariance(indices, indices);
+}
+
+/// Information-form weighted average (eq. 19) of own (weight own_weight) and the members.
+/// Returns false if any covariance is not positive definite.
+bool information_average(double own_weight, const Eigen::VectorXd& own_mean,
+                         const Eigen::MatrixXd& own_covariance,
+                         const std::vector<double>& weights,
+                         const std::vector<Eigen::VectorXd>& means,
+                         const std::vector<Eigen::MatrixXd>& covariances, Eigen::VectorXd& mean,
+                         Eigen::MatrixXd& covariance) {
+  const Eigen::Index d = own_mean.size();
+  Eigen::MatrixXd information = Eigen::MatrixXd::Zero(d, d);
+  Eigen::VectorXd information_vector = Eigen::VectorXd::Zero(d);
+  const Eigen::MatrixXd identity = Eigen::MatrixXd::Identity(d, d);
+  auto accumulate = [&](double weight, const Eigen::VectorXd& m, const Eigen::MatrixXd& c) {
+    const Eigen::LLT<Eigen::MatrixXd> llt(c);
+    if (llt.info() != Eigen::Success) return false;
+    information += weight * llt.solve(identity);
+    information_vector += weight * llt.solve(m);
+    return true;
+  };
+  if (!accumulate(own_weight, own_mean, own_covariance)) return false;
+  for (std::size_t j = 0; j < weights.size(); ++j) {
+    if (!accumulate(weights[j], means[j], covariances[j])) return false;
+  }
+  information = 0.5 * (information + information.transpose()).eval();
+  const Eigen::LLT<Eigen::MatrixXd> llt(information);
+  if (llt.info() != Eigen::Success) return false;
+  covariance = llt.solve(identity);
+  covariance = 0.5 * (covariance + covariance.transpose()).eval();
+  mean = covariance * information_vector;
+  return true;
+}
+
+/// Shortens each landmark's mean shift to at most max_shift metres.
+void limit_mean_shift(const Eigen::VectorXd& own_mean, Eigen::VectorXd& mean, double max_shift,
+                      ConsensusReport& report) {
+  for (Eigen::Index i = 0; i < own_mean.size(); i += 3) {
+    Eigen::Vector3d shift = mean.segment<3>(i) - own_mean.segment<3>(i);
+    const double length = shift.norm();
+    if (max_shift > 0.0 && length > max_shift) {
+      shift *= max_shift / length;
+      mean.segment<3>(i) = own_mean.segment<3>(i) + shift;
+      ++report.mean_shifts_limited;
+    }
+    report.largest_mean_shift = std::max(report.largest_mean_shift, shift.norm());
+  }
+}
+
+}  // namespace
+
+Marginal Consensus::marginal(const State& state, const std::vector<LandmarkId>& ids) {
+  Marginal out;
+  std::vector<int> slots;
+  std::vector<const ObjectEstimate*> archived;
+  for (LandmarkId id : ids) {
+    const int slot = state.landmark_slot(id);
+    if (slot >= 0) {
+      slots.push_back(slot);
+    } else if (auto it = state.archived.find(id); it != state.archived.end()) {
+      archived.push_back(&it->second);
+    }
+  }
+  out = StateHelper::landmark_marginal(state, slots);
+  const Eigen::Index joint = out.mean.size();
+  const Eigen::Index total = joint + 3 * static_cast<Eigen::Index>(archived.size());
+  out.mean.conservativeResize(total);
+  Eigen::MatrixXd covariance = Eigen::MatrixXd::Zero(total, total);
+  covariance.topLeftCorner(joint, joint) = out.covariance;
+  for (std::size_t i = 0; i < archived.size(); ++i) {
+    const Eigen::Index index = joint + 3 * static_cast<Eigen::Index>(i);
+    out.ids.push_back(archived[i]->id);
+    out.mean.segment<3>(index) = archived[i]->p_world;
+    covariance.block<3, 3>(index, index) = archived[i]->covariance;
+  }
+  out.covariance = std::move(covariance);
+  return out;
+}
+
+bool Consensus::replace_marginal(State& state, const std::vector<int>& slots,
+                                 const Eigen::VectorXd& mean, const Eigen::MatrixXd& covariance) {
+  std::vector<int> indices;
+  indices.reserve(3 * slots.size());
+  Eigen::VectorXd own_mean(3 * slots.size());
+  for (std::size_t i = 0; i < slots.size(); ++i) {
+    own_mean.segment<3>(3 * static_cast<Eigen::Index>(i)) = state.landmarks[slots[i]].p_world;
+    for (int k = 0; k < 3; ++k) indices.push_back(state.landmark_index(slots[i]) + k);
+  }
+  Eigen::MatrixXd& P = state.covariance;
+  const Eigen::MatrixXd own_covariance = P(indices, indices);
+  const Eigen::LLT<Eigen::MatrixXd> llt(own_covariance);
+  if (llt.info() != Eigen::Success) return false;
+  // Proposition 2 with L = [A; I] = Sigma_{:,y} Sigma_y^-1 (eq. 14):
+  //   mu  <- mu + L (mu_y_bar - mu_y)
+  //   P   <- P + L (Sigma_y_bar - Sigma_y) L^T
+  const Eigen::MatrixXd L_transposed = llt.solve(P(indices, Eigen::all));  // 3k x n
+  const Eigen::VectorXd correction = L_transposed.transpose() * (mean - own_mean);
+  const Eigen::MatrixXd change = covariance - own_covariance;
+  P.noalias() += L_transposed.transpose() * (change * L_transposed);
+  StateHelper::symmetrize(state);
+  // eq. (21): poses T <- T exp(mu_x_bar^); landmarks shift additively.
+  StateHelper::apply_correction(state, correction);
+  return true;
+}
+
+ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal>& neighbours,
+                                const ConsensusOptions& options) {
+  ConsensusReport report;
+
+  // 1. Check every neighbour's marginal once.
+  std::vector<CheckedNeighbour> checked;
+  for (const WeightedMarginal& neighbour : neighbours) {
+    const Marginal& m = neighbour.marginal;
+    const auto d = static_cast<Eigen::Index>(3 * m.ids.size());
+    const bool shaped = m.mean.size() == d && m.covariance.rows() == d &&
+                        m.covariance.cols() == d && m.mean.allFinite() &&
+                        neighbour.weight > 0.0 && neighbour.weight < 1.0;
+    if (m.ids.empty()) continue;
+    if (!shaped || !well_conditioned(m.covariance, options.max_condition_number)) {
+      ++report.neighbours_skipped;
+      continue;
+    }
+    CheckedNeighbour entry{neighbour.weight, &m, {}};
+    for (std::size_t i = 0; i < m.ids.size(); ++i) entry.position[m.ids[i]] = static_cast<int>(i);
+    checked.push_back(std::move(entry));
+  }
+  if (checked.empty()) return report;
+
+  // 2. For every landmark the robot holds, the neighbours that hold it (after the gate).
+  auto own_estimate = [&](LandmarkId id, Eigen::Vector3d& mean, Eigen::Matrix3d& covariance) {
+    const int slot = state.landmark_slot(id);
+    if (slot >= 0) {
+      const int index = state.landmark_index(slot);
+      mean = state.landmarks[slot].p_world;
+      covariance = state.covariance.block<3, 3>(index, index);
+    } else {
+      const ObjectEstimate& estimate = state.archived.at(id);
+      mean = estimate.p_world;
+      covariance = estimate.covariance;
+    }
+  };
+  // Groups keyed by (in joint state?, holder neighbours), landmarks in id order.
+  std::map<std::pair<bool, std::vector<int>>, std::vector<LandmarkId>> groups;
+  for (LandmarkId id : state.object_ids()) {
+    std::vector<int> holders;
+    for (std::size_t j = 0; j < checked.size(); ++j) {
+      const auto it = checked[j].position.find(id);
+      if (it == checked[j].position.end()) continue;
+      if (options.disagreement_gate > 0.0) {
+        Eigen::Vector3d own_mean;
+        Eigen::Matrix3d own_covariance;
+        own_estimate(id, own_mean, own_covariance);
+        const int p = it->second;
+        const Eigen::Vector3d difference = checked[j].marginal->mean.segment<3>(3 * p) - own_mean;
+        const Eigen::Matrix3d sum =
+            own_covariance + checked[j].marginal->covariance.block<3, 3>(3 * p, 3 * p);
+        if (difference.dot(sum.ldlt().solve(difference)) >
+            options.disagreement_gate * options.disagreement_gate) {
+          ++report.landmarks_gated;
+          continue;
+        }
+      }
+      holders.push_back(static_cast<int>(j));
+    }
+    if (holders.empty()) continue;
+    groups[{state.landmark_slot(id) >= 0, holders}].push_back(id);
+  }
+
+  // 3. Average each group and write it back.
+  for (const auto& [key, ids] : groups) {
+    const auto& [in_joint_state, holders] = key;
+    double own_weight = 1.0;
+    for (int j : holders) own_weight -= checked[j].weight;
+    // Archived objects are independent: average them one by one.
+    const std::size_t batch = in_joint_state ? ids.size() : 1;
+    for (std::size_t start = 0; start < ids.size(); start += batch) {
+      const std::vector<LandmarkId> batch_ids(ids.begin() + start, ids.begin() + start + batch);
+      Eigen::VectorXd own_mean;
+      Eigen::MatrixXd own_covariance;
+      std::vector<int> slots;
+      if (in_joint_state) {
+        for (LandmarkId id : batch_ids) slots.push_back(state.landmark_slot(id));
+        const Marginal own = StateHelper::landmark_marginal(state, slots);
+        own_mean = own.mean;
+        own_covariance = own.covariance;
+      } else {
+        Eigen::Vector3d m;
+        Eigen::Matrix3d c;
+        own_estimate(batch_ids.front(), m, c);
+        own_mean = m;
+        own_covariance = c;
+      }
+      std::vector<double> weights;
+      std::vector<Eigen::VectorXd> means;
+      std::vector<Eigen::MatrixXd> covariances;
+      for (int j : holders) {
+        std::vector<int> positions;
+        for (LandmarkId id : batch_ids) positions.push_back(checked[j].position.at(id));
+        Eigen::VectorXd m;
+        Eigen::MatrixXd c;
+        sub_marginal(*checked[j].marginal, positions, m, c);
+        weights.push_back(checked[j].weight);
+        means.push_back(std::move(m));
+        covariances.push_back(std::move(c));
+      }
+      Eigen::VectorXd mean;
+      Eigen::MatrixXd covariance;
+      if (!information_average(own_weight, own_mean, own_covariance, weights, means, covariances,
+                               mean, covariance)) {
+        continue;
+      }
+      limit_mean_shift(own_mean, mean, options.max_mean_shift, report);
+      if (in_joint_state) {
+        if (!replace_marginal(state, slots, mean, covariance)) continue;
+      } else {
+        ObjectEstimate& estimate = state.archived.at(batch_ids.front());
+        estimate.p_world = mean;
+        estimate.covariance = covariance;
+      }
+      report.landmarks_fused += static_cast<int>(batch_ids.size());
+      ++report.groups;
+    }
+  }
+  return report;
+}
+
+double Consensus::metropolis_weight(int degree_i, int degree_j) {
+  return 1.0 / (1.0 + static_cast<double>(std::max(degree_i, degree_j)));
+}
+
+}  // namespace concord

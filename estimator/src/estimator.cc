@@ -1,0 +1,82 @@
+#include "concord/estimator/estimator.h"
+
+#include <stdexcept>
+#include <string>
+
+namespace concord {
+
+namespace {
+const EstimatorOptions& validated(const EstimatorOptions& options) {
+  const auto problems = options.validate();
+  if (!problems.empty()) {
+    std::string message = "invalid estimator options:";
+    for (const auto& problem : problems) message += "\n  " + problem;
+    throw std::invalid_argument(message);
+  }
+  return options;
+}
+}  // namespace
+
+Eigen::Vector4d StereoCamera::normalize(const Eigen::Vector4d& uv) const {
+  const double fx = K(0, 0), fy = K(1, 1), cx = K(0, 2), cy = K(1, 2), skew = K(0, 1);
+  const double y_left = (uv(1) - cy) / fy;
+  const double y_right = (uv(3) - cy) / fy;
+  return {(uv(0) - cx - skew * y_left) / fx, y_left, (uv(2) - cx - skew * y_right) / fx, y_right};
+}
+
+Eigen::Vector4d StereoCamera::denormalize(const Eigen::Vector4d& xy) const {
+  const Eigen::Vector3d left = K * Eigen::Vector3d(xy(0), xy(1), 1.0);
+  const Eigen::Vector3d right = K * Eigen::Vector3d(xy(2), xy(3), 1.0);
+  return {left.x(), left.y(), right.x(), right.y()};
+}
+
+Estimator::Estimator(const EstimatorOptions& options, const StereoCamera& camera,
+                     const Eigen::Isometry3d& T_world_body_start, int first_frame)
+    : options_(validated(options)),
+      camera_(camera),
+      propagator_(options_),
+      object_updater_(options_, camera_),
+      feature_updater_(options_, camera_) {
+  state_.poses.push_back({first_frame, T_world_body_start});
+  state_.covariance = Eigen::MatrixXd::Zero(6, 6);
+  state_.covariance.diagonal().head<3>().setConstant(options_.initial_position_sigma *
+                                                     options_.initial_position_sigma);
+  state_.covariance.diagonal().tail<3>().setConstant(options_.initial_rotation_sigma *
+                                                     options_.initial_rotation_sigma);
+}
+
+FrameReport Estimator::process(const FrameInput& input) {
+  FrameReport report;
+  report.frame = input.frame;
+  if (!started_ && input.frame == frame()) {
+    // The start frame: nothing to propagate.
+  } else {
+    if (input.frame != frame() + 1 || !input.T_previous_current) {
+      throw std::invalid_argument("Estimator::process: expected frame " +
+                                  std::to_string(frame() + 1) + " with odometry, got frame " +
+                                  std::to_string(input.frame));
+    }
+    propagator_.propagate(state_, *input.T_previous_current, input.frame);
+  }
+  started_ = true;
+  if (options_.use_point_features) {
+    report.features = feature_updater_.process(state_, input.features);
+  }
+  if (options_.use_objects) report.objects = object_updater_.process(state_, input.objects);
+  return report;
+}
+
+Marginal Estimator::marginal(const std::vector<LandmarkId>& ids) const {
+  return Consensus::marginal(state_, ids);
+}
+
+ConsensusReport Estimator::fuse(const std::vector<WeightedMarginal>& neighbours) {
+  return Consensus::fuse(state_, neighbours, options_.consensus);
+}
+
+Eigen::Matrix<double, 6, 6> Estimator::current_pose_covariance() const {
+  const int index = state_.pose_index(state_.num_poses() - 1);
+  return state_.covariance.block<6, 6>(index, index);
+}
+
+}  // namespace concord

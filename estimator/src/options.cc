@@ -1,0 +1,111 @@
+#include "concord/estimator/options.h"
+
+#include <charconv>
+#include <cmath>
+#include <string>
+#include <string_view>
+#include <utility>
+#include <vector>
+
+namespace concord {
+
+namespace {
+
+/// Shortest text that reads back as exactly `value`.
+std::string to_text(double value) {
+  char buffer[32];
+  const auto result = std::to_chars(buffer, buffer + sizeof(buffer), value);
+  return std::string(buffer, result.ptr);
+}
+
+std::string to_text(int value) { return std::to_string(value); }
+
+/// Collects "<key> = <value>: must be <rule>" messages.
+class Problems {
+ public:
+  template <typename Value>
+  void add(std::string_view key, Value value, std::string_view rule) {
+    messages_.push_back(std::string(key) + " = " + to_text(value) + ": must be " +
+                        std::string(rule));
+  }
+
+  /// A standard deviation or a threshold: finite and > 0.
+  void check_positive(std::string_view key, double value) {
+    if (!(std::isfinite(value) && value > 0.0)) add(key, value, "finite and > 0");
+  }
+
+  /// A gate or limit where 0 disables: finite and >= 0.
+  void check_non_negative(std::string_view key, double value) {
+    if (!(std::isfinite(value) && value >= 0.0)) add(key, value, "finite and >= 0 (0 disables)");
+  }
+
+  /// A chi-square gate probability: in [0, 1), 0 disables.
+  void check_probability(std::string_view key, double value) {
+    if (!(value >= 0.0 && value < 1.0)) add(key, value, "in [0, 1) (0 disables)");
+  }
+
+  void check_at_least(std::string_view key, int value, int minimum) {
+    if (value < minimum) add(key, value, ">= " + std::to_string(minimum));
+  }
+
+  /// An accepted depth interval: 0 < minimum < maximum, both finite.
+  void check_distance_range(std::string_view minimum_key, double minimum,
+                            std::string_view maximum_key, double maximum) {
+    check_positive(minimum_key, minimum);
+    if (!std::isfinite(maximum)) {
+      add(maximum_key, maximum, "finite");
+    } else if (std::isfinite(minimum) && !(maximum > minimum)) {
+      add(maximum_key, maximum,
+          "greater than " + std::string(minimum_key) + " = " + to_text(minimum));
+    }
+  }
+
+  std::vector<std::string> take() { return std::move(messages_); }
+
+ private:
+  std::vector<std::string> messages_;
+};
+
+}  // namespace
+
+std::vector<std::string> EstimatorOptions::validate() const {
+  Problems problems;
+  problems.check_at_least("window_size", window_size, 2);
+  problems.check_positive("initial_position_sigma", initial_position_sigma);
+  problems.check_positive("initial_rotation_sigma", initial_rotation_sigma);
+  problems.check_positive("odometry_translation_sigma", odometry_translation_sigma);
+  problems.check_positive("odometry_rotation_sigma", odometry_rotation_sigma);
+
+  problems.check_positive("object_sigma", object_sigma);
+  problems.check_at_least("object_min_observations", object_min_observations, 2);
+  problems.check_distance_range("object_min_distance", object_min_distance, "object_max_distance",
+                                object_max_distance);
+  problems.check_positive("object_init_max_reprojection_error",
+                          object_init_max_reprojection_error);
+  problems.check_non_negative("object_update_gate", object_update_gate);
+  problems.check_probability("object_chi2_probability", object_chi2_probability);
+  problems.check_at_least("object_archive_after_frames", object_archive_after_frames, 0);
+
+  problems.check_positive("feature_sigma", feature_sigma);
+  problems.check_at_least("feature_min_observations", feature_min_observations, 2);
+  problems.check_positive("feature_max_reprojection_error", feature_max_reprojection_error);
+  problems.check_distance_range("feature_min_distance", feature_min_distance,
+                                "feature_max_distance", feature_max_distance);
+  problems.check_probability("feature_chi2_probability", feature_chi2_probability);
+  for (std::size_t index = 0; index < feature_odometry_correlation.size(); ++index) {
+    if (!std::isfinite(feature_odometry_correlation[index])) {
+      problems.add("feature_odometry_correlation[" + std::to_string(index) + "]",
+                   feature_odometry_correlation[index], "finite");
+    }
+  }
+
+  problems.check_non_negative("consensus.max_mean_shift", consensus.max_mean_shift);
+  if (!(std::isfinite(consensus.max_condition_number) && consensus.max_condition_number > 1.0)) {
+    problems.add("consensus.max_condition_number", consensus.max_condition_number,
+                 "finite and > 1");
+  }
+  problems.check_non_negative("consensus.disagreement_gate", consensus.disagreement_gate);
+  return problems.take();
+}
+
+}  // namespace concord

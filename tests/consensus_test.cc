@@ -1,0 +1,189 @@
+// Proposition 2 against brute-force Gaussian conditioning, the information average of eq. (19),
+// the handling of partial holders, safeguards and Metropolis weights.
+#include "concord/estimator/consensus.h"
+
+#include <gtest/gtest.h>
+
+#include <random>
+
+#include "concord/estimator/lie.h"
+#include "concord/estimator/state_helper.h"
+#include "replay/team_replay.h"
+#include "test_support.h"
+
+namespace concord {
+namespace {
+
+TEST(Proposition2, KeepsTheConditionalAndSetsTheMarginal) {
+  std::mt19937 random(21);
+  State state = testing::random_state(2, 3, random);
+  const State before = state;
+  const std::vector<int> slots = {0, 2};  // y = landmarks 0 and 2
+  const Eigen::VectorXd new_mean =
+      StateHelper::landmark_marginal(state, slots).mean + testing::random_vector(6, random, 0.1);
+  const Eigen::MatrixXd new_covariance = testing::random_spd(6, random, 0.02, 0.3);
+  ASSERT_TRUE(Consensus::replace_marginal(state, slots, new_mean, new_covariance));
+
+  // Brute force in the error-state coordinates: x = everything else, y = the chosen landmarks.
+  std::vector<int> y, x;
+  for (int slot : slots)
+    for (int k = 0; k < 3; ++k) y.push_back(before.landmark_index(slot) + k);
+  for (int i = 0; i < before.dimension(); ++i)
+    if (std::find(y.begin(), y.end(), i) == y.end()) x.push_back(i);
+  const Eigen::MatrixXd& P = before.covariance;
+  const Eigen::MatrixXd A = P(x, y) * P(y, y).inverse();
+  const Eigen::MatrixXd conditional = P(x, x) - A * P(y, x);
+  const Eigen::MatrixXd& Q = state.covariance;
+  // (14): the new marginal of y is exactly the given one ...
+  EXPECT_TRUE(Q(y, y).isApprox(new_covariance, 1e-10));
+  // ... the cross block is A Sigma_y_bar, and the conditional of x given y is unchanged.
+  EXPECT_TRUE(Q(x, y).isApprox(A * new_covariance, 1e-10));
+  const Eigen::MatrixXd new_conditional = Q(x, x) - Q(x, y) * Q(y, y).inverse() * Q(y, x);
+  EXPECT_TRUE(new_conditional.isApprox(conditional, 1e-9));
+  // Mean: x shifts by A (mu_y_bar - mu_y); poses through exp (eq. 21).
+  const Eigen::VectorXd shift = A * (new_mean - StateHelper::landmark_marginal(before, slots).mean);
+  for (int slot = 0; slot < 2; ++slot) {
+    const Eigen::Isometry3d expected =
+        before.poses[slot].T_world_body * lie::se3_exp(shift.segment<6>(6 * slot));
+    EXPECT_TRUE(state.poses[slot].T_world_body.matrix().isApprox(expected.matrix(), 1e-10));
+  }
+  EXPECT_TRUE(state.landmarks[1].p_world.isApprox(before.landmarks[1].p_world + shift.tail<3>(),
+                                                  1e-10));
+  EXPECT_TRUE(state.landmarks[0].p_world.isApprox(new_mean.head<3>(), 1e-12));
+  EXPECT_TRUE(state.landmarks[2].p_world.isApprox(new_mean.tail<3>(), 1e-12));
+}
+
+ConsensusOptions no_safeguards() {
+  ConsensusOptions options;
+  options.max_mean_shift = 0.0;
+  return options;
+}
+
+TEST(ConsensusAverage, IdenticalMarginalsAreANoOp) {
+  std::mt19937 random(22);
+  State state = testing::random_state(2, 3, random);
+  const State before = state;
+  const Marginal own = Consensus::marginal(state, state.object_ids());
+  const auto report = Consensus::fuse(state, {{1.0 / 3, own}, {1.0 / 3, own}}, no_safeguards());
+  EXPECT_EQ(report.landmarks_fused, 3);
+  EXPECT_TRUE(state.covariance.isApprox(before.covariance, 1e-10));
+  for (int i = 0; i < 3; ++i) {
+    EXPECT_TRUE(state.landmarks[i].p_world.isApprox(before.landmarks[i].p_world, 1e-10));
+  }
+  EXPECT_TRUE(state.poses[1].T_world_body.isApprox(before.poses[1].T_world_body, 1e-10));
+}
+
+TEST(ConsensusAverage, TwoMarginalsGiveTheClosedFormInformationAverage) {
+  // One landmark, own N(m1, 1 I), neighbour N(m2, 4 I), weights 1/2 each:
+  // information 0.5 + 0.125 = 0.625 -> covariance 1.6 I, mean 1.6 (0.5 m1 + 0.125 m2).
+  State state;
+  state.poses.push_back({0, Eigen::Isometry3d::Identity()});
+  state.landmarks.push_back({5, Eigen::Vector3d(1.0, 2.0, 3.0), 0});
+  state.rebuild_landmark_index();
+  state.covariance = Eigen::MatrixXd::Identity(9, 9);
+  Marginal neighbour{{5}, Eigen::Vector3d(3.0, 2.0, -1.0), 4.0 * Eigen::Matrix3d::Identity()};
+  Consensus::fuse(state, {{0.5, neighbour}}, no_safeguards());
+  const Eigen::Vector3d expected = 1.6 * (0.5 * Eigen::Vector3d(1, 2, 3) + 0.125 * Eigen::Vector3d(3, 2, -1));
+  EXPECT_TRUE(state.landmarks[0].p_world.isApprox(expected, 1e-12));
+  EXPECT_TRUE(state.covariance.block<3, 3>(6, 6).isApprox(1.6 * Eigen::Matrix3d::Identity(), 1e-12));
+  // The pose is uncorrelated with the landmark: untouched.
+  EXPECT_TRUE(state.poses[0].T_world_body.isApprox(Eigen::Isometry3d::Identity(), 1e-14));
+}
+
+TEST(ConsensusAverage, ArchivedObjectsAverageIndependently) {
+  State state;
+  state.poses.push_back({0, Eigen::Isometry3d::Identity()});
+  state.covariance = Eigen::MatrixXd::Identity(6, 6);
+  state.archived[9] = {9, Eigen::Vector3d(0, 0, 0), Eigen::Matrix3d::Identity()};
+  Marginal neighbour{{9}, Eigen::Vector3d(2, 0, 0), Eigen::Matrix3d::Identity()};
+  Consensus::fuse(state, {{0.5, neighbour}}, no_safeguards());
+  EXPECT_TRUE(state.archived[9].p_world.isApprox(Eigen::Vector3d(1, 0, 0), 1e-12));
+  EXPECT_TRUE(state.archived[9].covariance.isApprox(Eigen::Matrix3d::Identity(), 1e-12));
+}
+
+TEST(ConsensusAverage, NonHoldersLeaveTheirWeightToTheRobot) {
+  // Landmark 5 is held by neighbour a only; neighbour b (weight 1/3) holds another one.
+  State state;
+  state.poses.push_back({0, Eigen::Isometry3d::Identity()});
+  state.landmarks.push_back({5, Eigen::Vector3d::Zero(), 0});
+  state.rebuild_landmark_index();
+  state.covariance = Eigen::MatrixXd::Identity(9, 9);
+  Marginal a{{5}, Eigen::Vector3d(3, 0, 0), Eigen::Matrix3d::Identity()};
+  Marginal b{{6}, Eigen::Vector3d(0, 0, 0), Eigen::Matrix3d::Identity()};
+  Consensus::fuse(state, {{1.0 / 3, a}, {1.0 / 3, b}}, no_safeguards());
+  // Equal covariances: the mean is the weighted mean with own weight 2/3.
+  EXPECT_TRUE(state.landmarks[0].p_world.isApprox(Eigen::Vector3d(1, 0, 0), 1e-12));
+}
+
+TEST(ConsensusSafeguards, MeanShiftIsLimited) {
+  State state;
+  state.poses.push_back({0, Eigen::Isometry3d::Identity()});
+  state.landmarks.push_back({5, Eigen::Vector3d::Zero(), 0});
+  state.rebuild_landmark_index();
+  state.covariance = Eigen::MatrixXd::Identity(9, 9);
+  ConsensusOptions options;
+  options.max_mean_shift = 0.5;
+  Marginal far{{5}, Eigen::Vector3d(10, 0, 0), Eigen::Matrix3d::Identity()};
+  const auto report = Consensus::fuse(state, {{0.5, far}}, options);
+  EXPECT_EQ(report.mean_shifts_limited, 1);
+  EXPECT_NEAR(state.landmarks[0].p_world.x(), 0.5, 1e-12);
+}
+
+TEST(ConsensusSafeguards, MalformedAndIllConditionedMarginalsAreSkipped) {
+  State state;
+  state.poses.push_back({0, Eigen::Isometry3d::Identity()});
+  state.landmarks.push_back({5, Eigen::Vector3d::Zero(), 0});
+  state.rebuild_landmark_index();
+  state.covariance = Eigen::MatrixXd::Identity(9, 9);
+  const State before = state;
+  Marginal wrong_size{{5}, Eigen::Vector2d(1, 1), Eigen::Matrix3d::Identity()};
+  Marginal indefinite{{5}, Eigen::Vector3d(1, 1, 1), -Eigen::Matrix3d::Identity()};
+  Eigen::Matrix3d nearly_singular = Eigen::Matrix3d::Identity();
+  nearly_singular(2, 2) = 1e-15;
+  Marginal ill{{5}, Eigen::Vector3d(1, 1, 1), nearly_singular};
+  Marginal not_finite{{5}, Eigen::Vector3d(NAN, 0, 0), Eigen::Matrix3d::Identity()};
+  const auto report = Consensus::fuse(
+      state, {{0.2, wrong_size}, {0.2, indefinite}, {0.2, ill}, {0.2, not_finite}}, {});
+  EXPECT_EQ(report.neighbours_skipped, 4);
+  EXPECT_EQ(report.landmarks_fused, 0);
+  EXPECT_TRUE(state.landmarks[0].p_world.isApprox(before.landmarks[0].p_world));
+}
+
+TEST(ConsensusSafeguards, DisagreementGateLeavesOutFarNeighbours) {
+  State state;
+  state.poses.push_back({0, Eigen::Isometry3d::Identity()});
+  state.landmarks.push_back({5, Eigen::Vector3d::Zero(), 0});
+  state.rebuild_landmark_index();
+  state.covariance = Eigen::MatrixXd::Identity(9, 9);
+  ConsensusOptions options = no_safeguards();
+  options.disagreement_gate = 3.0;
+  Marginal far{{5}, Eigen::Vector3d(100, 0, 0), Eigen::Matrix3d::Identity()};
+  const auto report = Consensus::fuse(state, {{0.5, far}}, options);
+  EXPECT_EQ(report.landmarks_gated, 1);
+  EXPECT_TRUE(state.landmarks[0].p_world.isZero());
+}
+
+TEST(MetropolisWeights, AreDoublyStochasticAndOneOverNOnCompleteGraphs) {
+  EXPECT_DOUBLE_EQ(Consensus::metropolis_weight(2, 2), 1.0 / 3);
+  for (auto kind : {replay::GraphKind::kComplete, replay::GraphKind::kRing,
+                    replay::GraphKind::kRandom}) {
+    const int n = 7;
+    const auto graph = replay::make_graph(kind, n, 5);
+    Eigen::MatrixXd A = Eigen::MatrixXd::Zero(n, n);
+    for (int i = 0; i < n; ++i) {
+      for (int j : graph[i]) {
+        A(i, j) = Consensus::metropolis_weight(graph[i].size(), graph[j].size());
+      }
+      A(i, i) = 1.0 - A.row(i).sum();
+    }
+    EXPECT_TRUE(A.isApprox(A.transpose()));
+    EXPECT_TRUE(A.rowwise().sum().isApprox(Eigen::VectorXd::Ones(n)));
+    EXPECT_GE(A.minCoeff(), 0.0);
+    if (kind == replay::GraphKind::kComplete) {
+      EXPECT_TRUE(A.isApprox(Eigen::MatrixXd::Constant(n, n, 1.0 / n)));
+    }
+  }
+}
+
+}  // namespace
+}  // namespace concord

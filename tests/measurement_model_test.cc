@@ -1,0 +1,228 @@
+// Every measurement and motion Jacobian against finite differences, the null-space projection,
+// measurement compression, the chi-square quantiles and triangulation.
+#include <gtest/gtest.h>
+
+#include <random>
+
+#include "concord/estimator/lie.h"
+#include "concord/estimator/propagator.h"
+#include "concord/estimator/state_helper.h"
+#include "concord/estimator/updater_helper.h"
+#include "test_support.h"
+
+namespace concord {
+namespace {
+
+using testing::kitti_like_camera;
+
+Eigen::Isometry3d some_pose() {
+  return lie::se3_exp((lie::Vector6d() << 3.0, -1.0, 0.5, 0.05, -0.02, 0.3).finished());
+}
+
+TEST(StereoProjection, PoseJacobianMatchesFiniteDifferences) {
+  const StereoCamera camera = kitti_like_camera();
+  const Eigen::Isometry3d T = some_pose();
+  const Eigen::Vector3d p_world = T * Eigen::Vector3d(12.0, 1.5, 0.7);
+  const auto projection = UpdaterHelper::project(camera, T, p_world);
+  ASSERT_TRUE(projection);
+  const double h = 1e-6;
+  for (int i = 0; i < 6; ++i) {
+    const lie::Vector6d d = h * lie::Vector6d::Unit(i);
+    const auto plus = UpdaterHelper::project(camera, T * lie::se3_exp(d), p_world);
+    const auto minus = UpdaterHelper::project(camera, T * lie::se3_exp(-d), p_world);
+    const Eigen::Vector4d numeric = (plus->xy - minus->xy) / (2 * h);
+    EXPECT_TRUE(numeric.isApprox(projection->jacobian_pose.col(i), 1e-6))
+        << "column " << i << ": numeric " << numeric.transpose() << " analytic "
+        << projection->jacobian_pose.col(i).transpose();
+  }
+}
+
+TEST(StereoProjection, PointJacobianMatchesFiniteDifferences) {
+  const StereoCamera camera = kitti_like_camera();
+  const Eigen::Isometry3d T = some_pose();
+  const Eigen::Vector3d p_world = T * Eigen::Vector3d(8.0, -2.0, 1.0);
+  const auto projection = UpdaterHelper::project(camera, T, p_world);
+  ASSERT_TRUE(projection);
+  const double h = 1e-6;
+  for (int i = 0; i < 3; ++i) {
+    const Eigen::Vector3d d = h * Eigen::Vector3d::Unit(i);
+    const Eigen::Vector4d numeric = (UpdaterHelper::project(camera, T, p_world + d)->xy -
+                                     UpdaterHelper::project(camera, T, p_world - d)->xy) /
+                                    (2 * h);
+    EXPECT_TRUE(numeric.isApprox(projection->jacobian_point.col(i), 1e-6));
+  }
+}
+
+TEST(StereoProjection, MatchesPinholeAndRejectsPointsBehind) {
+  const StereoCamera camera = kitti_like_camera();
+  // A point 10 m ahead, 1 m left of the body: camera x = -1, z = 10.
+  const auto projection =
+      UpdaterHelper::project(camera, Eigen::Isometry3d::Identity(), Eigen::Vector3d(10, 1, 0));
+  ASSERT_TRUE(projection);
+  EXPECT_NEAR(projection->xy(0), -0.1, 1e-12);
+  EXPECT_NEAR(projection->xy(2), (-1.0 - 0.5323) / 10.0, 1e-12);
+  EXPECT_NEAR(projection->depth_left, 10.0, 1e-12);
+  EXPECT_FALSE(UpdaterHelper::project(camera, Eigen::Isometry3d::Identity(),
+                                      Eigen::Vector3d(-10, 1, 0)));
+}
+
+TEST(StereoCamera, NormalizeInvertsDenormalize) {
+  const StereoCamera camera = kitti_like_camera();
+  const Eigen::Vector4d uv(700.0, 200.0, 650.0, 200.0);
+  EXPECT_TRUE(camera.denormalize(camera.normalize(uv)).isApprox(uv, 1e-12));
+}
+
+TEST(Propagation, AdjointMapsThePerturbation) {
+  // T_old exp(eps) dT == (T_old dT) exp(Ad(dT^-1) eps): the Jacobian J_t of eq. (23).
+  const Eigen::Isometry3d T_old = some_pose();
+  const Eigen::Isometry3d dT =
+      lie::se3_exp((lie::Vector6d() << 0.7, 0.01, 0.0, 0.0, 0.01, 0.05).finished());
+  const lie::Vector6d eps = (lie::Vector6d() << 1e-4, -2e-4, 3e-4, 1e-4, 2e-4, -1e-4).finished();
+  const Eigen::Isometry3d lhs = T_old * lie::se3_exp(eps) * dT;
+  const Eigen::Isometry3d rhs = T_old * dT * lie::se3_exp(lie::adjoint(dT.inverse()) * eps);
+  EXPECT_TRUE(lhs.matrix().isApprox(rhs.matrix(), 1e-12));
+}
+
+TEST(Propagation, CovarianceMatchesTheLinearizedModel) {
+  std::mt19937 random(7);
+  State state = testing::random_state(3, 2, random);
+  const State before = state;
+  EstimatorOptions options;
+  options.window_size = 3;
+  options.odometry_translation_sigma = 0.05;
+  options.odometry_rotation_sigma = 0.01;
+  const Propagator propagator(options);
+  const Eigen::Isometry3d dT =
+      lie::se3_exp((lie::Vector6d() << 0.7, 0.01, 0.0, 0.0, 0.01, 0.05).finished());
+  propagator.propagate(state, dT, 3);
+  // Full window: the oldest pose is dropped, the new one appended after the poses.
+  ASSERT_EQ(state.num_poses(), 3);
+  EXPECT_EQ(state.poses.front().frame, 1);
+  EXPECT_EQ(state.poses.back().frame, 3);
+  EXPECT_TRUE(state.poses.back().T_world_body.matrix().isApprox(
+      (before.poses.back().T_world_body * dT).matrix(), 1e-12));
+  // Dense reference: F with rows [drop pose 0 | keep 1, 2 | new = Ad(dT^-1) pose 2 | landmarks].
+  const int n = before.dimension();
+  Eigen::MatrixXd F = Eigen::MatrixXd::Zero(n, n);
+  F.block<12, 12>(0, 6).setIdentity();
+  F.block<6, 6>(12, 12) = lie::adjoint(dT.inverse());
+  F.bottomRightCorner(6, 6).setIdentity();
+  Eigen::MatrixXd Q = Eigen::MatrixXd::Zero(n, n);
+  Q.block<6, 6>(12, 12) = propagator.odometry_noise();
+  const Eigen::MatrixXd expected = F * before.covariance * F.transpose() + Q;
+  EXPECT_TRUE(state.covariance.isApprox(expected, 1e-12));
+}
+
+TEST(NullspaceProjection, RemovesTheFeatureError) {
+  std::mt19937 random(11);
+  const int rows = 12;
+  Eigen::MatrixXd H_state = Eigen::MatrixXd::Random(rows, 18);
+  Eigen::MatrixXd H_point = Eigen::MatrixXd::Random(rows, 3);
+  const Eigen::VectorXd residual = testing::random_vector(rows, random);
+  const Eigen::Vector3d point_error(0.3, -1.2, 0.8);
+  // The same system with the residual shifted by H_point * p~ projects to the same result.
+  Eigen::MatrixXd H1 = H_state, P1 = H_point, H2 = H_state, P2 = H_point;
+  Eigen::VectorXd r1 = residual, r2 = residual + H_point * point_error;
+  UpdaterHelper::nullspace_project_inplace(H1, P1, r1);
+  UpdaterHelper::nullspace_project_inplace(H2, P2, r2);
+  EXPECT_EQ(r1.size(), rows - 3);
+  EXPECT_TRUE(r1.isApprox(r2, 1e-12));
+  // The projection is orthonormal: it keeps the noise isotropic (N^T N = I), checked through
+  // the norms of the state Jacobian's Gram matrix being no larger than before.
+  EXPECT_LE((H1.transpose() * H1).trace(), (H_state.transpose() * H_state).trace() + 1e-9);
+}
+
+TEST(MeasurementCompression, PreservesTheInformation) {
+  std::mt19937 random(12);
+  // 40 rows touching 6 of 20 columns.
+  Eigen::MatrixXd H = Eigen::MatrixXd::Zero(40, 20);
+  H.middleCols(4, 6) = Eigen::MatrixXd::Random(40, 6);
+  Eigen::VectorXd r = testing::random_vector(40, random);
+  const Eigen::MatrixXd information = H.transpose() * H;
+  const Eigen::VectorXd information_vector = H.transpose() * r;
+  UpdaterHelper::measurement_compress_inplace(H, r);
+  EXPECT_EQ(H.rows(), 6);
+  EXPECT_TRUE((H.transpose() * H).isApprox(information, 1e-10));
+  EXPECT_TRUE((H.transpose() * r).isApprox(information_vector, 1e-10));
+}
+
+TEST(ChiSquare, QuantilesMatchTables) {
+  EXPECT_NEAR(UpdaterHelper::chi2_quantile(0.95, 1), 3.841, 2e-3);
+  EXPECT_NEAR(UpdaterHelper::chi2_quantile(0.95, 2), 5.991, 2e-3);
+  EXPECT_NEAR(UpdaterHelper::chi2_quantile(0.95, 4), 9.488, 2e-2);
+  EXPECT_NEAR(UpdaterHelper::chi2_quantile(0.95, 10), 18.307, 2e-2);
+  EXPECT_NEAR(UpdaterHelper::chi2_quantile(0.95, 100), 124.342, 5e-2);
+  EXPECT_NEAR(UpdaterHelper::chi2_quantile(0.99, 3), 11.345, 6e-2);
+}
+
+TEST(Triangulation, RecoversAPointFromNoiselessStereo) {
+  const StereoCamera camera = kitti_like_camera();
+  const Eigen::Vector3d p_world(15.0, 2.0, 0.5);
+  std::vector<Eigen::Isometry3d> poses;
+  std::vector<Eigen::Vector4d> observations;
+  for (int k = 0; k < 3; ++k) {
+    Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+    T.translation() = Eigen::Vector3d(0.8 * k, 0.0, 0.0);
+    poses.push_back(T);
+    observations.push_back(UpdaterHelper::project(camera, T, p_world)->xy);
+  }
+  const auto estimate = UpdaterHelper::triangulate(camera, poses, observations);
+  ASSERT_TRUE(estimate);
+  EXPECT_LT((*estimate - p_world).norm(), 1e-8);
+  EXPECT_LT(UpdaterHelper::rms_reprojection_error(camera, poses, observations, *estimate), 1e-10);
+}
+
+TEST(KalmanUpdate, CorrelatedNoiseMatchesGaussianConditioning) {
+  // x ~ N(0, P), z = H x + v with Cov(x, v) = S: the posterior is the Gaussian conditional
+  // of the joint (x, z), Cov(x, z) = P H^T + S, Cov(z) = H P H^T + V + H S + S^T H^T.
+  std::mt19937 random(13);
+  State state = testing::random_state(2, 1, random);
+  const int n = state.dimension();
+  const int m = 4;
+  Eigen::MatrixXd H = Eigen::MatrixXd::Zero(m, n);
+  H.middleCols(6, 6) = Eigen::MatrixXd::Random(m, 6);
+  H.rightCols(3) = Eigen::MatrixXd::Random(m, 3);
+  const Eigen::MatrixXd V = testing::random_spd(m, random, 0.5, 1.0);
+  Eigen::MatrixXd S = Eigen::MatrixXd::Zero(n, m);
+  S.middleRows(6, 6) = 0.05 * Eigen::MatrixXd::Random(6, m);
+  const Eigen::VectorXd r = testing::random_vector(m, random);
+  const Eigen::MatrixXd P = state.covariance;
+  const Eigen::MatrixXd cross = P * H.transpose() + S;
+  const Eigen::MatrixXd innovation = H * P * H.transpose() + V + H * S + S.transpose() * H.transpose();
+  const Eigen::MatrixXd expected_covariance = P - cross * innovation.inverse() * cross.transpose();
+  const Eigen::VectorXd expected_correction = cross * innovation.inverse() * r;
+
+  const State before = state;
+  ASSERT_TRUE(StateHelper::update(state, H, r, V, &S));
+  EXPECT_TRUE(state.covariance.isApprox(expected_covariance, 1e-10));
+  EXPECT_TRUE(state.landmarks[0].p_world.isApprox(
+      before.landmarks[0].p_world + expected_correction.tail<3>(), 1e-10));
+  const Eigen::Isometry3d expected_pose =
+      before.poses[1].T_world_body * lie::se3_exp(expected_correction.segment<6>(6));
+  EXPECT_TRUE(state.poses[1].T_world_body.matrix().isApprox(expected_pose.matrix(), 1e-10));
+}
+
+TEST(Augmentation, MatchesEquation30) {
+  std::mt19937 random(14);
+  State state = testing::random_state(2, 1, random);
+  const State before = state;
+  const int n = state.dimension();
+  Eigen::MatrixXd H1 = Eigen::MatrixXd::Zero(3, n);
+  H1.leftCols(12) = Eigen::MatrixXd::Random(3, 12);
+  Eigen::Matrix3d R1 = Eigen::Matrix3d::Random().triangularView<Eigen::Upper>();
+  R1.diagonal() = Eigen::Vector3d(2.0, 1.5, 3.0);
+  const Eigen::Matrix3d V1 = 0.1 * Eigen::Matrix3d::Identity();
+  StateHelper::augment_landmark(state, 7, Eigen::Vector3d(1, 2, 3), 1, H1, R1, V1);
+  ASSERT_EQ(state.dimension(), n + 3);
+  const Eigen::Matrix3d R1i = R1.inverse();
+  const Eigen::MatrixXd expected_cross = -before.covariance * H1.transpose() * R1i.transpose();
+  const Eigen::Matrix3d expected_block =
+      R1i * (H1 * before.covariance * H1.transpose() + V1) * R1i.transpose();
+  EXPECT_TRUE(state.covariance.topLeftCorner(n, n).isApprox(before.covariance));
+  EXPECT_TRUE(state.covariance.block(0, n, n, 3).isApprox(expected_cross, 1e-12));
+  EXPECT_TRUE(state.covariance.block<3, 3>(n, n).isApprox(expected_block, 1e-12));
+  EXPECT_EQ(state.landmark_slot(7), 1);
+}
+
+}  // namespace
+}  // namespace concord

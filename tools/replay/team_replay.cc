@@ -1,0 +1,178 @@
+#include "replay/team_replay.h"
+
+#include <algorithm>
+#include <chrono>
+#include <numeric>
+#include <random>
+#include <stdexcept>
+
+#include "concord/estimator/estimator.h"
+
+namespace concord::replay {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double seconds_since(Clock::time_point start) {
+  return std::chrono::duration<double>(Clock::now() - start).count();
+}
+
+std::vector<LandmarkId> intersection(const std::vector<LandmarkId>& a,
+                                     const std::vector<LandmarkId>& b) {
+  std::vector<LandmarkId> out;
+  std::set_intersection(a.begin(), a.end(), b.begin(), b.end(), std::back_inserter(out));
+  return out;
+}
+
+}  // namespace
+
+GraphKind parse_graph_kind(const std::string& text) {
+  if (text == "complete") return GraphKind::kComplete;
+  if (text == "ring") return GraphKind::kRing;
+  if (text == "random") return GraphKind::kRandom;
+  throw std::invalid_argument("graph: expected complete, ring or random, got '" + text + "'");
+}
+
+std::string to_string(GraphKind kind) {
+  switch (kind) {
+    case GraphKind::kComplete:
+      return "complete";
+    case GraphKind::kRing:
+      return "ring";
+    case GraphKind::kRandom:
+      return "random";
+  }
+  return "unknown";
+}
+
+std::vector<std::vector<int>> make_graph(GraphKind kind, int robots, std::uint64_t seed) {
+  std::vector<std::vector<bool>> edge(robots, std::vector<bool>(robots, false));
+  auto connect = [&](int i, int j) {
+    if (i != j) edge[i][j] = edge[j][i] = true;
+  };
+  switch (kind) {
+    case GraphKind::kComplete:
+      for (int i = 0; i < robots; ++i)
+        for (int j = i + 1; j < robots; ++j) connect(i, j);
+      break;
+    case GraphKind::kRing:
+      for (int i = 0; robots > 1 && i < robots; ++i) connect(i, (i + 1) % robots);
+      break;
+    case GraphKind::kRandom: {
+      std::mt19937_64 random(seed);
+      std::vector<int> order(robots);
+      std::iota(order.begin(), order.end(), 0);
+      std::shuffle(order.begin(), order.end(), random);
+      for (int k = 1; k < robots; ++k) {
+        std::uniform_int_distribution<int> pick(0, k - 1);
+        connect(order[k], order[pick(random)]);
+      }
+      std::bernoulli_distribution extra(0.3);
+      for (int i = 0; i < robots; ++i)
+        for (int j = i + 1; j < robots; ++j)
+          if (extra(random)) connect(i, j);
+      break;
+    }
+  }
+  std::vector<std::vector<int>> adjacency(robots);
+  for (int i = 0; i < robots; ++i)
+    for (int j = 0; j < robots; ++j)
+      if (edge[i][j]) adjacency[i].push_back(j);
+  return adjacency;
+}
+
+ReplayResult run_team(const dataset::Dataset& dataset, const EstimatorOptions& estimator_options,
+                      const ReplayOptions& options, const ProgressCallback& progress) {
+  if (!(options.link_loss >= 0.0 && options.link_loss <= 1.0)) {
+    throw std::invalid_argument("loss: expected a probability in [0, 1], got " +
+                                std::to_string(options.link_loss));
+  }
+  const auto run_start = Clock::now();
+  const int robots = static_cast<int>(dataset.robots.size());
+  std::vector<Estimator> estimators;
+  estimators.reserve(robots);
+  int steps = 0;
+  for (const auto& robot : dataset.robots) {
+    if (robot.num_frames() == 0) throw std::invalid_argument("robot without frames");
+    estimators.emplace_back(estimator_options, dataset.camera, robot.groundtruth.front(), 0);
+    steps = std::max(steps, robot.num_frames());
+  }
+  const auto graph = make_graph(options.graph, robots, options.seed);
+  std::mt19937_64 loss_random(options.seed ^ 0x9e3779b97f4a7c15ULL);
+  std::bernoulli_distribution drop(options.link_loss);
+
+  ReplayResult result;
+  result.robots.resize(robots);
+  ReplayStatistics& statistics = result.statistics;
+  statistics.steps = steps;
+
+  for (int step = 0; step < steps; ++step) {
+    std::vector<bool> active(robots);
+    for (int i = 0; i < robots; ++i) active[i] = step < dataset.robots[i].num_frames();
+
+    // 1. Every robot processes its frame.
+    auto phase_start = Clock::now();
+    for (int i = 0; i < robots; ++i) {
+      if (!active[i]) continue;
+      const FrameReport report = estimators[i].process(dataset.robots[i].frame_input(step));
+      ++statistics.robot_steps;
+      statistics.objects_initialized += report.objects.initialized;
+      statistics.object_observations_rejected += report.objects.rejected;
+      statistics.feature_tracks_used += report.features.tracks_used;
+    }
+    statistics.update_seconds += seconds_since(phase_start);
+
+    if (options.consensus) {
+      phase_start = Clock::now();
+      // This round's graph: live robots, each edge dropped with probability link_loss. The
+      // random draws happen for every edge of the base graph in a fixed order.
+      std::vector<std::vector<int>> round_neighbours(robots);
+      for (int i = 0; i < robots; ++i) {
+        for (int j : graph[i]) {
+          if (j <= i) continue;
+          const bool dropped = drop(loss_random);
+          if (dropped || !active[i] || !active[j]) continue;
+          round_neighbours[i].push_back(j);
+          round_neighbours[j].push_back(i);
+        }
+      }
+      // 2. All marginals are taken before anyone fuses.
+      std::vector<std::vector<LandmarkId>> ids(robots);
+      for (int i = 0; i < robots; ++i)
+        if (active[i]) ids[i] = estimators[i].object_ids();
+      std::vector<std::vector<WeightedMarginal>> inbox(robots);
+      for (int i = 0; i < robots; ++i) {
+        for (int j : round_neighbours[i]) {
+          const auto common = intersection(ids[i], ids[j]);
+          if (common.empty()) continue;
+          const double weight = Consensus::metropolis_weight(
+              static_cast<int>(round_neighbours[i].size()),
+              static_cast<int>(round_neighbours[j].size()));
+          inbox[i].push_back({weight, estimators[j].marginal(common)});
+        }
+      }
+      // 3. Every robot fuses.
+      for (int i = 0; i < robots; ++i) {
+        if (inbox[i].empty()) continue;
+        const ConsensusReport report = estimators[i].fuse(inbox[i]);
+        ++statistics.consensus_robot_steps;
+        statistics.landmarks_fused += report.landmarks_fused;
+        statistics.neighbours_skipped += report.neighbours_skipped;
+        statistics.mean_shifts_limited += report.mean_shifts_limited;
+      }
+      statistics.consensus_seconds += seconds_since(phase_start);
+    }
+
+    // 4. Record the online estimate of frame `step`.
+    for (int i = 0; i < robots; ++i) {
+      if (active[i]) result.robots[i].trajectory.push_back(estimators[i].current_pose());
+    }
+    if (progress) progress(step + 1, steps);
+  }
+  for (int i = 0; i < robots; ++i) result.robots[i].objects = estimators[i].objects();
+  statistics.total_seconds = seconds_since(run_start);
+  return result;
+}
+
+}  // namespace concord::replay
