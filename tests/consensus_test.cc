@@ -85,7 +85,8 @@ TEST(ConsensusAverage, TwoMarginalsGiveTheClosedFormInformationAverage) {
   Consensus::fuse(state, {{0.5, neighbour}}, no_safeguards());
   const Eigen::Vector3d expected = 1.6 * (0.5 * Eigen::Vector3d(1, 2, 3) + 0.125 * Eigen::Vector3d(3, 2, -1));
   EXPECT_TRUE(state.landmarks[0].p_world.isApprox(expected, 1e-12));
-  EXPECT_TRUE(state.covariance.block<3, 3>(6, 6).isApprox(1.6 * Eigen::Matrix3d::Identity(), 1e-12));
+  const Eigen::Matrix3d block = state.covariance.block<3, 3>(6, 6);
+  EXPECT_TRUE(block.isApprox(1.6 * Eigen::Matrix3d::Identity(), 1e-12));
   // The pose is uncorrelated with the landmark: untouched.
   EXPECT_TRUE(state.poses[0].T_world_body.isApprox(Eigen::Isometry3d::Identity(), 1e-14));
 }

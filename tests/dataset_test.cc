@@ -14,7 +14,7 @@
 namespace concord::dataset {
 namespace {
 
-using testing::HasSubstr;
+using ::testing::HasSubstr;
 
 /// The DatasetError message of `action`; fails the test if it throws nothing or something else.
 template <typename Action>
@@ -47,11 +47,11 @@ Eigen::Isometry3d make_pose(const Eigen::Matrix3d& rotation, const Eigen::Vector
 }
 
 /// A folder of its own under the test temporary directory, removed afterwards.
-class TemporaryFolderTest : public testing::Test {
+class DatasetFilesTest : public ::testing::Test {
  protected:
   void SetUp() override {
-    const testing::TestInfo* info = testing::UnitTest::GetInstance()->current_test_info();
-    folder_ = std::filesystem::path(testing::TempDir()) /
+    const ::testing::TestInfo* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    folder_ = std::filesystem::path(::testing::TempDir()) /
               ("concord_" + std::string(info->test_suite_name()) + "_" + info->name() + "_" +
                std::to_string(::getpid()));
     std::filesystem::remove_all(folder_);
@@ -99,10 +99,10 @@ constexpr char kObjects1[] =
     "frame,id,u_left,v_left,u_right,v_right\n"
     "1,3,1,2,0.5,2\n";
 
-class DatasetTest : public TemporaryFolderTest {
+class DatasetTest : public DatasetFilesTest {
  protected:
   void SetUp() override {
-    TemporaryFolderTest::SetUp();
+    DatasetFilesTest::SetUp();
     dataset_folder_ = folder_ / "tiny";
     write_fixture();
   }
@@ -290,9 +290,8 @@ TEST_F(DatasetTest, MissingDatasetFolder) {
 }
 
 TEST_F(DatasetTest, MissingFilesAreNamed) {
-  for (const std::string relative_file :
-       {"dataset.json", "robot_00/groundtruth.kitti", "robot_01/odometry.kitti",
-        "robot_00/objects.csv"}) {
+  for (const std::string relative_file : {"dataset.json", "robot_00/groundtruth.kitti",
+                                          "robot_01/odometry.kitti", "robot_00/objects.csv"}) {
     write_fixture();
     std::filesystem::remove(dataset_folder_ / relative_file);
     const std::string message = dataset_error_message([&] { read_dataset(dataset_folder_); });
@@ -438,9 +437,10 @@ TEST_F(DatasetTest, EmptyGroundtruth) {
 // --- CSV files ---
 
 TEST_F(DatasetTest, CsvHeaderMissing) {
-  EXPECT_THAT(error_reading_with("robot_00/objects.csv", "0,7,100.5,200,90.5,200\n"),
-              HasSubstr("robot_00/objects.csv:1: expected the header "
-                        "'frame,id,u_left,v_left,u_right,v_right', found '0,7,100.5,200,90.5,200'"));
+  EXPECT_THAT(
+      error_reading_with("robot_00/objects.csv", "0,7,100.5,200,90.5,200\n"),
+      HasSubstr("robot_00/objects.csv:1: expected the header "
+                "'frame,id,u_left,v_left,u_right,v_right', found '0,7,100.5,200,90.5,200'"));
   EXPECT_THAT(error_reading_with("robot_00/objects.csv", ""),
               HasSubstr("robot_00/objects.csv: empty file, expected the header"));
   EXPECT_THAT(error_reading_with("objects_gt.csv", "7,1.5,-2.25,3\n"),
@@ -459,9 +459,8 @@ TEST_F(DatasetTest, CsvRowWithWrongColumnCount) {
       error_reading_with("robot_00/objects.csv",
                          "frame,id,u_left,v_left,u_right,v_right\n0,7,1,2,3,4\n0,3,1,2,3\n"),
       HasSubstr("robot_00/objects.csv:3: expected 6 comma-separated fields, found 5"));
-  EXPECT_THAT(
-      error_reading_with("objects_gt.csv", "id,x,y,z\n1,2,3,4\n2,3,4,5\n3,4,5,6,7\n"),
-      HasSubstr("objects_gt.csv:4: expected 4 comma-separated fields, found 5"));
+  EXPECT_THAT(error_reading_with("objects_gt.csv", "id,x,y,z\n1,2,3,4\n2,3,4,5\n3,4,5,6,7\n"),
+              HasSubstr("objects_gt.csv:4: expected 4 comma-separated fields, found 5"));
 }
 
 TEST_F(DatasetTest, CsvNonNumericValue) {
@@ -473,9 +472,10 @@ TEST_F(DatasetTest, CsvNonNumericValue) {
 }
 
 TEST_F(DatasetTest, CsvFrameOutOfRange) {
-  EXPECT_THAT(error_reading_with("robot_00/objects.csv",
-                                 "frame,id,u_left,v_left,u_right,v_right\n0,7,1,2,3,4\n-1,7,1,2,3,4\n"),
-              HasSubstr("robot_00/objects.csv:3: frame -1 is outside [0, 2]"));
+  EXPECT_THAT(
+      error_reading_with("robot_00/objects.csv",
+                         "frame,id,u_left,v_left,u_right,v_right\n0,7,1,2,3,4\n-1,7,1,2,3,4\n"),
+      HasSubstr("robot_00/objects.csv:3: frame -1 is outside [0, 2]"));
   EXPECT_THAT(error_reading_with("robot_01/objects.csv",
                                  "frame,id,u_left,v_left,u_right,v_right\n2,7,1,2,3,4\n"),
               HasSubstr("robot_01/objects.csv:2: frame 2 is outside [0, 1]"));
@@ -590,7 +590,7 @@ void expect_same_dataset(const Dataset& actual, const Dataset& expected) {
   }
 }
 
-TEST_F(TemporaryFolderTest, WriteThenReadIsExact) {
+TEST_F(DatasetFilesTest, WriteThenReadIsExact) {
   const Dataset original = random_dataset();
   write_dataset(original, folder_ / "random");
   const Dataset read_back = read_dataset(folder_ / "random");
@@ -617,7 +617,7 @@ TEST_F(DatasetTest, WriteThenReadTheFixtureIsExact) {
   EXPECT_EQ(read_text(folder_ / "copy" / "robot_00" / "features.csv"), kFeatures0);
 }
 
-TEST_F(TemporaryFolderTest, WriteRefusesToLeaveExtraRobotFolders) {
+TEST_F(DatasetFilesTest, WriteRefusesToLeaveExtraRobotFolders) {
   const Dataset original = random_dataset();
   write_dataset(original, folder_ / "random");
   const Dataset fewer = slice(original, 100, 2);
@@ -629,7 +629,7 @@ TEST_F(TemporaryFolderTest, WriteRefusesToLeaveExtraRobotFolders) {
   EXPECT_THROW(write_dataset(inconsistent, folder_ / "other"), std::invalid_argument);
 }
 
-TEST_F(TemporaryFolderTest, SliceKeepsTheFirstFramesAndRobots) {
+TEST_F(DatasetFilesTest, SliceKeepsTheFirstFramesAndRobots) {
   const Dataset original = random_dataset();
   const Dataset cut = slice(original, 3, 2);
   EXPECT_EQ(cut.name, original.name);
@@ -665,7 +665,7 @@ TEST_F(TemporaryFolderTest, SliceKeepsTheFirstFramesAndRobots) {
 
 // --- Result files ---
 
-TEST_F(TemporaryFolderTest, TrajectoryRoundTripIsExact) {
+TEST_F(DatasetFilesTest, TrajectoryRoundTripIsExact) {
   const std::vector<Eigen::Isometry3d> poses = random_dataset().robots[2].groundtruth;
   const std::filesystem::path file = folder_ / "robot_02.kitti";
   write_trajectory_kitti(file, poses);
@@ -675,7 +675,7 @@ TEST_F(TemporaryFolderTest, TrajectoryRoundTripIsExact) {
   EXPECT_TRUE(read_trajectory_kitti(file).empty());
 }
 
-TEST_F(TemporaryFolderTest, TrajectoryReadErrors) {
+TEST_F(DatasetFilesTest, TrajectoryReadErrors) {
   EXPECT_THAT(dataset_error_message([&] { read_trajectory_kitti(folder_ / "missing.kitti"); }),
               HasSubstr("missing.kitti: file not found"));
   write_text(folder_ / "bad.kitti", "1 0 0 0 0 1 0 0 0 0 1 0\n1 0 0 0 0 1 0 0 0 0 1 y\n");
@@ -683,7 +683,7 @@ TEST_F(TemporaryFolderTest, TrajectoryReadErrors) {
               HasSubstr("bad.kitti:2: entry 12 'y' is not a number"));
 }
 
-TEST_F(TemporaryFolderTest, ObjectsCsvRoundTripIsExactAndSorted) {
+TEST_F(DatasetFilesTest, ObjectsCsvRoundTripIsExactAndSorted) {
   std::vector<ObjectEstimate> objects(3);
   objects[0].id = 42;
   objects[0].p_world = {1.0 / 3.0, -2.5, 1e-300};
@@ -712,13 +712,12 @@ TEST_F(TemporaryFolderTest, ObjectsCsvRoundTripIsExactAndSorted) {
   }
 }
 
-TEST_F(TemporaryFolderTest, ObjectsCsvReadErrors) {
+TEST_F(DatasetFilesTest, ObjectsCsvReadErrors) {
   const std::filesystem::path file = folder_ / "estimates.csv";
   write_text(file, "id,x,y,z\n1,2,3,4\n");
   EXPECT_THAT(dataset_error_message([&] { read_objects_csv(file); }),
               HasSubstr("estimates.csv:1: expected the header 'id,x,y,z,cxx,cxy,cxz,cyy,cyz,czz'"));
-  write_text(file,
-             "id,x,y,z,cxx,cxy,cxz,cyy,cyz,czz\n1,0,0,0,1,0,0,1,0,1\n1,0,0,0,1,0,0,1,0,1\n");
+  write_text(file, "id,x,y,z,cxx,cxy,cxz,cyy,cyz,czz\n1,0,0,0,1,0,0,1,0,1\n1,0,0,0,1,0,0,1,0,1\n");
   EXPECT_THAT(dataset_error_message([&] { read_objects_csv(file); }),
               HasSubstr("estimates.csv:3: duplicate id 1"));
   write_text(file, "id,x,y,z,cxx,cxy,cxz,cyy,cyz,czz\n1,0,0,0,1,0,0,1,0\n");
@@ -729,7 +728,7 @@ TEST_F(TemporaryFolderTest, ObjectsCsvReadErrors) {
               HasSubstr("estimates.csv:2: czz 'nan' is not finite"));
 }
 
-TEST_F(TemporaryFolderTest, AtomicWriteReplacesAndLeavesNoTemporaryFile) {
+TEST_F(DatasetFilesTest, AtomicWriteReplacesAndLeavesNoTemporaryFile) {
   const std::filesystem::path file = folder_ / "status.json";
   write_file_atomically(file, "first");
   write_file_atomically(file, "second, longer content\n");

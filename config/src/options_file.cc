@@ -103,15 +103,16 @@ class Loader {
 
   /// Reads a top-level map of option keys into `options`.
   void read_options(const YAML::Node& map, EstimatorOptions& options) {
-    for_each_entry(map, "", [&](const std::string& name, const YAML::Node& key_node,
-                                const YAML::Node& value) {
-      if (name == kConsensusKey) {
-        read_consensus(value, options.consensus);
-      } else if (!read_field(options, name, name, value,
-                             [](auto& target, auto&& visit) { for_each_field(target, visit); })) {
-        add(key_node, "unknown key " + name);
-      }
-    });
+    for_each_entry(
+        map, "", [&](const std::string& name, const YAML::Node& key_node, const YAML::Node& value) {
+          if (name == kConsensusKey) {
+            read_consensus(value, options.consensus);
+          } else if (!read_field(options, name, name, value, [](auto& target, auto&& visit) {
+                       for_each_field(target, visit);
+                     })) {
+            add(key_node, "unknown key " + name);
+          }
+        });
   }
 
   void add(const YAML::Node& node, const std::string& problem) {
@@ -129,14 +130,15 @@ class Loader {
                    ": expected a map of consensus options");
       return;
     }
-    for_each_entry(map, prefix, [&](const std::string& name, const YAML::Node& key_node,
-                                    const YAML::Node& value) {
-      if (!read_field(consensus, name, prefix + name, value, [](auto& target, auto&& visit) {
-            for_each_consensus_field(target, visit);
-          })) {
-        add(key_node, "unknown key " + prefix + name);
-      }
-    });
+    for_each_entry(
+        map, prefix,
+        [&](const std::string& name, const YAML::Node& key_node, const YAML::Node& value) {
+          if (!read_field(consensus, name, prefix + name, value, [](auto& target, auto&& visit) {
+                for_each_consensus_field(target, visit);
+              })) {
+            add(key_node, "unknown key " + prefix + name);
+          }
+        });
   }
 
   /// Calls handle(name, key node, value node) for each entry of `map`, reporting keys that are
@@ -253,8 +255,8 @@ EstimatorOptions load_estimator_options(const std::filesystem::path& file) {
 
 std::string to_yaml(const EstimatorOptions& options) {
   std::string text =
-      "# Estimator options (keys: the fields of concord::EstimatorOptions, "
-      "estimator/include/concord/estimator/options.h)\n";
+      "# Estimator options: the keys are the fields of concord::EstimatorOptions\n"
+      "# (estimator/include/concord/estimator/options.h).\n";
   for_each_field(options, [&](std::string_view key, const auto& field) {
     text += std::string(key) + ": " + format_value(field) + "\n";
   });

@@ -169,13 +169,13 @@ std::vector<std::vector<StereoObservation>> read_observations(const std::filesys
     const std::int64_t frame = table.integer(0);
     if (frame < 0 || frame >= num_frames) {
       table.fail("frame " + std::to_string(frame) + " is outside [0, " +
-                 std::to_string(num_frames - 1) + "] (the robot has " +
-                 std::to_string(num_frames) + " ground-truth poses)");
+                 std::to_string(num_frames - 1) + "] (the robot has " + std::to_string(num_frames) +
+                 " ground-truth poses)");
     }
     StereoObservation observation;
     observation.id = table.integer(1);
-    observation.uv = Eigen::Vector4d(table.number(2), table.number(3), table.number(4),
-                                     table.number(5));
+    observation.uv =
+        Eigen::Vector4d(table.number(2), table.number(3), table.number(4), table.number(5));
     per_frame[frame].push_back(observation);
   }
   return per_frame;
@@ -268,9 +268,8 @@ std::string format_description(const Dataset& dataset) {
                     {"T_cam_body", matrix_to_json(camera.T_cam0_body.matrix())},
                     {"T_cam0_cam1", matrix_to_json(camera.T_cam0_cam1.matrix())},
                     {"fx_times_baseline", camera.K(0, 0) * camera.baseline()}};
-  root["observations_in"] = camera.K.isIdentity(0.0)
-                                ? "normalized image coordinates (K is identity)"
-                                : "pixels";
+  root["observations_in"] =
+      camera.K.isIdentity(0.0) ? "normalized image coordinates (K is identity)" : "pixels";
   root["has_geometric_features"] = has_features;
   return root.dump(2) + '\n';
 }
@@ -313,7 +312,8 @@ Dataset read_dataset(const std::filesystem::path& directory, const ReadOptions& 
   if (options.max_robots && *options.max_robots < 1) {
     throw std::invalid_argument("read_dataset: max_robots must be >= 1");
   }
-  if (!std::filesystem::is_directory(directory)) fail_in_file(directory, "dataset folder not found");
+  if (!std::filesystem::is_directory(directory))
+    fail_in_file(directory, "dataset folder not found");
 
   const std::filesystem::path description_file = directory / kDescriptionFile;
   Description description = read_description(description_file);

@@ -7,6 +7,7 @@
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
+#include <algorithm>
 #include <array>
 #include <charconv>
 #include <cmath>
@@ -15,11 +16,11 @@
 #include <fstream>
 #include <initializer_list>
 #include <iterator>
-#include <limits>
 #include <span>
 #include <string>
 #include <string_view>
 #include <system_error>
+#include <utility>
 #include <vector>
 
 #include "concord/dataset/dataset.h"
@@ -101,7 +102,9 @@ inline std::string check_and_orthonormalize_rotation(Eigen::Isometry3d& pose) {
   if (!(orthonormality_error <= kRotationTolerance)) {
     std::string problem = "rotation block is not a rotation (largest |R^T R - I| entry is ";
     append_number(problem, orthonormality_error);
-    return problem + ", tolerance 0.001)";
+    problem += ", tolerance ";
+    append_number(problem, kRotationTolerance);
+    return problem + ")";
   }
   if (rotation.determinant() < 0.0) return "rotation block is a reflection (determinant < 0)";
   if (orthonormality_error > kOrthonormalizeAbove) pose = lie::orthonormalized(pose);
@@ -121,6 +124,10 @@ class TextFile {
       has_more_ = true;
     }
   }
+
+  // Not copyable or movable: the position in the file is a view into content_.
+  TextFile(const TextFile&) = delete;
+  TextFile& operator=(const TextFile&) = delete;
 
   const std::filesystem::path& path() const { return file_; }
   /// 1-based number of the line last returned by next_line (0 before the first).
@@ -212,7 +219,8 @@ inline std::vector<Eigen::Isometry3d> read_kitti_poses(const std::filesystem::pa
     }
     Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
     for (int index = 0; index < 12; ++index) {
-      pose.matrix()(index / 4, index % 4) = text.parse_double(tokens[index], kKittiEntryNames[index]);
+      pose.matrix()(index / 4, index % 4) =
+          text.parse_double(tokens[index], kKittiEntryNames[index]);
     }
     const std::string problem = check_and_orthonormalize_rotation(pose);
     if (!problem.empty()) text.fail(problem);
@@ -256,8 +264,7 @@ class CsvReader {
     const std::string expected = csv_header(columns);
     std::string_view line;
     if (!text_.next_line(line)) {
-      fail_in_file(text_.path(), "empty file, expected the header '" + expected +
-                                     "'");
+      fail_in_file(text_.path(), "empty file, expected the header '" + expected + "'");
     }
     split(line);
     bool header_matches = fields_.size() == columns_.size();
@@ -265,8 +272,7 @@ class CsvReader {
       header_matches = fields_[index] == columns_[index];
     }
     if (!header_matches) {
-      text_.fail("expected the header '" + expected + "', found '" +
-                 std::string(line) + "'");
+      text_.fail("expected the header '" + expected + "', found '" + std::string(line) + "'");
     }
   }
 

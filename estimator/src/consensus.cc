@@ -1,9 +1,9 @@
 #include "concord/estimator/consensus.h"
 
 #include <Eigen/Cholesky>
-#include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <map>
+#include <optional>
 #include <set>
 
 #include "concord/estimator/state_helper.h"
@@ -19,13 +19,15 @@ struct CheckedNeighbour {
   std::map<LandmarkId, int> position;
 };
 
-bool well_conditioned(const Eigen::MatrixXd& covariance, double max_condition_number) {
-  if (!covariance.allFinite()) return false;
-  const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eigen(covariance, Eigen::EigenvaluesOnly);
-  if (eigen.info() != Eigen::Success) return false;
-  const double smallest = eigen.eigenvalues().minCoeff();
-  const double largest = eigen.eigenvalues().maxCoeff();
-  return smallest > 0.0 && largest / smallest <= max_condition_number;
+/// Cholesky factor of a covariance if it is positive definite and its (1-norm) condition
+/// number, estimated from the factor, is below max_condition_number.
+std::optional<Eigen::LLT<Eigen::MatrixXd>> checked_cholesky(const Eigen::MatrixXd& covariance,
+                                                            double max_condition_number) {
+  Eigen::LLT<Eigen::MatrixXd> llt(covariance);
+  if (llt.info() != Eigen::Success) return std::nullopt;
+  const double reciprocal_condition = llt.rcond();
+  if (!(reciprocal_condition * max_condition_number >= 1.0)) return std::nullopt;
+  return llt;
 }
 
 /// Mean and covariance of the given positions (landmark order) of a marginal.
@@ -40,29 +42,37 @@ void sub_marginal(const Marginal& marginal, const std::vector<int>& positions,
   covariance = marginal.covariance(indices, indices);
 }
 
-/// Information-form weighted average (eq. 19) of own (weight own_weight) and the members.
-/// Returns false if any covariance is not positive definite.
+/// Information-form weighted average (eq. 19) of the robot's own marginal and its neighbours'.
+/// A neighbour whose covariance is not positive definite or is ill-conditioned is left out (its
+/// weight goes to the robot) and counted. Returns false if no neighbour is usable or the robot's
+/// own marginal is not positive definite (nothing to average).
 bool information_average(double own_weight, const Eigen::VectorXd& own_mean,
-                         const Eigen::MatrixXd& own_covariance,
-                         const std::vector<double>& weights,
+                         const Eigen::MatrixXd& own_covariance, std::vector<double> weights,
                          const std::vector<Eigen::VectorXd>& means,
-                         const std::vector<Eigen::MatrixXd>& covariances, Eigen::VectorXd& mean,
-                         Eigen::MatrixXd& covariance) {
+                         const std::vector<Eigen::MatrixXd>& covariances,
+                         double max_condition_number, Eigen::VectorXd& mean,
+                         Eigen::MatrixXd& covariance, ConsensusReport& report) {
   const Eigen::Index d = own_mean.size();
   Eigen::MatrixXd information = Eigen::MatrixXd::Zero(d, d);
   Eigen::VectorXd information_vector = Eigen::VectorXd::Zero(d);
   const Eigen::MatrixXd identity = Eigen::MatrixXd::Identity(d, d);
-  auto accumulate = [&](double weight, const Eigen::VectorXd& m, const Eigen::MatrixXd& c) {
-    const Eigen::LLT<Eigen::MatrixXd> llt(c);
-    if (llt.info() != Eigen::Success) return false;
-    information += weight * llt.solve(identity);
-    information_vector += weight * llt.solve(m);
-    return true;
-  };
-  if (!accumulate(own_weight, own_mean, own_covariance)) return false;
+  int used = 0;
   for (std::size_t j = 0; j < weights.size(); ++j) {
-    if (!accumulate(weights[j], means[j], covariances[j])) return false;
+    const auto llt = checked_cholesky(covariances[j], max_condition_number);
+    if (!llt) {
+      ++report.neighbours_skipped;
+      own_weight += weights[j];
+      continue;
+    }
+    information += weights[j] * llt->solve(identity);
+    information_vector += weights[j] * llt->solve(means[j]);
+    ++used;
   }
+  if (used == 0) return false;
+  const Eigen::LLT<Eigen::MatrixXd> own(own_covariance);
+  if (own.info() != Eigen::Success) return false;
+  information += own_weight * own.solve(identity);
+  information_vector += own_weight * own.solve(own_mean);
   information = 0.5 * (information + information.transpose()).eval();
   const Eigen::LLT<Eigen::MatrixXd> llt(information);
   if (llt.info() != Eigen::Success) return false;
@@ -154,9 +164,11 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
     const auto d = static_cast<Eigen::Index>(3 * m.ids.size());
     const bool shaped = m.mean.size() == d && m.covariance.rows() == d &&
                         m.covariance.cols() == d && m.mean.allFinite() &&
-                        neighbour.weight > 0.0 && neighbour.weight < 1.0;
+                        m.covariance.allFinite() && neighbour.weight > 0.0 &&
+                        neighbour.weight < 1.0;
     if (m.ids.empty()) continue;
-    if (!shaped || !well_conditioned(m.covariance, options.max_condition_number)) {
+    // Positive definiteness and conditioning are checked per averaged group, below.
+    if (!shaped) {
       ++report.neighbours_skipped;
       continue;
     }
@@ -246,7 +258,7 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
       Eigen::VectorXd mean;
       Eigen::MatrixXd covariance;
       if (!information_average(own_weight, own_mean, own_covariance, weights, means, covariances,
-                               mean, covariance)) {
+                               options.max_condition_number, mean, covariance, report)) {
         continue;
       }
       limit_mean_shift(own_mean, mean, options.max_mean_shift, report);

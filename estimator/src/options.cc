@@ -80,8 +80,7 @@ std::vector<std::string> EstimatorOptions::validate() const {
   problems.check_at_least("object_min_observations", object_min_observations, 2);
   problems.check_distance_range("object_min_distance", object_min_distance, "object_max_distance",
                                 object_max_distance);
-  problems.check_positive("object_init_max_reprojection_error",
-                          object_init_max_reprojection_error);
+  problems.check_positive("object_init_max_reprojection_error", object_init_max_reprojection_error);
   problems.check_non_negative("object_update_gate", object_update_gate);
   problems.check_probability("object_chi2_probability", object_chi2_probability);
   problems.check_at_least("object_archive_after_frames", object_archive_after_frames, 0);

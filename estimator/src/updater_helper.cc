@@ -50,6 +50,36 @@ double normal_quantile(double p) {
          (((((b[0] * r + b[1]) * r + b[2]) * r + b[3]) * r + b[4]) * r + 1.0);
 }
 
+/// Regularized lower incomplete gamma function P(a, x) (Numerical Recipes: series for
+/// x < a + 1, continued fraction otherwise).
+double regularized_lower_gamma(double a, double x) {
+  if (x <= 0.0) return 0.0;
+  const double log_prefactor = a * std::log(x) - x - std::lgamma(a);
+  if (x < a + 1.0) {
+    double term = 1.0 / a, sum = term;
+    for (int n = 1; n < 500 && std::abs(term) > 1e-16 * std::abs(sum); ++n) {
+      term *= x / (a + n);
+      sum += term;
+    }
+    return sum * std::exp(log_prefactor);
+  }
+  constexpr double tiny = 1e-300;
+  double b = x + 1.0 - a, c = 1.0 / tiny, d = 1.0 / b, fraction = d;
+  for (int i = 1; i < 500; ++i) {
+    const double an = -i * (i - a);
+    b += 2.0;
+    d = an * d + b;
+    if (std::abs(d) < tiny) d = tiny;
+    c = b + an / c;
+    if (std::abs(c) < tiny) c = tiny;
+    d = 1.0 / d;
+    const double delta = d * c;
+    fraction *= delta;
+    if (std::abs(delta - 1.0) < 1e-16) break;
+  }
+  return 1.0 - std::exp(log_prefactor) * fraction;
+}
+
 }  // namespace
 
 std::optional<StereoProjection> UpdaterHelper::project(const StereoCamera& camera,
@@ -220,18 +250,25 @@ void UpdaterHelper::measurement_compress_inplace(Eigen::MatrixXd& H, Eigen::Vect
 }
 
 double UpdaterHelper::chi2_quantile(double probability, int dof) {
-  if (dof <= 0) return 0.0;
-  if (dof == 1) {
-    const double z = normal_quantile(0.5 * (1.0 + probability));
-    return z * z;
-  }
-  if (dof == 2) return -2.0 * std::log(1.0 - probability);
-  // Wilson-Hilferty: (X/k)^(1/3) is close to normal with mean 1 - 2/(9k), variance 2/(9k).
+  if (dof <= 0 || probability <= 0.0) return 0.0;
+  if (probability >= 1.0) return std::numeric_limits<double>::infinity();
+  // Start from Wilson-Hilferty ((X/k)^(1/3) is nearly normal with mean 1 - 2/(9k), variance
+  // 2/(9k)), then polish with Newton steps on the exact CDF P(k/2, x/2).
   const double k = dof;
-  const double z = normal_quantile(probability);
   const double h = 2.0 / (9.0 * k);
-  const double cube = 1.0 - h + z * std::sqrt(h);
-  return k * cube * cube * cube;
+  const double cube = std::max(1.0 - h + normal_quantile(probability) * std::sqrt(h), 0.1);
+  double x = k * cube * cube * cube;
+  for (int iteration = 0; iteration < 50; ++iteration) {
+    const double error = regularized_lower_gamma(0.5 * k, 0.5 * x) - probability;
+    // Chi-square density at x.
+    const double density =
+        std::exp((0.5 * k - 1.0) * std::log(x) - 0.5 * x - 0.5 * k * std::log(2.0) -
+                 std::lgamma(0.5 * k));
+    const double step = error / density;
+    x = std::max(x - step, 0.5 * x);
+    if (std::abs(step) < 1e-10 * x) break;
+  }
+  return x;
 }
 
 }  // namespace concord

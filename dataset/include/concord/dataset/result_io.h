@@ -26,7 +26,8 @@ std::vector<Eigen::Isometry3d> read_trajectory_kitti(const std::filesystem::path
 /// Writes object estimates under the header "id,x,y,z,cxx,cxy,cxz,cyy,cyz,czz" (the upper
 /// triangle of the covariance), one row per object, rows sorted by id. Throws std::runtime_error if
 /// the file cannot be written.
-void write_objects_csv(const std::filesystem::path& file, const std::vector<ObjectEstimate>& objects);
+void write_objects_csv(const std::filesystem::path& file,
+                       const std::vector<ObjectEstimate>& objects);
 
 /// Reads a file written by write_objects_csv (the covariance is filled symmetrically), in file
 /// order. Throws DatasetError on bad input (naming the file and line), including a repeated id.
