@@ -1,0 +1,205 @@
+// End-to-end team replays on the embedded slices (data/): finite results, consensus lowering the
+// disagreement, determinism, and the estimator recovering known structure from noiseless data.
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "concord/dataset/dataset.h"
+#include "concord/estimator/estimator.h"
+#include "concord/estimator/lie.h"
+#include "concord/estimator/updater_helper.h"
+#include "concord/config/options_file.h"
+#include "evaluation/metrics.h"
+#include "replay/team_replay.h"
+#include "test_support.h"
+
+namespace concord {
+namespace {
+
+const std::string kData = std::string(CONCORD_SOURCE_DIR) + "/data/";
+const std::string kConfigs = std::string(CONCORD_SOURCE_DIR) + "/configs/datasets/";
+
+dataset::ReadOptions first_frames(int frames) {
+  dataset::ReadOptions options;
+  options.max_frames = frames;
+  return options;
+}
+
+struct TeamRun {
+  replay::ReplayResult result;
+  evaluation::TeamMetrics metrics;
+};
+
+TeamRun run_replay(const dataset::Dataset& data, const EstimatorOptions& options, bool consensus) {
+  replay::ReplayOptions replay_options;
+  replay_options.consensus = consensus;
+  TeamRun out{replay::run_team(data, options, replay_options), {}};
+  std::vector<evaluation::RobotTruth> truths;
+  std::vector<evaluation::RobotResult> results;
+  for (std::size_t i = 0; i < data.robots.size(); ++i) {
+    truths.push_back({data.robots[i].groundtruth, data.robots[i].odometry});
+    results.push_back({out.result.robots[i].trajectory, out.result.robots[i].objects});
+  }
+  out.metrics = evaluation::evaluate(truths, results, data.objects_groundtruth);
+  return out;
+}
+
+void expect_finite_and_complete(const dataset::Dataset& data, const TeamRun& r) {
+  ASSERT_EQ(r.result.robots.size(), data.robots.size());
+  for (std::size_t i = 0; i < data.robots.size(); ++i) {
+    const auto& robot = r.result.robots[i];
+    ASSERT_EQ(robot.trajectory.size(), data.robots[i].groundtruth.size());
+    for (const auto& pose : robot.trajectory) ASSERT_TRUE(pose.matrix().allFinite());
+    EXPECT_FALSE(robot.objects.empty());
+    for (const auto& object : robot.objects) {
+      ASSERT_TRUE(object.p_world.allFinite());
+      ASSERT_TRUE(object.covariance.allFinite());
+      EXPECT_GT(object.covariance.determinant(), 0.0);
+    }
+  }
+}
+
+TEST(TeamReplay, Sim15SliceConsensusAgreesBetterThanSeparate) {
+  const auto data = dataset::read_dataset(kData + "sim15-3x200");
+  const auto options = config::load_estimator_options(kConfigs + "sim15.yaml");
+  const TeamRun separate = run_replay(data, options, false);
+  const TeamRun consensus = run_replay(data, options, true);
+  expect_finite_and_complete(data, separate);
+  expect_finite_and_complete(data, consensus);
+  EXPECT_LT(consensus.metrics.average.disagreement, separate.metrics.average.disagreement);
+  EXPECT_LT(consensus.metrics.average.trajectory_rmse, consensus.metrics.average.odometry_rmse);
+  EXPECT_GT(consensus.result.statistics.landmarks_fused, 0);
+  EXPECT_EQ(separate.result.statistics.landmarks_fused, 0);
+}
+
+TEST(TeamReplay, Kitti00SliceConsensusAgreesBetterThanSeparate) {
+  const auto data = dataset::read_dataset(kData + "kitti00-300");
+  const auto options = config::load_estimator_options(kConfigs + "kitti00.yaml");
+  const TeamRun separate = run_replay(data, options, false);
+  const TeamRun consensus = run_replay(data, options, true);
+  expect_finite_and_complete(data, separate);
+  expect_finite_and_complete(data, consensus);
+  EXPECT_LT(consensus.metrics.average.disagreement, separate.metrics.average.disagreement);
+  EXPECT_GT(consensus.result.statistics.landmarks_fused, 0);
+}
+
+TEST(TeamReplay, IsDeterministic) {
+  auto data = dataset::read_dataset(kData + "sim15-3x200", first_frames(60));
+  const auto options = config::load_estimator_options(kConfigs + "sim15.yaml");
+  replay::ReplayOptions replay_options;
+  replay_options.link_loss = 0.3;
+  replay_options.graph = replay::GraphKind::kRandom;
+  const auto first = replay::run_team(data, options, replay_options);
+  const auto second = replay::run_team(data, options, replay_options);
+  for (std::size_t i = 0; i < first.robots.size(); ++i) {
+    for (std::size_t k = 0; k < first.robots[i].trajectory.size(); ++k) {
+      ASSERT_EQ(first.robots[i].trajectory[k].matrix(), second.robots[i].trajectory[k].matrix());
+    }
+    ASSERT_EQ(first.robots[i].objects.size(), second.robots[i].objects.size());
+  }
+}
+
+TEST(TeamReplay, RejectsABadLossRate) {
+  auto data = dataset::read_dataset(kData + "sim15-3x200", first_frames(5));
+  replay::ReplayOptions replay_options;
+  replay_options.link_loss = 1.5;
+  EXPECT_THROW(replay::run_team(data, EstimatorOptions{}, replay_options), std::invalid_argument);
+}
+
+TEST(Graphs, RandomGraphsAreConnected) {
+  for (std::uint64_t seed = 1; seed < 20; ++seed) {
+    const auto graph = replay::make_graph(replay::GraphKind::kRandom, 9, seed);
+    std::vector<bool> seen(9, false);
+    std::vector<int> stack = {0};
+    seen[0] = true;
+    while (!stack.empty()) {
+      const int node = stack.back();
+      stack.pop_back();
+      for (int next : graph[node]) {
+        if (seen[next]) continue;
+        seen[next] = true;
+        stack.push_back(next);
+      }
+    }
+    EXPECT_EQ(std::count(seen.begin(), seen.end(), true), 9) << "seed " << seed;
+  }
+}
+
+// A robot driving straight past a known object with exact odometry and noiseless stereo.
+TEST(ObjectInitialization, RecoversAKnownPointFromNoiselessStereo) {
+  const StereoCamera camera = testing::kitti_like_camera();
+  EstimatorOptions options;
+  options.object_sigma = 1.0;
+  const Eigen::Vector3d p_object(15.0, 3.0, 0.5);
+  Eigen::Isometry3d step = Eigen::Isometry3d::Identity();
+  step.translation() = Eigen::Vector3d(0.8, 0.0, 0.0);
+  Estimator estimator(options, camera, Eigen::Isometry3d::Identity());
+  Eigen::Isometry3d truth = Eigen::Isometry3d::Identity();
+  for (int frame = 0; frame < 4; ++frame) {
+    FrameInput input;
+    input.frame = frame;
+    if (frame > 0) {
+      input.T_previous_current = step;
+      truth = truth * step;
+    }
+    const auto projection = UpdaterHelper::project(camera, truth, p_object);
+    input.objects.push_back({42, camera.denormalize(projection->xy)});
+    const auto report = estimator.process(input);
+    EXPECT_EQ(report.objects.initialized, frame == 2 ? 1 : 0) << "frame " << frame;
+  }
+  const auto objects = estimator.objects();
+  ASSERT_EQ(objects.size(), 1u);
+  EXPECT_EQ(objects[0].id, 42);
+  EXPECT_LT((objects[0].p_world - p_object).norm(), 1e-6);
+  EXPECT_LT((estimator.current_pose().translation() - truth.translation()).norm(), 1e-6);
+}
+
+// Point features correct a biased odometry: the MSCKF update must help.
+TEST(FeatureUpdate, ReducesTheDriftOfBiasedOdometry) {
+  const StereoCamera camera = testing::kitti_like_camera();
+  std::mt19937 random(5);
+  std::uniform_real_distribution<double> lateral(-8.0, 8.0), height(-1.0, 2.0), ahead(4.0, 25.0);
+  std::vector<Eigen::Vector3d> points;
+  for (int i = 0; i < 400; ++i) points.emplace_back(ahead(random) * 4.0, lateral(random), height(random));
+  Eigen::Isometry3d true_step = Eigen::Isometry3d::Identity();
+  true_step.translation() = Eigen::Vector3d(0.8, 0.0, 0.0);
+  // Odometry with a yaw bias of 0.3 degrees per frame and 2 % scale error.
+  Eigen::Isometry3d measured_step = true_step;
+  measured_step.linear() = lie::so3_exp(Eigen::Vector3d(0, 0, 0.3 * M_PI / 180));
+  measured_step.translation() *= 1.02;
+  auto run_with = [&](bool features) {
+    EstimatorOptions options;
+    options.use_objects = false;
+    options.use_point_features = features;
+    options.odometry_translation_sigma = 0.03;
+    options.odometry_rotation_sigma = 0.005;
+    Estimator estimator(options, camera, Eigen::Isometry3d::Identity());
+    Eigen::Isometry3d truth = Eigen::Isometry3d::Identity();
+    double squared = 0.0;
+    const int frames = 60;
+    for (int frame = 0; frame < frames; ++frame) {
+      FrameInput input;
+      input.frame = frame;
+      if (frame > 0) {
+        input.T_previous_current = measured_step;
+        truth = truth * true_step;
+      }
+      for (std::size_t i = 0; i < points.size(); ++i) {
+        const auto projection = UpdaterHelper::project(camera, truth, points[i]);
+        if (!projection || projection->depth_left > 40.0) continue;
+        const Eigen::Vector4d uv = camera.denormalize(projection->xy);
+        if (uv(0) < 0 || uv(0) > 1241 || uv(1) < 0 || uv(1) > 376) continue;
+        input.features.push_back({static_cast<LandmarkId>(i), uv});
+      }
+      estimator.process(input);
+      squared += (estimator.current_pose().translation() - truth.translation()).squaredNorm();
+    }
+    return std::sqrt(squared / frames);
+  };
+  const double without = run_with(false);
+  const double with = run_with(true);
+  EXPECT_LT(with, 0.5 * without) << "with features " << with << " m, without " << without << " m";
+}
+
+}  // namespace
+}  // namespace concord
