@@ -47,8 +47,8 @@ TEST(Proposition2, KeepsTheConditionalAndSetsTheMarginal) {
         before.poses[slot].T_world_body * lie::se3_exp(shift.segment<6>(6 * slot));
     EXPECT_TRUE(state.poses[slot].T_world_body.matrix().isApprox(expected.matrix(), 1e-10));
   }
-  EXPECT_TRUE(state.landmarks[1].p_world.isApprox(before.landmarks[1].p_world + shift.tail<3>(),
-                                                  1e-10));
+  EXPECT_TRUE(
+      state.landmarks[1].p_world.isApprox(before.landmarks[1].p_world + shift.tail<3>(), 1e-10));
   EXPECT_TRUE(state.landmarks[0].p_world.isApprox(new_mean.head<3>(), 1e-12));
   EXPECT_TRUE(state.landmarks[2].p_world.isApprox(new_mean.tail<3>(), 1e-12));
 }
@@ -83,7 +83,8 @@ TEST(ConsensusAverage, TwoMarginalsGiveTheClosedFormInformationAverage) {
   state.covariance = Eigen::MatrixXd::Identity(9, 9);
   Marginal neighbour{{5}, Eigen::Vector3d(3.0, 2.0, -1.0), 4.0 * Eigen::Matrix3d::Identity()};
   Consensus::fuse(state, {{0.5, neighbour}}, no_safeguards());
-  const Eigen::Vector3d expected = 1.6 * (0.5 * Eigen::Vector3d(1, 2, 3) + 0.125 * Eigen::Vector3d(3, 2, -1));
+  const Eigen::Vector3d expected =
+      1.6 * (0.5 * Eigen::Vector3d(1, 2, 3) + 0.125 * Eigen::Vector3d(3, 2, -1));
   EXPECT_TRUE(state.landmarks[0].p_world.isApprox(expected, 1e-12));
   const Eigen::Matrix3d block = state.covariance.block<3, 3>(6, 6);
   EXPECT_TRUE(block.isApprox(1.6 * Eigen::Matrix3d::Identity(), 1e-12));
@@ -166,8 +167,8 @@ TEST(ConsensusSafeguards, DisagreementGateLeavesOutFarNeighbours) {
 
 TEST(MetropolisWeights, AreDoublyStochasticAndOneOverNOnCompleteGraphs) {
   EXPECT_DOUBLE_EQ(Consensus::metropolis_weight(2, 2), 1.0 / 3);
-  for (auto kind : {replay::GraphKind::kComplete, replay::GraphKind::kRing,
-                    replay::GraphKind::kRandom}) {
+  for (auto kind :
+       {replay::GraphKind::kComplete, replay::GraphKind::kRing, replay::GraphKind::kRandom}) {
     const int n = 7;
     const auto graph = replay::make_graph(kind, n, 5);
     Eigen::MatrixXd A = Eigen::MatrixXd::Zero(n, n);

@@ -62,8 +62,8 @@ TEST(StereoProjection, MatchesPinholeAndRejectsPointsBehind) {
   EXPECT_NEAR(projection->xy(0), -0.1, 1e-12);
   EXPECT_NEAR(projection->xy(2), (-1.0 - 0.5323) / 10.0, 1e-12);
   EXPECT_NEAR(projection->depth_left, 10.0, 1e-12);
-  EXPECT_FALSE(UpdaterHelper::project(camera, Eigen::Isometry3d::Identity(),
-                                      Eigen::Vector3d(-10, 1, 0)));
+  EXPECT_FALSE(
+      UpdaterHelper::project(camera, Eigen::Isometry3d::Identity(), Eigen::Vector3d(-10, 1, 0)));
 }
 
 TEST(StereoCamera, NormalizeInvertsDenormalize) {
@@ -190,7 +190,8 @@ TEST(KalmanUpdate, CorrelatedNoiseMatchesGaussianConditioning) {
   const Eigen::VectorXd r = testing::random_vector(m, random);
   const Eigen::MatrixXd P = state.covariance;
   const Eigen::MatrixXd cross = P * H.transpose() + S;
-  const Eigen::MatrixXd innovation = H * P * H.transpose() + V + H * S + S.transpose() * H.transpose();
+  const Eigen::MatrixXd innovation =
+      H * P * H.transpose() + V + H * S + S.transpose() * H.transpose();
   const Eigen::MatrixXd expected_covariance = P - cross * innovation.inverse() * cross.transpose();
   const Eigen::VectorXd expected_correction = cross * innovation.inverse() * r;
 

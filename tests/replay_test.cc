@@ -4,11 +4,11 @@
 
 #include <cmath>
 
+#include "concord/config/options_file.h"
 #include "concord/dataset/dataset.h"
 #include "concord/estimator/estimator.h"
 #include "concord/estimator/lie.h"
 #include "concord/estimator/updater_helper.h"
-#include "concord/config/options_file.h"
 #include "evaluation/metrics.h"
 #include "replay/team_replay.h"
 #include "test_support.h"
@@ -160,7 +160,8 @@ TEST(FeatureUpdate, ReducesTheDriftOfBiasedOdometry) {
   std::mt19937 random(5);
   std::uniform_real_distribution<double> lateral(-8.0, 8.0), height(-1.0, 2.0), ahead(4.0, 25.0);
   std::vector<Eigen::Vector3d> points;
-  for (int i = 0; i < 400; ++i) points.emplace_back(ahead(random) * 4.0, lateral(random), height(random));
+  for (int i = 0; i < 400; ++i)
+    points.emplace_back(ahead(random) * 4.0, lateral(random), height(random));
   Eigen::Isometry3d true_step = Eigen::Isometry3d::Identity();
   true_step.translation() = Eigen::Vector3d(0.8, 0.0, 0.0);
   // Odometry with a yaw bias of 0.3 degrees per frame and 2 % scale error.

@@ -91,14 +91,13 @@ int run_replay(const fs::path& dataset_dir, const fs::path& out, bool separate,
   replay_options.link_loss = loss;
   replay_options.seed = seed;
   int last_percent = -1;
-  const auto result =
-      replay::run_team(data, options, replay_options, [&](int step, int steps) {
-        const int percent = 100 * step / steps;
-        if (percent / 10 != last_percent / 10 || step == steps) {
-          std::cerr << "  step " << step << "/" << steps << " (" << percent << " %)\n";
-          last_percent = percent;
-        }
-      });
+  const auto result = replay::run_team(data, options, replay_options, [&](int step, int steps) {
+    const int percent = 100 * step / steps;
+    if (percent / 10 != last_percent / 10 || step == steps) {
+      std::cerr << "  step " << step << "/" << steps << " (" << percent << " %)\n";
+      last_percent = percent;
+    }
+  });
 
   fs::create_directories(out);
   std::vector<evaluation::RobotResult> results;
@@ -135,7 +134,8 @@ int run_replay(const fs::path& dataset_dir, const fs::path& out, bool separate,
             << " s (update " << s.update_seconds << " s, consensus " << s.consensus_seconds
             << " s)\n";
   report(data, results, out,
-         data.name + (separate ? " separate" : " consensus") + (frames > 0 ? " (" + std::to_string(frames) + " frames)" : ""),
+         data.name + (separate ? " separate" : " consensus") +
+             (frames > 0 ? " (" + std::to_string(frames) + " frames)" : ""),
          run);
   return 0;
 }
@@ -210,8 +210,9 @@ int main(int argc, char** argv) {
       ->required()
       ->check(CLI::ExistingDirectory);
   slice_command->add_option("--out", out_dir, "Output folder")->required();
-  slice_command->add_option("--frames", frames, "Frames to keep")->required()->check(
-      CLI::PositiveNumber);
+  slice_command->add_option("--frames", frames, "Frames to keep")
+      ->required()
+      ->check(CLI::PositiveNumber);
   slice_command->add_option("--robots", robots, "Robots to keep (default all)")
       ->check(CLI::PositiveNumber);
 

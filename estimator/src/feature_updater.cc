@@ -87,10 +87,10 @@ FeatureUpdateStats FeatureUpdater::process(State& state,
                                              linearized->residual, extra);
     const Eigen::Index rows = linearized->residual.size();
     const Eigen::MatrixXd noise = noise_variance_ * Eigen::MatrixXd::Identity(rows, rows);
-    const double threshold =
-        options_.feature_chi2_probability > 0.0
-            ? UpdaterHelper::chi2_quantile(options_.feature_chi2_probability, static_cast<int>(rows))
-            : std::numeric_limits<double>::infinity();
+    const double threshold = options_.feature_chi2_probability > 0.0
+                                 ? UpdaterHelper::chi2_quantile(options_.feature_chi2_probability,
+                                                                static_cast<int>(rows))
+                                 : std::numeric_limits<double>::infinity();
     if (StateHelper::mahalanobis_squared(state, linearized->H_state, linearized->residual, noise) >
         threshold) {
       ++stats.tracks_rejected;

@@ -23,7 +23,8 @@ bool ObjectUpdater::passes_gates(const State& state, const LinearizedTrack& line
   }
   if (chi2_threshold_4dof_ > 0.0) {
     const Eigen::MatrixXd noise =
-        noise_variance_ * Eigen::MatrixXd::Identity(linearized.residual.size(), linearized.residual.size());
+        noise_variance_ *
+        Eigen::MatrixXd::Identity(linearized.residual.size(), linearized.residual.size());
     if (StateHelper::mahalanobis_squared(state, linearized.H_state, linearized.residual, noise) >
         chi2_threshold_4dof_) {
       return false;
@@ -51,7 +52,8 @@ ObjectUpdateStats ObjectUpdater::process(State& state,
         continue;
       }
       // Rejoin only if the archived estimate projects plausibly; else treat as outlier.
-      const auto projection = UpdaterHelper::project(camera_, T_world_body, archived->second.p_world);
+      const auto projection =
+          UpdaterHelper::project(camera_, T_world_body, archived->second.p_world);
       if (!projection) {
         ++stats.rejected;
         continue;
@@ -153,14 +155,13 @@ bool ObjectUpdater::try_initialize(State& state, LandmarkId id,
   // 4. Augment (eq. 30), then update with the rows that do not involve the new object.
   const Eigen::Vector3d p_new = *p_world + R1.inverse() * residual_rotated.head<3>();
   const Eigen::Matrix3d noise1 = noise_variance_ * Eigen::Matrix3d::Identity();
-  StateHelper::augment_landmark(state, id, p_new, track.back().frame,
-                                H_state_rotated.topRows(3), R1, noise1);
+  StateHelper::augment_landmark(state, id, p_new, track.back().frame, H_state_rotated.topRows(3),
+                                R1, noise1);
   if (rows > 3) {
     Eigen::MatrixXd H2 = Eigen::MatrixXd::Zero(rows - 3, state.dimension());
     H2.leftCols(H_state_rotated.cols()) = H_state_rotated.bottomRows(rows - 3);
     const Eigen::VectorXd r2 = residual_rotated.tail(rows - 3);
-    const Eigen::MatrixXd noise2 =
-        noise_variance_ * Eigen::MatrixXd::Identity(rows - 3, rows - 3);
+    const Eigen::MatrixXd noise2 = noise_variance_ * Eigen::MatrixXd::Identity(rows - 3, rows - 3);
     StateHelper::update(state, H2, r2, noise2);
   }
   return true;

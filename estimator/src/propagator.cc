@@ -40,8 +40,8 @@ void Propagator::propagate(State& state, const Eigen::Isometry3d& T_previous_cur
   propagated.block(0, poses, poses, 6) = new_rows.leftCols(poses).transpose();
   propagated.block(poses, poses + 6, 6, landmarks) = new_rows.rightCols(landmarks);
   propagated.block(poses + 6, poses, landmarks, 6) = new_rows.rightCols(landmarks).transpose();
-  Eigen::Matrix<double, 6, 6> block = new_rows.middleCols<6>(newest) * J.transpose() +
-                                      odometry_noise_;
+  Eigen::Matrix<double, 6, 6> block =
+      new_rows.middleCols<6>(newest) * J.transpose() + odometry_noise_;
   propagated.block<6, 6>(poses, poses) = 0.5 * (block + block.transpose());
   state.covariance = std::move(propagated);
   state.poses.push_back({frame, T_world_new});

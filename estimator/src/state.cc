@@ -36,8 +36,8 @@ std::vector<ObjectEstimate> State::objects() const {
   out.reserve(landmarks.size() + archived.size());
   for (int slot = 0; slot < num_landmarks(); ++slot) {
     const int index = landmark_index(slot);
-    out.push_back({landmarks[slot].id, landmarks[slot].p_world,
-                   covariance.block<3, 3>(index, index)});
+    out.push_back(
+        {landmarks[slot].id, landmarks[slot].p_world, covariance.block<3, 3>(index, index)});
   }
   for (const auto& [id, estimate] : archived) out.push_back(estimate);
   std::sort(out.begin(), out.end(),

@@ -103,7 +103,8 @@ std::optional<StereoProjection> UpdaterHelper::project(const StereoCamera& camer
   out.depth_right = p_cam1.z();
   out.xy << p_cam0.x() / p_cam0.z(), p_cam0.y() / p_cam0.z(), p_cam1.x() / p_cam1.z(),
       p_cam1.y() / p_cam1.z();
-  const Eigen::Matrix<double, 2, 3> J_left = projection_jacobian(p_cam0) * camera.T_cam0_body.linear();
+  const Eigen::Matrix<double, 2, 3> J_left =
+      projection_jacobian(p_cam0) * camera.T_cam0_body.linear();
   const Eigen::Matrix<double, 2, 3> J_right = projection_jacobian(p_cam1) * T_cam1_body.linear();
   out.jacobian_pose.topRows<2>() = J_left * body_wrt_pose;
   out.jacobian_pose.bottomRows<2>() = J_right * body_wrt_pose;
@@ -261,9 +262,8 @@ double UpdaterHelper::chi2_quantile(double probability, int dof) {
   for (int iteration = 0; iteration < 50; ++iteration) {
     const double error = regularized_lower_gamma(0.5 * k, 0.5 * x) - probability;
     // Chi-square density at x.
-    const double density =
-        std::exp((0.5 * k - 1.0) * std::log(x) - 0.5 * x - 0.5 * k * std::log(2.0) -
-                 std::lgamma(0.5 * k));
+    const double density = std::exp((0.5 * k - 1.0) * std::log(x) - 0.5 * x -
+                                    0.5 * k * std::log(2.0) - std::lgamma(0.5 * k));
     const double step = error / density;
     x = std::max(x - step, 0.5 * x);
     if (std::abs(step) < 1e-10 * x) break;

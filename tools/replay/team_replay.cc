@@ -146,9 +146,9 @@ ReplayResult run_team(const dataset::Dataset& dataset, const EstimatorOptions& e
         for (int j : round_neighbours[i]) {
           const auto common = intersection(ids[i], ids[j]);
           if (common.empty()) continue;
-          const double weight = Consensus::metropolis_weight(
-              static_cast<int>(round_neighbours[i].size()),
-              static_cast<int>(round_neighbours[j].size()));
+          const double weight =
+              Consensus::metropolis_weight(static_cast<int>(round_neighbours[i].size()),
+                                           static_cast<int>(round_neighbours[j].size()));
           inbox[i].push_back({weight, estimators[j].marginal(common)});
         }
       }

@@ -49,8 +49,8 @@ struct RobotOutput {
 /// Counters and timings of a run (timings are wall-clock seconds, for reports only).
 struct ReplayStatistics {
   int steps = 0;
-  long long robot_steps = 0;           ///< (robot, frame) pairs processed
-  long long consensus_robot_steps = 0; ///< (robot, round) pairs that fused at least one marginal
+  long long robot_steps = 0;            ///< (robot, frame) pairs processed
+  long long consensus_robot_steps = 0;  ///< (robot, round) pairs that fused at least one marginal
   long long landmarks_fused = 0;
   long long neighbours_skipped = 0;
   long long mean_shifts_limited = 0;

@@ -20,13 +20,13 @@ namespace concord {
 
 /// What one consensus step did.
 struct ConsensusReport {
-  int landmarks_fused = 0;        ///< landmarks whose marginal was replaced by an average
-  int groups = 0;                 ///< jointly averaged groups
+  int landmarks_fused = 0;  ///< landmarks whose marginal was replaced by an average
+  int groups = 0;           ///< jointly averaged groups
   /// Neighbour marginals left out: malformed (whole marginal), or not positive definite or
   /// ill-conditioned (counted per averaged group).
   int neighbours_skipped = 0;
-  int landmarks_gated = 0;        ///< (landmark, neighbour) pairs left out by the disagreement gate
-  int mean_shifts_limited = 0;    ///< landmark steps shortened by max_mean_shift
+  int landmarks_gated = 0;      ///< (landmark, neighbour) pairs left out by the disagreement gate
+  int mean_shifts_limited = 0;  ///< landmark steps shortened by max_mean_shift
   double largest_mean_shift = 0.0;  ///< metres, after limiting
 };
 

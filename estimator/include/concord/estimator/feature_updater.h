@@ -15,9 +15,9 @@ namespace concord {
 
 struct FeatureUpdateStats {
   int observations = 0;
-  int tracks_used = 0;       ///< tracks that entered the update
-  int tracks_rejected = 0;   ///< triangulation, distance or chi-square failures
-  int rows = 0;              ///< residual rows after null-space projection, before compression
+  int tracks_used = 0;      ///< tracks that entered the update
+  int tracks_rejected = 0;  ///< triangulation, distance or chi-square failures
+  int rows = 0;             ///< residual rows after null-space projection, before compression
 };
 
 class FeatureUpdater {

@@ -15,12 +15,12 @@ namespace concord {
 /// What one frame's object processing did (counters for logs and metrics).
 struct ObjectUpdateStats {
   int observations = 0;
-  int updated = 0;          ///< observations used in the update
-  int rejected = 0;         ///< observations rejected by the gates
-  int initialized = 0;      ///< new objects added to the state
-  int init_failed = 0;      ///< initialization attempts rejected
-  int reactivated = 0;      ///< archived objects that rejoined the state
-  int archived = 0;         ///< objects that left the joint state this frame
+  int updated = 0;      ///< observations used in the update
+  int rejected = 0;     ///< observations rejected by the gates
+  int initialized = 0;  ///< new objects added to the state
+  int init_failed = 0;  ///< initialization attempts rejected
+  int reactivated = 0;  ///< archived objects that rejoined the state
+  int archived = 0;     ///< objects that left the joint state this frame
 };
 
 class ObjectUpdater {

@@ -36,8 +36,7 @@ class StateHelper {
                                const Eigen::Matrix3d& R1, const Eigen::Matrix3d& noise1);
 
   /// Appends a landmark independent of the rest of the state (an archived object rejoining).
-  static void insert_independent_landmark(State& state, const ObjectEstimate& estimate,
-                                          int frame);
+  static void insert_independent_landmark(State& state, const ObjectEstimate& estimate, int frame);
 
   /// Marginalizes the given landmark slots out of the joint state (drops rows and columns).
   static void remove_landmarks(State& state, const std::vector<int>& slots);
