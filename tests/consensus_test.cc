@@ -53,6 +53,16 @@ TEST(Proposition2, KeepsTheConditionalAndSetsTheMarginal) {
   EXPECT_TRUE(state.landmarks[2].p_world.isApprox(new_mean.tail<3>(), 1e-12));
 }
 
+/// One pose and landmark 5 at the origin, all with unit covariance and no correlation.
+State single_landmark_state() {
+  State state;
+  state.poses.push_back({0, Eigen::Isometry3d::Identity()});
+  state.landmarks.push_back({5, Eigen::Vector3d::Zero(), 0});
+  state.rebuild_landmark_index();
+  state.covariance = Eigen::MatrixXd::Identity(9, 9);
+  return state;
+}
+
 ConsensusOptions no_safeguards() {
   ConsensusOptions options;
   options.max_mean_shift = 0.0;
@@ -105,11 +115,7 @@ TEST(ConsensusAverage, ArchivedObjectsAverageIndependently) {
 
 TEST(ConsensusAverage, NonHoldersLeaveTheirWeightToTheRobot) {
   // Landmark 5 is held by neighbour a only; neighbour b (weight 1/3) holds another one.
-  State state;
-  state.poses.push_back({0, Eigen::Isometry3d::Identity()});
-  state.landmarks.push_back({5, Eigen::Vector3d::Zero(), 0});
-  state.rebuild_landmark_index();
-  state.covariance = Eigen::MatrixXd::Identity(9, 9);
+  State state = single_landmark_state();
   Marginal a{{5}, Eigen::Vector3d(3, 0, 0), Eigen::Matrix3d::Identity()};
   Marginal b{{6}, Eigen::Vector3d(0, 0, 0), Eigen::Matrix3d::Identity()};
   Consensus::fuse(state, {{1.0 / 3, a}, {1.0 / 3, b}}, no_safeguards());
@@ -118,11 +124,7 @@ TEST(ConsensusAverage, NonHoldersLeaveTheirWeightToTheRobot) {
 }
 
 TEST(ConsensusSafeguards, MeanShiftIsLimited) {
-  State state;
-  state.poses.push_back({0, Eigen::Isometry3d::Identity()});
-  state.landmarks.push_back({5, Eigen::Vector3d::Zero(), 0});
-  state.rebuild_landmark_index();
-  state.covariance = Eigen::MatrixXd::Identity(9, 9);
+  State state = single_landmark_state();
   ConsensusOptions options;
   options.max_mean_shift = 0.5;
   Marginal far{{5}, Eigen::Vector3d(10, 0, 0), Eigen::Matrix3d::Identity()};
@@ -132,11 +134,7 @@ TEST(ConsensusSafeguards, MeanShiftIsLimited) {
 }
 
 TEST(ConsensusSafeguards, MalformedAndIllConditionedMarginalsAreSkipped) {
-  State state;
-  state.poses.push_back({0, Eigen::Isometry3d::Identity()});
-  state.landmarks.push_back({5, Eigen::Vector3d::Zero(), 0});
-  state.rebuild_landmark_index();
-  state.covariance = Eigen::MatrixXd::Identity(9, 9);
+  State state = single_landmark_state();
   const State before = state;
   Marginal wrong_size{{5}, Eigen::Vector2d(1, 1), Eigen::Matrix3d::Identity()};
   Marginal indefinite{{5}, Eigen::Vector3d(1, 1, 1), -Eigen::Matrix3d::Identity()};
@@ -152,11 +150,7 @@ TEST(ConsensusSafeguards, MalformedAndIllConditionedMarginalsAreSkipped) {
 }
 
 TEST(ConsensusSafeguards, DisagreementGateLeavesOutFarNeighbours) {
-  State state;
-  state.poses.push_back({0, Eigen::Isometry3d::Identity()});
-  state.landmarks.push_back({5, Eigen::Vector3d::Zero(), 0});
-  state.rebuild_landmark_index();
-  state.covariance = Eigen::MatrixXd::Identity(9, 9);
+  State state = single_landmark_state();
   ConsensusOptions options = no_safeguards();
   options.disagreement_gate = 3.0;
   Marginal far{{5}, Eigen::Vector3d(100, 0, 0), Eigen::Matrix3d::Identity()};
