@@ -8,15 +8,6 @@ namespace concord {
 
 namespace {
 
-/// Columns of H that hold a non-zero entry.
-std::vector<int> nonzero_columns(const Eigen::MatrixXd& H) {
-  std::vector<int> columns;
-  for (Eigen::Index c = 0; c < H.cols(); ++c) {
-    if (!H.col(c).isZero(0.0)) columns.push_back(static_cast<int>(c));
-  }
-  return columns;
-}
-
 /// P H^T using only the non-zero columns of H: n x m in O(n * k * m).
 Eigen::MatrixXd covariance_times_jacobian_transpose(const Eigen::MatrixXd& P,
                                                     const Eigen::MatrixXd& H,
@@ -150,6 +141,14 @@ Marginal StateHelper::landmark_marginal(const State& state, const std::vector<in
   }
   marginal.covariance = state.covariance(indices, indices);
   return marginal;
+}
+
+std::vector<int> StateHelper::nonzero_columns(const Eigen::MatrixXd& H) {
+  std::vector<int> columns;
+  for (Eigen::Index c = 0; c < H.cols(); ++c) {
+    if (!H.col(c).isZero(0.0)) columns.push_back(static_cast<int>(c));
+  }
+  return columns;
 }
 
 void StateHelper::symmetrize(State& state) {

@@ -6,6 +6,7 @@
 #include <limits>
 
 #include "concord/estimator/lie.h"
+#include "concord/estimator/state_helper.h"
 
 namespace concord {
 
@@ -234,10 +235,7 @@ void UpdaterHelper::nullspace_project_inplace(Eigen::MatrixXd& H_state, Eigen::M
 
 void UpdaterHelper::measurement_compress_inplace(Eigen::MatrixXd& H, Eigen::VectorXd& residual,
                                                  Eigen::MatrixXd* extra) {
-  std::vector<int> columns;
-  for (Eigen::Index c = 0; c < H.cols(); ++c) {
-    if (!H.col(c).isZero(0.0)) columns.push_back(static_cast<int>(c));
-  }
+  const std::vector<int> columns = StateHelper::nonzero_columns(H);
   const Eigen::Index k = static_cast<Eigen::Index>(columns.size());
   if (H.rows() <= k) return;
   const Eigen::MatrixXd compact = H(Eigen::all, columns);

@@ -47,6 +47,10 @@ class StateHelper {
   /// Joint marginal of in-state landmarks (given by slot) in the order given.
   static Marginal landmark_marginal(const State& state, const std::vector<int>& slots);
 
+  /// Indices of the columns of H that hold a non-zero entry (the state entries a Jacobian
+  /// touches); products are formed over these only.
+  static std::vector<int> nonzero_columns(const Eigen::MatrixXd& H);
+
   /// Enforces symmetry of the covariance after an update.
   static void symmetrize(State& state);
 };
