@@ -20,8 +20,8 @@ Eigen::Matrix<double, 2, 3> projection_jacobian(const Eigen::Vector3d& p) {
   return J;
 }
 
-/// Inverse of the standard normal CDF (Acklam's rational approximation, relative error < 1.2e-9
-/// after one Newton step is not needed for gating).
+/// Inverse of the standard normal CDF (Acklam's rational approximation, relative error below
+/// 1.2e-9); the starting point of the chi-square quantile.
 double normal_quantile(double p) {
   static constexpr double a[] = {-3.969683028665376e+01, 2.209460984245205e+02,
                                  -2.759285104469687e+02, 1.383577518672690e+02,
