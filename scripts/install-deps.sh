@@ -10,6 +10,9 @@ packages=(
   libcli11-dev             # command-line parsing
   nlohmann-json3-dev       # metrics.json, dataset.json, HTTP bodies
   libopencv-core-dev libopencv-imgproc-dev libopencv-imgcodecs-dev  # trajectory plots (PNG)
+  libboost-dev             # Asio (peer-to-peer network) and Beast (HTTP endpoint), header-only
+  libprotobuf-dev protobuf-compiler  # wire schema (proto/)
+  libspdlog-dev            # daemon logging, one event per line
   libgtest-dev libgmock-dev  # tests
 )
 
