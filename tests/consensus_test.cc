@@ -123,6 +123,92 @@ TEST(ConsensusAverage, NonHoldersLeaveTheirWeightToTheRobot) {
   EXPECT_TRUE(state.landmarks[0].p_world.isApprox(Eigen::Vector3d(1, 0, 0), 1e-12));
 }
 
+TEST(ConsensusMarginal, ArchivedObjectsAreIndependentBlocks) {
+  std::mt19937 random(5);
+  State state = testing::random_state(2, 2, random);
+  state.archived[40] = {40, Eigen::Vector3d(1, 2, 3), 2.0 * Eigen::Matrix3d::Identity()};
+  state.archived[41] = {41, Eigen::Vector3d(4, 5, 6), 3.0 * Eigen::Matrix3d::Identity()};
+  const Marginal m = Consensus::marginal(state, state.object_ids());
+  ASSERT_TRUE(m.well_formed());
+  ASSERT_EQ(m.blocks.size(), 3u);  // the two in-state landmarks jointly, then one per archived
+  EXPECT_EQ(m.blocks[0].rows(), 6);
+  EXPECT_TRUE(m.blocks[2].isApprox(3.0 * Eigen::Matrix3d::Identity(), 1e-15));
+  const Eigen::MatrixXd dense = m.dense_covariance();
+  EXPECT_TRUE(dense.block(6, 0, 6, 6).isZero(0.0));
+}
+
+TEST(ConsensusAverage, BlockDiagonalMarginalEqualsItsDenseForm) {
+  std::mt19937 random(8);
+  State blocks_state = testing::random_state(2, 4, random);
+  State dense_state = blocks_state;
+  const std::vector<LandmarkId> ids = blocks_state.object_ids();
+  Marginal blocked;
+  blocked.ids = ids;
+  blocked.mean = Eigen::VectorXd::Random(12);
+  blocked.blocks = {testing::random_spd(6, random, 0.02, 0.3),
+                    testing::random_spd(3, random, 0.02, 0.3),
+                    testing::random_spd(3, random, 0.02, 0.3)};
+  const Marginal dense{ids, blocked.mean, blocked.dense_covariance()};
+  Consensus::fuse(blocks_state, {{0.25, blocked}}, no_safeguards());
+  Consensus::fuse(dense_state, {{0.25, dense}}, no_safeguards());
+  EXPECT_TRUE(blocks_state.covariance.isApprox(dense_state.covariance, 1e-12));
+  for (int i = 0; i < 4; ++i) {
+    EXPECT_TRUE(blocks_state.landmarks[i].p_world.isApprox(dense_state.landmarks[i].p_world,
+                                                           1e-12));
+  }
+}
+
+TEST(ConsensusAverage, GroupsEqualSuccessivePropositionTwoReplacements) {
+  // Neighbour a holds landmarks {0, 1}, neighbour b holds {1, 2}: three holder groups, {0}: a,
+  // {1}: a+b, {2}: b. fuse() replaces them together; the reference replaces group by group on
+  // the full state, each from the state the previous one left.
+  std::mt19937 random(17);
+  State state = testing::random_state(3, 3, random);
+  const std::vector<LandmarkId> ids = state.object_ids();
+  // Neighbours close to the robot (a few cm), as in a running team.
+  auto random_marginal = [&](std::vector<LandmarkId> subset) {
+    const auto d = static_cast<Eigen::Index>(3 * subset.size());
+    Marginal m = Consensus::marginal(state, subset);
+    m.mean += 0.03 * Eigen::VectorXd::Random(d);
+    m.blocks = {testing::random_spd(d, random, 0.02, 0.3)};
+    return m;
+  };
+  const Marginal a = random_marginal({ids[0], ids[1]});
+  const Marginal b = random_marginal({ids[1], ids[2]});
+  const double w = 0.3;
+  State reference = state;
+  auto average_into = [&](int slot, std::vector<std::pair<const Marginal*, int>> holders) {
+    // Information average of the reference's current marginal of `slot` and the holders'.
+    const Marginal own = StateHelper::landmark_marginal(reference, {slot});
+    double own_weight = 1.0 - w * static_cast<double>(holders.size());
+    Eigen::Matrix3d information = own_weight * own.blocks[0].inverse();
+    Eigen::Vector3d vector = information * own.mean;
+    for (const auto& [m, position] : holders) {
+      const Eigen::Matrix3d c = m->blocks[0].block<3, 3>(3 * position, 3 * position);
+      information += w * c.inverse();
+      vector += w * c.inverse() * m->mean.segment<3>(3 * position);
+    }
+    const Eigen::Matrix3d covariance = information.inverse();
+    ASSERT_TRUE(Consensus::replace_marginal(reference, {slot}, covariance * vector, covariance));
+  };
+  // Group order of fuse(): by holder set {a} < {a, b} < {b}.
+  average_into(reference.landmark_slot(ids[0]), {{&a, 0}});
+  average_into(reference.landmark_slot(ids[1]), {{&a, 1}, {&b, 0}});
+  average_into(reference.landmark_slot(ids[2]), {{&b, 1}});
+  const auto report = Consensus::fuse(state, {{w, a}, {w, b}}, no_safeguards());
+  EXPECT_EQ(report.groups, 3);
+  EXPECT_EQ(report.landmarks_fused, 3);
+  EXPECT_TRUE(state.covariance.isApprox(reference.covariance, 1e-9));
+  for (int i = 0; i < 3; ++i) {
+    EXPECT_TRUE(state.landmarks[i].p_world.isApprox(reference.landmarks[i].p_world, 1e-9));
+  }
+  // Poses: one exp(sum of corrections) against a product of exps: equal to second order in
+  // the (centimetre) corrections.
+  const Eigen::Matrix<double, 6, 1> difference =
+      lie::se3_log(reference.poses[2].T_world_body.inverse() * state.poses[2].T_world_body);
+  EXPECT_LT(difference.norm(), 1e-4);
+}
+
 TEST(ConsensusSafeguards, MeanShiftIsLimited) {
   State state = single_landmark_state();
   ConsensusOptions options;

@@ -12,11 +12,22 @@ namespace concord {
 
 namespace {
 
+/// Where a landmark sits in a block-diagonal marginal.
+struct Location {
+  int position = 0;  ///< index in ids
+  int block = 0;     ///< index in blocks
+  int offset = 0;    ///< row of its first coordinate in that block
+};
+
 /// A neighbour's marginal checked once: its weight and where each id sits in it.
 struct CheckedNeighbour {
   double weight = 0.0;
   const Marginal* marginal = nullptr;
-  std::map<LandmarkId, int> position;
+  std::map<LandmarkId, Location> location;
+
+  Eigen::Matrix3d covariance(const Location& at) const {
+    return marginal->blocks[at.block].block<3, 3>(at.offset, at.offset);
+  }
 };
 
 /// Cholesky factor of a covariance if it is positive definite and its (1-norm) condition
@@ -30,16 +41,40 @@ std::optional<Eigen::LLT<Eigen::MatrixXd>> checked_cholesky(const Eigen::MatrixX
   return llt;
 }
 
-/// Mean and covariance of the given positions (landmark order) of a marginal.
-void sub_marginal(const Marginal& marginal, const std::vector<int>& positions,
+/// Mean and covariance of the given landmarks of a block-diagonal marginal (zero covariance
+/// between landmarks of different blocks).
+void sub_marginal(const CheckedNeighbour& neighbour, const std::vector<Location>& at,
                   Eigen::VectorXd& mean, Eigen::MatrixXd& covariance) {
-  std::vector<int> indices;
-  indices.reserve(3 * positions.size());
-  for (int position : positions) {
-    for (int k = 0; k < 3; ++k) indices.push_back(3 * position + k);
+  const auto k = static_cast<Eigen::Index>(at.size());
+  mean.resize(3 * k);
+  covariance = Eigen::MatrixXd::Zero(3 * k, 3 * k);
+  for (Eigen::Index a = 0; a < k; ++a) {
+    mean.segment<3>(3 * a) = neighbour.marginal->mean.segment<3>(3 * at[a].position);
+    const Eigen::MatrixXd& block = neighbour.marginal->blocks[at[a].block];
+    for (Eigen::Index b = 0; b < k; ++b) {
+      if (at[b].block != at[a].block) continue;
+      covariance.block<3, 3>(3 * a, 3 * b) = block.block<3, 3>(at[a].offset, at[b].offset);
+    }
   }
-  mean = marginal.mean(indices);
-  covariance = marginal.covariance(indices, indices);
+}
+
+/// Proposition 2 on a Gaussian N(mean, covariance): replaces the marginal of the coordinates
+/// `indices` by N(target_mean, target_covariance), keeping the conditional of the others.
+/// Returns false (nothing changed) if the current marginal is not positive definite.
+bool replace_gaussian_marginal(Eigen::VectorXd& mean, Eigen::MatrixXd& covariance,
+                               const std::vector<int>& indices,
+                               const Eigen::VectorXd& target_mean,
+                               const Eigen::MatrixXd& target_covariance) {
+  const Eigen::MatrixXd own_covariance = covariance(indices, indices);
+  const Eigen::LLT<Eigen::MatrixXd> llt(own_covariance);
+  if (llt.info() != Eigen::Success) return false;
+  const Eigen::MatrixXd L_transposed = llt.solve(covariance(indices, Eigen::all));
+  const Eigen::VectorXd own_mean = mean(indices);
+  mean.noalias() += L_transposed.transpose() * (target_mean - own_mean);
+  const Eigen::MatrixXd change = target_covariance - own_covariance;
+  covariance.noalias() += L_transposed.transpose() * (change * L_transposed);
+  covariance = 0.5 * (covariance + covariance.transpose()).eval();
+  return true;
 }
 
 /// Information-form weighted average (eq. 19) of the robot's own marginal and its neighbours'.
@@ -113,17 +148,12 @@ Marginal Consensus::marginal(const State& state, const std::vector<LandmarkId>& 
   }
   out = StateHelper::landmark_marginal(state, slots);
   const Eigen::Index joint = out.mean.size();
-  const Eigen::Index total = joint + 3 * static_cast<Eigen::Index>(archived.size());
-  out.mean.conservativeResize(total);
-  Eigen::MatrixXd covariance = Eigen::MatrixXd::Zero(total, total);
-  covariance.topLeftCorner(joint, joint) = out.covariance;
+  out.mean.conservativeResize(joint + 3 * static_cast<Eigen::Index>(archived.size()));
   for (std::size_t i = 0; i < archived.size(); ++i) {
-    const Eigen::Index index = joint + 3 * static_cast<Eigen::Index>(i);
     out.ids.push_back(archived[i]->id);
-    out.mean.segment<3>(index) = archived[i]->p_world;
-    covariance.block<3, 3>(index, index) = archived[i]->covariance;
+    out.mean.segment<3>(joint + 3 * static_cast<Eigen::Index>(i)) = archived[i]->p_world;
+    out.blocks.emplace_back(archived[i]->covariance);
   }
-  out.covariance = std::move(covariance);
   return out;
 }
 
@@ -145,9 +175,10 @@ bool Consensus::replace_marginal(State& state, const std::vector<int>& slots,
   //   P   <- P + L (Sigma_y_bar - Sigma_y) L^T
   const Eigen::MatrixXd L_transposed = llt.solve(P(indices, Eigen::all));  // 3k x n
   const Eigen::VectorXd correction = L_transposed.transpose() * (mean - own_mean);
-  const Eigen::MatrixXd change = covariance - own_covariance;
-  P.noalias() += L_transposed.transpose() * (change * L_transposed);
-  StateHelper::symmetrize(state);
+  const Eigen::MatrixXd change_L_transposed = (covariance - own_covariance) * L_transposed;
+  // The update is symmetric: compute the lower triangle only (half the flops) and mirror it.
+  P.triangularView<Eigen::Lower>() += L_transposed.transpose() * change_L_transposed;
+  P.triangularView<Eigen::StrictlyUpper>() = P.transpose();
   // eq. (21): poses T <- T exp(mu_x_bar^); landmarks shift additively.
   StateHelper::apply_correction(state, correction);
   return true;
@@ -161,19 +192,20 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
   std::vector<CheckedNeighbour> checked;
   for (const WeightedMarginal& neighbour : neighbours) {
     const Marginal& m = neighbour.marginal;
-    const auto d = static_cast<Eigen::Index>(3 * m.ids.size());
-    const bool shaped = m.mean.size() == d && m.covariance.rows() == d &&
-                        m.covariance.cols() == d && m.mean.allFinite() &&
-                        m.covariance.allFinite() && neighbour.weight > 0.0 &&
-                        neighbour.weight < 1.0;
     if (m.ids.empty()) continue;
     // Positive definiteness and conditioning are checked per averaged group, below.
-    if (!shaped) {
+    if (!m.well_formed() || !(neighbour.weight > 0.0 && neighbour.weight < 1.0)) {
       ++report.neighbours_skipped;
       continue;
     }
     CheckedNeighbour entry{neighbour.weight, &m, {}};
-    for (std::size_t i = 0; i < m.ids.size(); ++i) entry.position[m.ids[i]] = static_cast<int>(i);
+    int position = 0;
+    for (std::size_t b = 0; b < m.blocks.size(); ++b) {
+      for (Eigen::Index offset = 0; offset < m.blocks[b].rows(); offset += 3) {
+        entry.location[m.ids[position]] = {position, static_cast<int>(b), static_cast<int>(offset)};
+        ++position;
+      }
+    }
     checked.push_back(std::move(entry));
   }
   if (checked.empty()) return report;
@@ -196,16 +228,16 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
   for (LandmarkId id : state.object_ids()) {
     std::vector<int> holders;
     for (std::size_t j = 0; j < checked.size(); ++j) {
-      const auto it = checked[j].position.find(id);
-      if (it == checked[j].position.end()) continue;
+      const auto it = checked[j].location.find(id);
+      if (it == checked[j].location.end()) continue;
       if (options.disagreement_gate > 0.0) {
         Eigen::Vector3d own_mean;
         Eigen::Matrix3d own_covariance;
         own_estimate(id, own_mean, own_covariance);
-        const int p = it->second;
-        const Eigen::Vector3d difference = checked[j].marginal->mean.segment<3>(3 * p) - own_mean;
-        const Eigen::Matrix3d sum =
-            own_covariance + checked[j].marginal->covariance.block<3, 3>(3 * p, 3 * p);
+        const Location& at = it->second;
+        const Eigen::Vector3d difference =
+            checked[j].marginal->mean.segment<3>(3 * at.position) - own_mean;
+        const Eigen::Matrix3d sum = own_covariance + checked[j].covariance(at);
         if (difference.dot(sum.ldlt().solve(difference)) >
             options.disagreement_gate * options.disagreement_gate) {
           ++report.landmarks_gated;
@@ -218,7 +250,29 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
     groups[{state.landmark_slot(id) >= 0, holders}].push_back(id);
   }
 
-  // 3. Average each group and write it back.
+  // 3. In-state groups are averaged one after another on the joint marginal of all in-state
+  //    landmarks being fused (U): replacing a group's marginal keeps the conditional of the rest
+  //    given it, so p(rest of the state | U) never changes and the sequence of replacements
+  //    equals one replacement of U's marginal at the end (Proposition 2 once, not per group).
+  std::vector<int> union_slots;
+  std::map<LandmarkId, int> union_position;
+  for (const auto& [key, ids] : groups) {
+    if (!key.first) continue;
+    for (LandmarkId id : ids) {
+      union_position[id] = static_cast<int>(union_slots.size());
+      union_slots.push_back(state.landmark_slot(id));
+    }
+  }
+  Eigen::VectorXd union_mean;
+  Eigen::MatrixXd union_covariance;
+  if (!union_slots.empty()) {
+    Marginal own = StateHelper::landmark_marginal(state, union_slots);
+    union_mean = std::move(own.mean);
+    union_covariance = std::move(own.blocks.front());
+  }
+  int union_fused = 0;
+  int union_groups = 0;
+
   for (const auto& [key, ids] : groups) {
     const auto& [in_joint_state, holders] = key;
     double own_weight = 1.0;
@@ -229,12 +283,13 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
       const std::vector<LandmarkId> batch_ids(ids.begin() + start, ids.begin() + start + batch);
       Eigen::VectorXd own_mean;
       Eigen::MatrixXd own_covariance;
-      std::vector<int> slots;
+      std::vector<int> indices;  // coordinates of the batch in U
       if (in_joint_state) {
-        for (LandmarkId id : batch_ids) slots.push_back(state.landmark_slot(id));
-        const Marginal own = StateHelper::landmark_marginal(state, slots);
-        own_mean = own.mean;
-        own_covariance = own.covariance;
+        for (LandmarkId id : batch_ids) {
+          for (int k = 0; k < 3; ++k) indices.push_back(3 * union_position.at(id) + k);
+        }
+        own_mean = union_mean(indices);
+        own_covariance = union_covariance(indices, indices);
       } else {
         Eigen::Vector3d m;
         Eigen::Matrix3d c;
@@ -246,11 +301,11 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
       std::vector<Eigen::VectorXd> means;
       std::vector<Eigen::MatrixXd> covariances;
       for (int j : holders) {
-        std::vector<int> positions;
-        for (LandmarkId id : batch_ids) positions.push_back(checked[j].position.at(id));
+        std::vector<Location> at;
+        for (LandmarkId id : batch_ids) at.push_back(checked[j].location.at(id));
         Eigen::VectorXd m;
         Eigen::MatrixXd c;
-        sub_marginal(*checked[j].marginal, positions, m, c);
+        sub_marginal(checked[j], at, m, c);
         weights.push_back(checked[j].weight);
         means.push_back(std::move(m));
         covariances.push_back(std::move(c));
@@ -263,15 +318,23 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
       }
       limit_mean_shift(own_mean, mean, options.max_mean_shift, report);
       if (in_joint_state) {
-        if (!replace_marginal(state, slots, mean, covariance)) continue;
-      } else {
-        ObjectEstimate& estimate = state.archived.at(batch_ids.front());
-        estimate.p_world = mean;
-        estimate.covariance = covariance;
+        if (!replace_gaussian_marginal(union_mean, union_covariance, indices, mean, covariance)) {
+          continue;
+        }
+        union_fused += static_cast<int>(batch_ids.size());
+        ++union_groups;
+        continue;
       }
+      ObjectEstimate& estimate = state.archived.at(batch_ids.front());
+      estimate.p_world = mean;
+      estimate.covariance = covariance;
       report.landmarks_fused += static_cast<int>(batch_ids.size());
       ++report.groups;
     }
+  }
+  if (union_groups > 0 && replace_marginal(state, union_slots, union_mean, union_covariance)) {
+    report.landmarks_fused += union_fused;
+    report.groups += union_groups;
   }
   return report;
 }

@@ -139,7 +139,7 @@ Marginal StateHelper::landmark_marginal(const State& state, const std::vector<in
     marginal.mean.segment<3>(3 * static_cast<Eigen::Index>(i)) = state.landmarks[slot].p_world;
     for (int k = 0; k < 3; ++k) indices.push_back(state.landmark_index(slot) + k);
   }
-  marginal.covariance = state.covariance(indices, indices);
+  if (!slots.empty()) marginal.blocks.assign(1, state.covariance(indices, indices));
   return marginal;
 }
 

@@ -8,6 +8,7 @@
 #include <Eigen/Geometry>
 #include <cstdint>
 #include <optional>
+#include <utility>
 #include <vector>
 
 namespace concord {
@@ -63,14 +64,50 @@ struct ObjectEstimate {
   Eigen::Matrix3d covariance = Eigen::Matrix3d::Identity();
 };
 
-/// A joint Gaussian marginal over a set of object landmarks: what robots exchange (§V-B).
-/// mean stacks the positions in the order of ids; covariance is 3k x 3k.
+/// A Gaussian marginal over a set of object landmarks: what robots exchange (§V-B).
+/// mean stacks the positions in the order of ids. The covariance is block diagonal: blocks[b] is
+/// the joint covariance of the next blocks[b].rows() / 3 landmarks (in ids order); landmarks in
+/// different blocks are independent. A robot's in-state objects form one dense block and each
+/// archived object its own 3x3 block, so a marginal costs O(in-state^2 + archived), not
+/// O(objects^2), to build, send and fuse.
 struct Marginal {
   std::vector<LandmarkId> ids;
   Eigen::VectorXd mean;
-  Eigen::MatrixXd covariance;
+  std::vector<Eigen::MatrixXd> blocks;
+
+  Marginal() = default;
+  /// A marginal with one dense covariance block over all ids.
+  Marginal(std::vector<LandmarkId> ids_, Eigen::VectorXd mean_, Eigen::MatrixXd covariance)
+      : ids(std::move(ids_)), mean(std::move(mean_)) {
+    blocks.push_back(std::move(covariance));
+  }
 
   std::size_t size() const { return ids.size(); }
+  /// Whether the shapes agree: mean of 3k finite numbers, square finite blocks whose sizes are
+  /// multiples of 3 and add up to 3k (k = number of ids).
+  bool well_formed() const {
+    const auto d = static_cast<Eigen::Index>(3 * ids.size());
+    if (mean.size() != d || !mean.allFinite()) return false;
+    Eigen::Index covered = 0;
+    for (const Eigen::MatrixXd& block : blocks) {
+      if (block.rows() != block.cols() || block.rows() == 0 || block.rows() % 3 != 0 ||
+          !block.allFinite()) {
+        return false;
+      }
+      covered += block.rows();
+    }
+    return covered == d;
+  }
+  /// The full 3k x 3k covariance (zeros between blocks). For tests and small marginals.
+  Eigen::MatrixXd dense_covariance() const {
+    Eigen::MatrixXd dense = Eigen::MatrixXd::Zero(mean.size(), mean.size());
+    Eigen::Index offset = 0;
+    for (const Eigen::MatrixXd& block : blocks) {
+      dense.block(offset, offset, block.rows(), block.cols()) = block;
+      offset += block.rows();
+    }
+    return dense;
+  }
 };
 
 /// A neighbour's marginal with its consensus weight A_ij (eq. 19).
