@@ -280,6 +280,21 @@ TEST_F(DatasetTest, MaxRobotsAndLoadFeatures) {
   EXPECT_THROW(read_dataset(dataset_folder_, options), std::invalid_argument);
 }
 
+TEST_F(DatasetTest, OnlyRobotReadsOneFolder) {
+  const Dataset whole = read_dataset(dataset_folder_);
+  ReadOptions options;
+  options.only_robot = 1;
+  const Dataset one = read_dataset(dataset_folder_, options);
+  ASSERT_EQ(one.robots.size(), 1u);
+  EXPECT_EQ(one.robots[0].index, 1);
+  EXPECT_EQ(one.robots[0].num_frames(), whole.robots[1].num_frames());
+  EXPECT_TRUE(one.robots[0].groundtruth.back().isApprox(whole.robots[1].groundtruth.back(), 0.0));
+  options.only_robot = 2;
+  EXPECT_THROW(read_dataset(dataset_folder_, options), DatasetError);
+  options.only_robot = -1;
+  EXPECT_THROW(read_dataset(dataset_folder_, options), std::invalid_argument);
+}
+
 // --- Missing files and folders ---
 
 TEST_F(DatasetTest, MissingDatasetFolder) {

@@ -312,6 +312,9 @@ Dataset read_dataset(const std::filesystem::path& directory, const ReadOptions& 
   if (options.max_robots && *options.max_robots < 1) {
     throw std::invalid_argument("read_dataset: max_robots must be >= 1");
   }
+  if (options.only_robot && *options.only_robot < 0) {
+    throw std::invalid_argument("read_dataset: only_robot must be >= 0");
+  }
   if (!std::filesystem::is_directory(directory))
     fail_in_file(directory, "dataset folder not found");
 
@@ -349,6 +352,16 @@ Dataset read_dataset(const std::filesystem::path& directory, const ReadOptions& 
   }
 
   const int robot_count = static_cast<int>(indices.size());
+  if (options.only_robot) {
+    if (*options.only_robot >= robot_count) {
+      fail_in_file(directory / robot_folder_name(*options.only_robot),
+                   "robot folder not found (the dataset has " + std::to_string(robot_count) +
+                       " robots)");
+    }
+    dataset.robots.push_back(read_robot(directory / robot_folder_name(*options.only_robot),
+                                        *options.only_robot, options));
+    return dataset;
+  }
   const int robots_to_read = std::min(robot_count, options.max_robots.value_or(robot_count));
   for (int index = 0; index < robots_to_read; ++index) {
     dataset.robots.push_back(read_robot(directory / robot_folder_name(index), index, options));

@@ -77,6 +77,10 @@ struct ReadOptions {
   std::optional<int> max_robots;
   /// Read features.csv where present.
   bool load_features = true;
+  /// Read only robot_<only_robot> (a daemon replaying its own folder): Dataset::robots then holds
+  /// that one robot, with RobotData::index = only_robot. DatasetError if the folder does not
+  /// exist; std::invalid_argument if negative. max_robots is ignored when set.
+  std::optional<int> only_robot;
 };
 
 /// Reads and validates a dataset folder. Throws DatasetError on any missing or malformed file,
