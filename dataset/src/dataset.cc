@@ -305,6 +305,10 @@ FrameInput RobotData::frame_input(int frame) const {
   return input;
 }
 
+StereoCamera read_camera(const std::filesystem::path& dataset_json) {
+  return read_description(dataset_json).camera;
+}
+
 Dataset read_dataset(const std::filesystem::path& directory, const ReadOptions& options) {
   if (options.max_frames && *options.max_frames < 1) {
     throw std::invalid_argument("read_dataset: max_frames must be >= 1");

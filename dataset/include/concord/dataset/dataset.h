@@ -87,6 +87,10 @@ struct ReadOptions {
 /// std::invalid_argument on max_frames or max_robots < 1.
 Dataset read_dataset(const std::filesystem::path& directory, const ReadOptions& options = {});
 
+/// The stereo camera of a dataset.json file (its "camera" object), checked as read_dataset
+/// checks it. Throws DatasetError naming the file and the problem.
+StereoCamera read_camera(const std::filesystem::path& dataset_json);
+
 /// Writes a dataset in the same layout (dataset.json, objects_gt.csv, robot_XX/{groundtruth.kitti,
 /// odometry.kitti, objects.csv[, features.csv]}), creating the folder if needed and replacing each
 /// file atomically. Numbers are written in their shortest exact form, so read_dataset gives back

@@ -1,0 +1,87 @@
+/// concordd: one robot's Concord daemon.
+///   concordd --config robot.yaml [--robot-id N] [--listen-port P] [--http-port P] [--out DIR]
+///            [--mode off|lockstep|async] [--peer host:port ...] [--dataset DIR] [--robot N]
+///            [--max-frames N] [--rate HZ] [--wait-for-peers N] [--log-level LEVEL]
+/// See docs/daemon.md and configs/team-kitti00/robot_00.yaml.
+
+#include <spdlog/sinks/stdout_sinks.h>
+#include <spdlog/spdlog.h>
+
+#include <CLI/CLI.hpp>
+#include <iostream>
+
+#include "concord/config/options_file.h"
+#include "concord/daemon/config.h"
+#include "concord/daemon/daemon.h"
+
+using namespace concord;
+
+int main(int argc, char** argv) {
+  CLI::App app{"concordd: one robot's multi-robot object SLAM daemon (estimator, peer-to-peer "
+               "consensus, HTTP state endpoint)"};
+  std::string config_file;
+  app.add_option("--config", config_file, "Daemon config (YAML)")->required()->check(CLI::ExistingFile);
+  std::optional<int> robot_id, robot, max_frames, wait_for_peers;
+  std::optional<int> listen_port, http_port;
+  std::optional<double> rate;
+  std::optional<std::string> out, mode, dataset, log_level;
+  std::vector<std::string> peers;
+  app.add_option("--robot-id", robot_id, "Override robot_id");
+  app.add_option("--listen-port", listen_port, "Override network.listen_port")->check(CLI::Range(0, 65535));
+  app.add_option("--http-port", http_port, "Override http.port")->check(CLI::Range(0, 65535));
+  app.add_option("--out", out, "Override output.directory");
+  app.add_option("--mode", mode, "Override consensus.mode (off, lockstep, async)");
+  app.add_option("--peer", peers, "Override network.peers (repeatable host:port)");
+  app.add_option("--dataset", dataset, "Override source.dataset");
+  app.add_option("--robot", robot, "Override source.robot (robot_NN folder to replay)");
+  app.add_option("--max-frames", max_frames, "Override source.max_frames")->check(CLI::NonNegativeNumber);
+  app.add_option("--rate", rate, "Override source.rate_hz (0: as fast as possible)")->check(CLI::NonNegativeNumber);
+  app.add_option("--wait-for-peers", wait_for_peers, "Override consensus.wait_for_peers");
+  app.add_option("--log-level", log_level, "Override log_level");
+  CLI11_PARSE(app, argc, argv);
+
+  auto logger = spdlog::stderr_logger_mt("concordd");
+  spdlog::set_default_logger(logger);
+  spdlog::set_pattern("%Y-%m-%dT%H:%M:%S.%e %l %v");
+
+  daemon::DaemonConfig config;
+  try {
+    config = daemon::load_daemon_config(config_file);
+    if (robot_id) config.robot_id = *robot_id;
+    if (listen_port) config.network.listen_port = static_cast<std::uint16_t>(*listen_port);
+    if (http_port) config.http.port = static_cast<std::uint16_t>(*http_port);
+    if (out) config.output.directory = *out;
+    if (mode) {
+      const auto parsed = daemon::parse_consensus_mode(*mode);
+      if (!parsed) throw config::ConfigError("--mode: expected off, lockstep or async, got '" + *mode + "'");
+      config.consensus.mode = *parsed;
+    }
+    if (!peers.empty()) config.network.peers = peers;
+    if (dataset) config.source.dataset = *dataset;
+    if (robot) config.source.robot = *robot;
+    if (max_frames) config.source.max_frames = *max_frames;
+    if (rate) config.source.rate_hz = *rate;
+    if (wait_for_peers) config.consensus.wait_for_peers = *wait_for_peers;
+    if (log_level) config.log_level = *log_level;
+    const auto problems = config.validate();
+    if (!problems.empty()) {
+      std::string message = "invalid settings:";
+      for (const auto& problem : problems) message += "\n  " + problem;
+      throw config::ConfigError(message);
+    }
+  } catch (const config::ConfigError& error) {
+    std::cerr << "concordd: " << error.what() << "\n";
+    return 2;
+  }
+  const auto level = spdlog::level::from_str(config.log_level);
+  if (level == spdlog::level::off && config.log_level != "off") {
+    std::cerr << "concordd: log_level: unknown level '" << config.log_level << "'\n";
+    return 2;
+  }
+  spdlog::set_level(level);
+  spdlog::set_pattern("%Y-%m-%dT%H:%M:%S.%e %l robot " + std::to_string(config.robot_id) + ": %v");
+  spdlog::flush_on(spdlog::level::info);
+
+  daemon::Daemon instance(config);
+  return instance.run();
+}

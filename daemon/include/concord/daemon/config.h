@@ -1,0 +1,118 @@
+#pragma once
+/// \file
+/// concordd's configuration: one YAML file per robot (configs/team-kitti00/robot_00.yaml is a
+/// documented example), a few keys overridable on the command line. Relative paths in the file
+/// are relative to the file's folder. Unknown keys are errors (typo protection); every problem is
+/// reported at once in a config::ConfigError naming the file, the key and the bad value.
+
+#include <chrono>
+#include <cstdint>
+#include <filesystem>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "concord/estimator/options.h"
+
+namespace concord::daemon {
+
+enum class ConsensusMode {
+  kOff,       ///< no consensus (the paper's "separate" runs)
+  kLockstep,  ///< round k waits for every live neighbour's round-k marginal (reproducible)
+  kAsync,     ///< fuse the freshest marginal of each neighbour, if not too old (live robots)
+};
+
+/// Parses "off", "lockstep" or "async"; std::nullopt otherwise.
+std::optional<ConsensusMode> parse_consensus_mode(const std::string& text);
+std::string to_string(ConsensusMode mode);
+
+enum class SourceKind {
+  kReplay,  ///< frames of one robot folder of a dataset
+  kIngest,  ///< SensorFrame envelopes received on a TCP port
+};
+
+struct SourceConfig {
+  SourceKind kind = SourceKind::kReplay;
+  /// Replay: the dataset folder and which robot_NN to replay.
+  std::filesystem::path dataset;
+  int robot = 0;
+  /// Replay: frames per second; 0 = as fast as the consensus mode allows.
+  double rate_hz = 0.0;
+  /// Replay: only the first max_frames frames (0 = all).
+  int max_frames = 0;
+  /// Replay: read features.csv (point features) where present.
+  bool point_features = true;
+  /// Ingest: where SensorFrame envelopes are accepted.
+  std::string ingest_address = "127.0.0.1";
+  std::uint16_t ingest_port = 7600;
+  /// Ingest: the camera (a dataset.json whose "camera" object describes it).
+  std::filesystem::path camera;
+  /// Ingest: the known start pose T_world_body: x y z qw qx qy qz.
+  std::vector<double> start_pose{0, 0, 0, 1, 0, 0, 0};
+};
+
+struct NetworkConfig {
+  std::string listen_address = "127.0.0.1";
+  std::uint16_t listen_port = 7100;
+  std::vector<std::string> peers;  ///< "host:port" of neighbours to dial
+  std::chrono::milliseconds heartbeat_interval{200};
+  std::chrono::milliseconds heartbeat_timeout{2000};
+  std::size_t max_frame_bytes = 16u << 20;
+  std::size_t send_queue_limit = 256;
+  bool discovery = false;
+  std::string discovery_address = "239.255.76.1";
+  std::uint16_t discovery_port = 47600;
+};
+
+struct ConsensusConfig {
+  ConsensusMode mode = ConsensusMode::kLockstep;
+  /// Lockstep: how long round k waits for a live neighbour's messages before going on without it.
+  std::chrono::milliseconds round_deadline{5000};
+  /// Async: a neighbour's marginal older than this many rounds is not fused.
+  int staleness_rounds = 5;
+  /// Before the first frame, wait until this many peers are live (0: do not wait)...
+  int wait_for_peers = 0;
+  /// ... for at most this long.
+  std::chrono::milliseconds startup_timeout{30000};
+};
+
+struct HttpConfig {
+  bool enabled = true;
+  std::string address = "127.0.0.1";
+  std::uint16_t port = 8080;
+};
+
+struct OutputConfig {
+  /// trajectory.kitti, objects.csv and stats.json are written here.
+  std::filesystem::path directory = "out";
+  /// Period of the atomic rewrite of the outputs while running (0: only at shutdown).
+  std::chrono::milliseconds write_interval{5000};
+};
+
+struct DaemonConfig {
+  int robot_id = 0;
+  std::string team = "concord";
+  /// Estimator options (a file in the format of configs/datasets/*.yaml, or inline keys).
+  EstimatorOptions estimator;
+  std::filesystem::path estimator_file;  ///< where they came from ("" = inline/defaults)
+  SourceConfig source;
+  NetworkConfig network;
+  ConsensusConfig consensus;
+  HttpConfig http;
+  OutputConfig output;
+  /// Capacity of the frame queue between the source and the estimator thread.
+  std::size_t queue_capacity = 64;
+  /// spdlog level: trace, debug, info, warn, error, critical, off.
+  std::string log_level = "info";
+
+  /// Problems (cross-field checks), one per line; empty if the config is usable.
+  std::vector<std::string> validate() const;
+};
+
+/// Reads a daemon config file. Throws config::ConfigError on any problem.
+DaemonConfig load_daemon_config(const std::filesystem::path& file);
+/// As load_daemon_config, from YAML text; relative paths are resolved against base_directory.
+DaemonConfig parse_daemon_config(const std::string& yaml_text, const std::string& source_name,
+                                 const std::filesystem::path& base_directory);
+
+}  // namespace concord::daemon

@@ -1,0 +1,116 @@
+#pragma once
+/// \file
+/// The consensus protocol of one daemon (docs/daemon.md): per round k, after the frame-k update,
+///
+///   1. send LandmarkSet(k) (the ids the robot holds; a delta after the first on a link) to every
+///      live peer;
+///   2. lockstep: wait (up to round_deadline) for every live peer's LandmarkSet(k); the peers
+///      heard from are this round's neighbours Q and |Q| the robot's degree;
+///   3. send each neighbour the Marginal(k) of the common ids, carrying the degree;
+///   4. lockstep: wait for each neighbour's Marginal(k); fuse them with Metropolis weights
+///      1 / (1 + max(own degree, its degree)), in robot-id order (the order of concord replay).
+///
+/// A peer that goes down, says Goodbye, or shows it is in another round (a restarted robot far
+/// behind, or one that gave up on us and went ahead) stops being waited for at once. Async mode
+/// sends the same messages but never waits: it fuses each live peer's freshest marginal that is
+/// at most staleness_rounds old and not fused before.
+///
+/// Network callbacks (on_message, on_peer) run on the network thread; run_round on the estimator
+/// thread. Messages go out through a Send function, so the protocol is testable without sockets.
+
+#include <atomic>
+#include <chrono>
+#include <condition_variable>
+#include <cstdint>
+#include <functional>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <set>
+#include <vector>
+
+#include "concord/daemon/config.h"
+#include "concord/estimator/consensus.h"
+#include "concord/estimator/types.h"
+
+namespace concord {
+class Estimator;
+}  // namespace concord
+
+namespace concord::v1 {
+class Envelope;
+}  // namespace concord::v1
+
+namespace concord::daemon {
+
+/// What one round did.
+struct RoundReport {
+  std::uint64_t round = 0;
+  int live = 0;          ///< live peers at the start of the round
+  int neighbours = 0;    ///< peers taking part (lockstep: LandmarkSet heard in time)
+  int fused = 0;         ///< non-empty marginals fused
+  int timed_out = 0;     ///< peers given up on at the deadline
+  int bad_messages = 0;  ///< malformed marginals dropped in this round
+  double wait_seconds = 0.0;
+  ConsensusReport consensus;
+};
+
+/// Totals since start.
+struct ExchangeCounters {
+  std::uint64_t rounds = 0;
+  std::uint64_t marginals_fused = 0;
+  std::uint64_t deadline_misses = 0;  ///< (peer, round) pairs given up on at the deadline
+  std::uint64_t stale_dropped = 0;    ///< messages of past rounds dropped on arrival
+  std::uint64_t malformed = 0;        ///< LandmarkSets and Marginals that could not be used
+};
+
+class ConsensusExchange {
+ public:
+  /// Queues an envelope (its body and round set) to a robot; false if it could not be queued.
+  using Send = std::function<bool(int robot, const v1::Envelope& envelope)>;
+
+  ConsensusExchange(ConsensusConfig config, Send send);
+  ~ConsensusExchange();
+
+  /// Network thread: a LandmarkSet, Marginal or Goodbye from `robot` (other bodies ignored).
+  void on_message(int robot, const v1::Envelope& envelope);
+  /// Network thread: `robot` came up or went down.
+  void on_peer(int robot, bool up);
+
+  /// Estimator thread: waits until at least `count` peers are live, stop() or `timeout`.
+  /// Returns the number of live peers.
+  int wait_for_peers(int count, std::chrono::milliseconds timeout);
+
+  /// Estimator thread: consensus round `round` on `estimator` (after its update of that frame).
+  RoundReport run_round(std::uint64_t round, Estimator& estimator);
+
+  /// Wakes any wait; later rounds do not wait.
+  void stop();
+
+  std::vector<int> live_peers() const;
+  ExchangeCounters counters() const;
+
+ private:
+  struct Peer;
+  using Clock = std::chrono::steady_clock;
+
+  void send_landmark_set(int robot, std::uint64_t round, const std::vector<LandmarkId>& ids);
+  RoundReport lockstep_round(std::uint64_t round, Estimator& estimator);
+  RoundReport async_round(std::uint64_t round, Estimator& estimator);
+  void send_marginal(int robot, std::uint64_t round, const Estimator& estimator,
+                     const std::vector<LandmarkId>& own_ids,
+                     const std::vector<LandmarkId>& peer_ids, int degree);
+  void forget_rounds_up_to(std::uint64_t round);
+
+  ConsensusConfig config_;
+  Send send_;
+  mutable std::mutex mutex_;
+  std::condition_variable changed_;
+  std::map<int, std::unique_ptr<Peer>> peers_;
+  bool stopped_ = false;
+  /// Rounds up to this one are over: their messages are dropped on arrival.
+  std::int64_t forgotten_up_to_ = -1;
+  ExchangeCounters counters_;
+};
+
+}  // namespace concord::daemon

@@ -1,0 +1,323 @@
+#include "concord/daemon/config.h"
+
+#include <yaml-cpp/yaml.h>
+
+#include <fstream>
+#include <iterator>
+#include <limits>
+#include <map>
+#include <set>
+
+#include "concord/config/options_file.h"
+
+namespace concord::daemon {
+
+namespace {
+
+using config::ConfigError;
+
+std::string line_of(const YAML::Node& node) {
+  const YAML::Mark mark = node.Mark();
+  if (mark.is_null()) return {};
+  return "line " + std::to_string(mark.line + 1) + ": ";
+}
+
+/// Reads one YAML map section, remembering which keys were read so the rest can be reported as
+/// unknown, and collecting every problem instead of stopping at the first.
+class Section {
+ public:
+  Section(const YAML::Node& node, std::string prefix, std::vector<std::string>& problems)
+      : node_(node), prefix_(std::move(prefix)), problems_(problems) {
+    if (node_ && !node_.IsNull() && !node_.IsMap()) {
+      problems_.push_back(line_of(node_) + name() + ": expected a map");
+      valid_ = false;
+    }
+  }
+
+  /// The sub-node of a key (null node if absent), marked as known.
+  YAML::Node child(const std::string& key) {
+    known_.insert(key);
+    if (!valid_ || !node_ || node_.IsNull()) return YAML::Node();
+    return node_[key];
+  }
+
+  template <typename Value>
+  void read(const std::string& key, Value& field, const char* expected) {
+    const YAML::Node value = child(key);
+    if (!value || value.IsNull()) return;
+    if (value.IsScalar()) {
+      try {
+        field = value.as<Value>();
+        return;
+      } catch (const YAML::BadConversion&) {
+      }
+    }
+    problems_.push_back(line_of(value) + prefix_ + key + ": expected " + expected);
+  }
+  void read(const std::string& key, int& field) { read<int>(key, field, "an integer"); }
+  void read(const std::string& key, double& field) { read<double>(key, field, "a number"); }
+  void read(const std::string& key, bool& field) { read<bool>(key, field, "true or false"); }
+  void read(const std::string& key, std::string& field) {
+    read<std::string>(key, field, "a string");
+  }
+  void read(const std::string& key, std::filesystem::path& field,
+            const std::filesystem::path& base) {
+    std::string text;
+    read(key, text);
+    if (!text.empty()) field = resolve(text, base);
+  }
+  void read_port(const std::string& key, std::uint16_t& field, bool allow_zero) {
+    int value = field;
+    read(key, value);
+    if (value < (allow_zero ? 0 : 1) || value > 65535) {
+      problems_.push_back(prefix_ + key + ": expected a port " + (allow_zero ? "0" : "1") +
+                          "-65535, got " + std::to_string(value));
+      return;
+    }
+    field = static_cast<std::uint16_t>(value);
+  }
+  void read_milliseconds(const std::string& key, std::chrono::milliseconds& field,
+                         bool allow_zero) {
+    int value = static_cast<int>(field.count());
+    read(key, value);
+    if (value < 0 || (!allow_zero && value == 0)) {
+      problems_.push_back(prefix_ + key + ": expected a " +
+                          (allow_zero ? "non-negative" : "positive") + " number of ms, got " +
+                          std::to_string(value));
+      return;
+    }
+    field = std::chrono::milliseconds(value);
+  }
+  void read_size(const std::string& key, std::size_t& field) {
+    int value = static_cast<int>(std::min<std::size_t>(field, std::numeric_limits<int>::max()));
+    read(key, value);
+    if (value < 1) {
+      problems_.push_back(prefix_ + key + ": expected a positive integer, got " +
+                          std::to_string(value));
+      return;
+    }
+    field = static_cast<std::size_t>(value);
+  }
+  void read_strings(const std::string& key, std::vector<std::string>& field) {
+    const YAML::Node value = child(key);
+    if (!value || value.IsNull()) return;
+    if (!value.IsSequence()) {
+      problems_.push_back(line_of(value) + prefix_ + key + ": expected a sequence of strings");
+      return;
+    }
+    field.clear();
+    for (const auto& item : value) {
+      if (!item.IsScalar()) {
+        problems_.push_back(line_of(item) + prefix_ + key + ": expected a sequence of strings");
+        return;
+      }
+      field.push_back(item.Scalar());
+    }
+  }
+  void read_numbers(const std::string& key, std::vector<double>& field, std::size_t count) {
+    const YAML::Node value = child(key);
+    if (!value || value.IsNull()) return;
+    std::vector<double> numbers;
+    if (value.IsSequence() && value.size() == count) {
+      for (const auto& item : value) {
+        try {
+          numbers.push_back(item.as<double>());
+        } catch (const YAML::Exception&) {
+          break;
+        }
+      }
+    }
+    if (numbers.size() != count) {
+      problems_.push_back(line_of(value) + prefix_ + key + ": expected a sequence of " +
+                          std::to_string(count) + " numbers");
+      return;
+    }
+    field = std::move(numbers);
+  }
+
+  /// Reports every key of the map that was never asked for.
+  void finish() {
+    if (!valid_ || !node_ || node_.IsNull()) return;
+    for (const auto& entry : node_) {
+      const std::string key = entry.first.IsScalar() ? entry.first.Scalar() : "?";
+      if (!known_.count(key)) problems_.push_back(line_of(entry.first) + "unknown key " + prefix_ + key);
+    }
+  }
+
+  static std::filesystem::path resolve(const std::string& text,
+                                       const std::filesystem::path& base) {
+    const std::filesystem::path path(text);
+    return path.is_absolute() || base.empty() ? path : (base / path).lexically_normal();
+  }
+
+ private:
+  std::string name() const { return prefix_.empty() ? "config" : prefix_.substr(0, prefix_.size() - 1); }
+
+  YAML::Node node_;
+  std::string prefix_;
+  std::vector<std::string>& problems_;
+  std::set<std::string> known_;
+  bool valid_ = true;
+};
+
+}  // namespace
+
+std::optional<ConsensusMode> parse_consensus_mode(const std::string& text) {
+  if (text == "off") return ConsensusMode::kOff;
+  if (text == "lockstep") return ConsensusMode::kLockstep;
+  if (text == "async") return ConsensusMode::kAsync;
+  return std::nullopt;
+}
+
+std::string to_string(ConsensusMode mode) {
+  switch (mode) {
+    case ConsensusMode::kOff:
+      return "off";
+    case ConsensusMode::kLockstep:
+      return "lockstep";
+    case ConsensusMode::kAsync:
+      return "async";
+  }
+  return "unknown";
+}
+
+std::vector<std::string> DaemonConfig::validate() const {
+  std::vector<std::string> problems;
+  if (robot_id < 0) problems.push_back("robot_id: expected >= 0, got " + std::to_string(robot_id));
+  if (team.empty()) problems.push_back("team: must not be empty");
+  if (source.kind == SourceKind::kReplay) {
+    if (source.dataset.empty()) problems.push_back("source.dataset: required for replay");
+    if (source.robot < 0) problems.push_back("source.robot: expected >= 0");
+    if (!(source.rate_hz >= 0.0)) problems.push_back("source.rate_hz: expected >= 0");
+    if (source.max_frames < 0) problems.push_back("source.max_frames: expected >= 0");
+  } else {
+    if (source.camera.empty()) problems.push_back("source.camera: required for ingest");
+  }
+  if (source.start_pose.size() != 7) problems.push_back("source.start_pose: expected 7 numbers");
+  if (consensus.staleness_rounds < 0) problems.push_back("consensus.staleness_rounds: expected >= 0");
+  if (consensus.wait_for_peers < 0) problems.push_back("consensus.wait_for_peers: expected >= 0");
+  if (network.heartbeat_timeout <= network.heartbeat_interval) {
+    problems.push_back("network.heartbeat_timeout: must be longer than heartbeat_interval");
+  }
+  if (output.directory.empty()) problems.push_back("output.directory: must not be empty");
+  for (const std::string& problem : estimator.validate()) problems.push_back("estimator: " + problem);
+  return problems;
+}
+
+DaemonConfig parse_daemon_config(const std::string& yaml_text, const std::string& source_name,
+                                 const std::filesystem::path& base_directory) {
+  YAML::Node root;
+  try {
+    root = YAML::Load(yaml_text);
+  } catch (const YAML::ParserException& error) {
+    throw ConfigError(source_name + ":" + std::to_string(error.mark.line + 1) +
+                      ": invalid YAML: " + error.msg);
+  }
+  DaemonConfig config;
+  std::vector<std::string> problems;
+  if (!root.IsMap()) {
+    throw ConfigError(source_name + ": expected a map of daemon settings");
+  }
+  Section top(root, "", problems);
+  top.read("robot_id", config.robot_id);
+  top.read("team", config.team);
+  top.read("log_level", config.log_level);
+  top.read_size("queue_capacity", config.queue_capacity);
+
+  // estimator: a file name, or the options inline.
+  const YAML::Node estimator = top.child("estimator");
+  try {
+    if (estimator && estimator.IsScalar()) {
+      config.estimator_file = Section::resolve(estimator.Scalar(), base_directory);
+      config.estimator = config::load_estimator_options(config.estimator_file);
+    } else if (estimator && estimator.IsMap()) {
+      YAML::Emitter emitter;
+      emitter << estimator;
+      config.estimator = config::parse_estimator_options(emitter.c_str(), source_name + " estimator");
+    } else if (estimator && !estimator.IsNull()) {
+      problems.push_back(line_of(estimator) + "estimator: expected a file name or a map of options");
+    }
+  } catch (const ConfigError& error) {
+    problems.push_back(error.what());
+  }
+
+  Section source(top.child("source"), "source.", problems);
+  std::string kind = "replay";
+  source.read("kind", kind);
+  if (kind == "replay") {
+    config.source.kind = SourceKind::kReplay;
+  } else if (kind == "ingest") {
+    config.source.kind = SourceKind::kIngest;
+  } else {
+    problems.push_back("source.kind: expected replay or ingest, got '" + kind + "'");
+  }
+  source.read("dataset", config.source.dataset, base_directory);
+  source.read("robot", config.source.robot);
+  source.read("rate_hz", config.source.rate_hz);
+  source.read("max_frames", config.source.max_frames);
+  source.read("point_features", config.source.point_features);
+  source.read("ingest_address", config.source.ingest_address);
+  source.read_port("ingest_port", config.source.ingest_port, true);
+  source.read("camera", config.source.camera, base_directory);
+  source.read_numbers("start_pose", config.source.start_pose, 7);
+  source.finish();
+
+  Section network(top.child("network"), "network.", problems);
+  network.read("listen_address", config.network.listen_address);
+  network.read_port("listen_port", config.network.listen_port, true);
+  network.read_strings("peers", config.network.peers);
+  network.read_milliseconds("heartbeat_interval_ms", config.network.heartbeat_interval, false);
+  network.read_milliseconds("heartbeat_timeout_ms", config.network.heartbeat_timeout, false);
+  network.read_size("max_frame_bytes", config.network.max_frame_bytes);
+  network.read_size("send_queue_limit", config.network.send_queue_limit);
+  network.read("discovery", config.network.discovery);
+  network.read("discovery_address", config.network.discovery_address);
+  network.read_port("discovery_port", config.network.discovery_port, false);
+  network.finish();
+
+  Section consensus(top.child("consensus"), "consensus.", problems);
+  std::string mode = to_string(config.consensus.mode);
+  consensus.read("mode", mode);
+  if (const auto parsed = parse_consensus_mode(mode)) {
+    config.consensus.mode = *parsed;
+  } else {
+    problems.push_back("consensus.mode: expected off, lockstep or async, got '" + mode + "'");
+  }
+  consensus.read_milliseconds("round_deadline_ms", config.consensus.round_deadline, false);
+  consensus.read("staleness_rounds", config.consensus.staleness_rounds);
+  consensus.read("wait_for_peers", config.consensus.wait_for_peers);
+  consensus.read_milliseconds("startup_timeout_ms", config.consensus.startup_timeout, true);
+  consensus.finish();
+
+  Section http(top.child("http"), "http.", problems);
+  http.read("enabled", config.http.enabled);
+  http.read("address", config.http.address);
+  http.read_port("port", config.http.port, true);
+  http.finish();
+
+  Section output(top.child("output"), "output.", problems);
+  output.read("directory", config.output.directory, base_directory);
+  output.read_milliseconds("write_interval_ms", config.output.write_interval, true);
+  output.finish();
+  top.finish();
+
+  if (problems.empty()) problems = config.validate();
+  if (!problems.empty()) {
+    std::string message = source_name + ": invalid daemon config:";
+    for (const std::string& problem : problems) message += "\n  " + problem;
+    throw ConfigError(message);
+  }
+  return config;
+}
+
+DaemonConfig load_daemon_config(const std::filesystem::path& file) {
+  std::ifstream stream(file, std::ios::binary);
+  if (!stream || !std::filesystem::is_regular_file(file)) {
+    throw ConfigError(file.string() + ": cannot open the config file");
+  }
+  const std::string text((std::istreambuf_iterator<char>(stream)),
+                         std::istreambuf_iterator<char>());
+  return parse_daemon_config(text, file.string(), file.parent_path());
+}
+
+}  // namespace concord::daemon

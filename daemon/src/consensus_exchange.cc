@@ -1,0 +1,353 @@
+#include "concord/daemon/consensus_exchange.h"
+
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <iterator>
+
+#include "concord/daemon/wire.h"
+#include "concord/estimator/estimator.h"
+#include "concord/v1/concord.pb.h"
+
+namespace concord::daemon {
+
+namespace {
+
+std::vector<LandmarkId> intersection(const std::vector<LandmarkId>& a,
+                                     const std::vector<LandmarkId>& b) {
+  std::vector<LandmarkId> out;
+  std::set_intersection(a.begin(), a.end(), b.begin(), b.end(), std::back_inserter(out));
+  return out;
+}
+
+bool sorted_unique(const std::vector<LandmarkId>& ids) {
+  return std::adjacent_find(ids.begin(), ids.end(), std::greater_equal<>()) == ids.end();
+}
+
+double seconds_between(std::chrono::steady_clock::time_point a,
+                       std::chrono::steady_clock::time_point b) {
+  return std::chrono::duration<double>(b - a).count();
+}
+
+}  // namespace
+
+struct ConsensusExchange::Peer {
+  struct Received {
+    Marginal marginal;
+    int degree = 0;
+    bool used = false;
+  };
+  bool up = false;
+  bool goodbye = false;
+  /// Highest round the peer announced (LandmarkSet or Marginal); -1 before any.
+  std::int64_t last_round = -1;
+  /// Its current landmark set (full sets and deltas applied in order).
+  std::vector<LandmarkId> ids;
+  bool ids_known = false;
+  std::map<std::uint64_t, std::vector<LandmarkId>> landmark_sets;
+  std::map<std::uint64_t, Received> marginals;
+};
+
+ConsensusExchange::ConsensusExchange(ConsensusConfig config, Send send)
+    : config_(std::move(config)), send_(std::move(send)) {}
+
+ConsensusExchange::~ConsensusExchange() = default;
+
+void ConsensusExchange::on_peer(int robot, bool up) {
+  std::lock_guard lock(mutex_);
+  auto& slot = peers_[robot];
+  if (!slot) slot = std::make_unique<Peer>();
+  Peer& peer = *slot;
+  if (up) {
+    // A new connection: whatever the peer announced before is from its previous life.
+    peer = Peer{};
+    peer.up = true;
+  } else {
+    peer.up = false;
+  }
+  changed_.notify_all();
+}
+
+void ConsensusExchange::on_message(int robot, const v1::Envelope& envelope) {
+  std::lock_guard lock(mutex_);
+  auto& slot = peers_[robot];
+  if (!slot) slot = std::make_unique<Peer>();
+  Peer& peer = *slot;
+  switch (envelope.body_case()) {
+    case v1::Envelope::kLandmarkSet: {
+      const v1::LandmarkSet& message = envelope.landmark_set();
+      std::vector<LandmarkId> ids;
+      if (!message.delta()) {
+        ids.assign(message.ids().begin(), message.ids().end());
+      } else if (peer.ids_known) {
+        std::vector<LandmarkId> added(message.added().begin(), message.added().end());
+        std::vector<LandmarkId> removed(message.removed().begin(), message.removed().end());
+        std::sort(added.begin(), added.end());
+        std::sort(removed.begin(), removed.end());
+        std::vector<LandmarkId> kept;
+        std::set_difference(peer.ids.begin(), peer.ids.end(), removed.begin(), removed.end(),
+                            std::back_inserter(kept));
+        std::set_union(kept.begin(), kept.end(), added.begin(), added.end(),
+                       std::back_inserter(ids));
+      } else {
+        ++counters_.malformed;
+        spdlog::warn("consensus: robot {} sent a landmark delta without a base set; ignored",
+                     robot);
+        return;
+      }
+      if (!sorted_unique(ids)) {
+        ++counters_.malformed;
+        spdlog::warn("consensus: robot {} sent landmark ids that are not sorted and unique", robot);
+        return;
+      }
+      peer.ids = ids;
+      peer.ids_known = true;
+      peer.last_round = std::max<std::int64_t>(peer.last_round,
+                                               static_cast<std::int64_t>(message.round()));
+      if (static_cast<std::int64_t>(message.round()) <= forgotten_up_to_) {
+        ++counters_.stale_dropped;
+        break;
+      }
+      peer.landmark_sets[message.round()] = std::move(ids);
+      break;
+    }
+    case v1::Envelope::kMarginal: {
+      const v1::Marginal& message = envelope.marginal();
+      std::string error;
+      auto marginal = from_wire(message, error);
+      if (!marginal) {
+        ++counters_.malformed;
+        spdlog::warn("consensus: robot {} round {}: {}", robot, message.round(), error);
+        return;
+      }
+      peer.last_round = std::max<std::int64_t>(peer.last_round,
+                                               static_cast<std::int64_t>(message.round()));
+      if (static_cast<std::int64_t>(message.round()) <= forgotten_up_to_) {
+        ++counters_.stale_dropped;
+        break;
+      }
+      peer.marginals[message.round()] =
+          Peer::Received{std::move(*marginal), static_cast<int>(message.degree()), false};
+      break;
+    }
+    case v1::Envelope::kGoodbye:
+      peer.goodbye = true;
+      break;
+    default:
+      return;
+  }
+  changed_.notify_all();
+}
+
+int ConsensusExchange::wait_for_peers(int count, std::chrono::milliseconds timeout) {
+  std::unique_lock lock(mutex_);
+  auto live = [&] {
+    return static_cast<int>(std::count_if(peers_.begin(), peers_.end(),
+                                          [](const auto& entry) { return entry.second->up; }));
+  };
+  changed_.wait_for(lock, timeout, [&] { return stopped_ || live() >= count; });
+  return live();
+}
+
+void ConsensusExchange::stop() {
+  std::lock_guard lock(mutex_);
+  stopped_ = true;
+  changed_.notify_all();
+}
+
+std::vector<int> ConsensusExchange::live_peers() const {
+  std::lock_guard lock(mutex_);
+  std::vector<int> live;
+  for (const auto& [robot, peer] : peers_)
+    if (peer->up) live.push_back(robot);
+  return live;
+}
+
+ExchangeCounters ConsensusExchange::counters() const {
+  std::lock_guard lock(mutex_);
+  return counters_;
+}
+
+RoundReport ConsensusExchange::run_round(std::uint64_t round, Estimator& estimator) {
+  RoundReport report = config_.mode == ConsensusMode::kAsync ? async_round(round, estimator)
+                                                             : lockstep_round(round, estimator);
+  std::lock_guard lock(mutex_);
+  ++counters_.rounds;
+  counters_.marginals_fused += static_cast<std::uint64_t>(report.fused);
+  counters_.deadline_misses += static_cast<std::uint64_t>(report.timed_out);
+  return report;
+}
+
+void ConsensusExchange::send_landmark_set(int robot, std::uint64_t round,
+                                          const std::vector<LandmarkId>& ids) {
+  v1::Envelope envelope;
+  envelope.set_round(round);
+  v1::LandmarkSet* message = envelope.mutable_landmark_set();
+  message->set_round(round);
+  message->mutable_ids()->Assign(ids.begin(), ids.end());
+  send_(robot, envelope);
+}
+
+void ConsensusExchange::send_marginal(int robot, std::uint64_t round, const Estimator& estimator,
+                                      const std::vector<LandmarkId>& own_ids,
+                                      const std::vector<LandmarkId>& peer_ids, int degree) {
+  v1::Envelope envelope;
+  envelope.set_round(round);
+  v1::Marginal* message = envelope.mutable_marginal();
+  message->set_round(round);
+  message->set_degree(static_cast<std::uint32_t>(degree));
+  const std::vector<LandmarkId> common = intersection(own_ids, peer_ids);
+  if (!common.empty()) to_wire(estimator.marginal(common), *message);
+  send_(robot, envelope);
+}
+
+RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& estimator) {
+  RoundReport report;
+  report.round = round;
+  const auto start = Clock::now();
+  const auto k = static_cast<std::int64_t>(round);
+  const std::vector<LandmarkId> ids = estimator.object_ids();
+
+  std::vector<int> candidates;
+  {
+    std::lock_guard lock(mutex_);
+    for (const auto& [robot, peer] : peers_)
+      if (peer->up && !peer->goodbye) candidates.push_back(robot);
+  }
+  report.live = static_cast<int>(candidates.size());
+  for (int robot : candidates) send_landmark_set(robot, round, ids);
+
+  // Phase 1: every candidate's LandmarkSet(k), or evidence it is not in round k.
+  std::vector<int> neighbours;
+  std::map<int, std::vector<LandmarkId>> neighbour_ids;
+  {
+    std::unique_lock lock(mutex_);
+    auto settled = [&](int robot) {
+      const Peer& peer = *peers_.at(robot);
+      return !peer.up || peer.goodbye || peer.landmark_sets.count(round) > 0 ||
+             peer.last_round > k || peer.last_round < k - 1;
+    };
+    changed_.wait_until(lock, start + config_.round_deadline, [&] {
+      return stopped_ || std::all_of(candidates.begin(), candidates.end(), settled);
+    });
+    for (int robot : candidates) {
+      const Peer& peer = *peers_.at(robot);
+      const auto it = peer.landmark_sets.find(round);
+      if (peer.up && it != peer.landmark_sets.end()) {
+        neighbours.push_back(robot);
+        neighbour_ids[robot] = it->second;
+      } else if (!settled(robot)) {
+        ++report.timed_out;
+        spdlog::warn("consensus: round {}: no landmark set from robot {} within {} ms", round,
+                     robot, config_.round_deadline.count());
+      }
+    }
+  }
+  const int degree = static_cast<int>(neighbours.size());
+  report.neighbours = degree;
+  for (int robot : neighbours) {
+    send_marginal(robot, round, estimator, ids, neighbour_ids[robot], degree);
+  }
+
+  // Phase 2: every neighbour's Marginal(k).
+  std::vector<WeightedMarginal> inbox;
+  {
+    std::unique_lock lock(mutex_);
+    auto settled = [&](int robot) {
+      const Peer& peer = *peers_.at(robot);
+      return !peer.up || peer.goodbye || peer.marginals.count(round) > 0 || peer.last_round > k;
+    };
+    const auto phase_start = Clock::now();
+    changed_.wait_until(lock, phase_start + config_.round_deadline, [&] {
+      return stopped_ || std::all_of(neighbours.begin(), neighbours.end(), settled);
+    });
+    for (int robot : neighbours) {
+      Peer& peer = *peers_.at(robot);
+      const auto it = peer.marginals.find(round);
+      if (it == peer.marginals.end()) {
+        if (!settled(robot)) {
+          ++report.timed_out;
+          spdlog::warn("consensus: round {}: no marginal from robot {} within {} ms", round,
+                       robot, config_.round_deadline.count());
+        }
+        continue;
+      }
+      it->second.used = true;
+      if (it->second.marginal.ids.empty()) continue;
+      inbox.push_back({Consensus::metropolis_weight(degree, it->second.degree),
+                       std::move(it->second.marginal)});
+    }
+  }
+  report.wait_seconds = seconds_between(start, Clock::now());
+  if (!inbox.empty()) {
+    report.consensus = estimator.fuse(inbox);
+    report.fused = static_cast<int>(inbox.size());
+  }
+  forget_rounds_up_to(round);
+  return report;
+}
+
+RoundReport ConsensusExchange::async_round(std::uint64_t round, Estimator& estimator) {
+  RoundReport report;
+  report.round = round;
+  const auto k = static_cast<std::int64_t>(round);
+  const std::vector<LandmarkId> ids = estimator.object_ids();
+  std::vector<int> live;
+  std::map<int, std::vector<LandmarkId>> known_ids;
+  {
+    std::lock_guard lock(mutex_);
+    for (const auto& [robot, peer] : peers_) {
+      if (!peer->up || peer->goodbye) continue;
+      live.push_back(robot);
+      if (peer->ids_known) known_ids[robot] = peer->ids;
+    }
+  }
+  const int degree = static_cast<int>(live.size());
+  report.live = report.neighbours = degree;
+  for (int robot : live) {
+    send_landmark_set(robot, round, ids);
+    if (const auto it = known_ids.find(robot); it != known_ids.end()) {
+      send_marginal(robot, round, estimator, ids, it->second, degree);
+    }
+  }
+  std::vector<WeightedMarginal> inbox;
+  {
+    std::lock_guard lock(mutex_);
+    for (int robot : live) {
+      Peer& peer = *peers_.at(robot);
+      // The freshest marginal, if recent enough and not fused before.
+      for (auto it = peer.marginals.rbegin(); it != peer.marginals.rend(); ++it) {
+        if (static_cast<std::int64_t>(it->first) < k - config_.staleness_rounds) break;
+        if (it->second.used) break;
+        it->second.used = true;
+        if (!it->second.marginal.ids.empty()) {
+          inbox.push_back({Consensus::metropolis_weight(degree, it->second.degree),
+                           it->second.marginal});
+        }
+        break;
+      }
+    }
+  }
+  if (!inbox.empty()) {
+    report.consensus = estimator.fuse(inbox);
+    report.fused = static_cast<int>(inbox.size());
+  }
+  const std::uint64_t keep_from =
+      round > static_cast<std::uint64_t>(config_.staleness_rounds)
+          ? round - static_cast<std::uint64_t>(config_.staleness_rounds)
+          : 0;
+  if (keep_from > 0) forget_rounds_up_to(keep_from - 1);
+  return report;
+}
+
+void ConsensusExchange::forget_rounds_up_to(std::uint64_t round) {
+  std::lock_guard lock(mutex_);
+  forgotten_up_to_ = std::max(forgotten_up_to_, static_cast<std::int64_t>(round));
+  for (auto& [robot, peer] : peers_) {
+    peer->landmark_sets.erase(peer->landmark_sets.begin(),
+                              peer->landmark_sets.upper_bound(round));
+    peer->marginals.erase(peer->marginals.begin(), peer->marginals.upper_bound(round));
+  }
+}
+
+}  // namespace concord::daemon

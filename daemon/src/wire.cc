@@ -1,0 +1,161 @@
+#include "concord/daemon/wire.h"
+
+#include <cmath>
+
+#include "concord/v1/concord.pb.h"
+
+namespace concord::daemon {
+
+namespace {
+
+void to_wire(const StereoObservation& observation, v1::StereoObservation& out) {
+  out.set_id(observation.id);
+  out.set_u_left(observation.uv[0]);
+  out.set_v_left(observation.uv[1]);
+  out.set_u_right(observation.uv[2]);
+  out.set_v_right(observation.uv[3]);
+}
+
+bool from_wire(const google::protobuf::RepeatedPtrField<v1::StereoObservation>& messages,
+               std::vector<StereoObservation>& out, const char* what, std::string& error) {
+  out.reserve(static_cast<std::size_t>(messages.size()));
+  for (const v1::StereoObservation& message : messages) {
+    StereoObservation observation;
+    observation.id = message.id();
+    observation.uv = {message.u_left(), message.v_left(), message.u_right(), message.v_right()};
+    if (!observation.uv.allFinite()) {
+      error = std::string(what) + " observation of id " + std::to_string(observation.id) +
+              " has a non-finite coordinate";
+      return false;
+    }
+    out.push_back(observation);
+  }
+  return true;
+}
+
+}  // namespace
+
+void to_wire(const Marginal& marginal, v1::Marginal& out) {
+  out.mutable_landmark_ids()->Assign(marginal.ids.begin(), marginal.ids.end());
+  out.mutable_mean()->Assign(marginal.mean.data(), marginal.mean.data() + marginal.mean.size());
+  for (const Eigen::MatrixXd& block : marginal.blocks) {
+    v1::CovarianceBlock* message = out.add_blocks();
+    message->set_landmarks(static_cast<std::uint32_t>(block.rows() / 3));
+    auto* packed = message->mutable_packed_upper();
+    packed->Reserve(static_cast<int>(block.rows() * (block.rows() + 1) / 2));
+    for (Eigen::Index row = 0; row < block.rows(); ++row) {
+      for (Eigen::Index column = row; column < block.cols(); ++column) {
+        packed->Add(block(row, column));
+      }
+    }
+  }
+}
+
+std::optional<Marginal> from_wire(const v1::Marginal& message, std::string& error) {
+  Marginal marginal;
+  const auto k = static_cast<std::size_t>(message.landmark_ids_size());
+  if (static_cast<std::size_t>(message.mean_size()) != 3 * k) {
+    error = "marginal: " + std::to_string(message.mean_size()) + " mean values for " +
+            std::to_string(k) + " landmarks";
+    return std::nullopt;
+  }
+  marginal.ids.assign(message.landmark_ids().begin(), message.landmark_ids().end());
+  marginal.mean = Eigen::Map<const Eigen::VectorXd>(message.mean().data(), message.mean_size());
+  std::size_t covered = 0;
+  for (const v1::CovarianceBlock& block : message.blocks()) {
+    const std::size_t landmarks = block.landmarks();
+    if (landmarks == 0 || covered + landmarks > k) {
+      error = "marginal: covariance blocks do not match the " + std::to_string(k) + " landmarks";
+      return std::nullopt;
+    }
+    const auto d = static_cast<Eigen::Index>(3 * landmarks);
+    if (static_cast<std::size_t>(block.packed_upper_size()) !=
+        static_cast<std::size_t>(d * (d + 1) / 2)) {
+      error = "marginal: a block of " + std::to_string(landmarks) + " landmarks needs " +
+              std::to_string(d * (d + 1) / 2) + " packed values, got " +
+              std::to_string(block.packed_upper_size());
+      return std::nullopt;
+    }
+    Eigen::MatrixXd covariance(d, d);
+    int index = 0;
+    for (Eigen::Index row = 0; row < d; ++row) {
+      for (Eigen::Index column = row; column < d; ++column) {
+        covariance(row, column) = covariance(column, row) = block.packed_upper(index++);
+      }
+    }
+    marginal.blocks.push_back(std::move(covariance));
+    covered += landmarks;
+  }
+  if (covered != k) {
+    error = "marginal: covariance blocks cover " + std::to_string(covered) + " of " +
+            std::to_string(k) + " landmarks";
+    return std::nullopt;
+  }
+  if (!marginal.well_formed()) {
+    error = "marginal: non-finite mean or covariance";
+    return std::nullopt;
+  }
+  return marginal;
+}
+
+void to_wire(const Eigen::Isometry3d& pose, v1::Pose& out) {
+  const Eigen::Quaterniond q(pose.rotation());
+  out.set_x(pose.translation().x());
+  out.set_y(pose.translation().y());
+  out.set_z(pose.translation().z());
+  out.set_qw(q.w());
+  out.set_qx(q.x());
+  out.set_qy(q.y());
+  out.set_qz(q.z());
+}
+
+std::optional<Eigen::Isometry3d> from_wire(const v1::Pose& message, std::string& error) {
+  const Eigen::Vector3d t(message.x(), message.y(), message.z());
+  Eigen::Quaterniond q(message.qw(), message.qx(), message.qy(), message.qz());
+  if (!t.allFinite() || !q.coeffs().allFinite()) {
+    error = "pose: non-finite value";
+    return std::nullopt;
+  }
+  if (std::abs(q.norm() - 1.0) > 1e-3) {
+    error = "pose: quaternion norm " + std::to_string(q.norm()) + " is not 1";
+    return std::nullopt;
+  }
+  q.normalize();
+  Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
+  pose.linear() = q.toRotationMatrix();
+  pose.translation() = t;
+  return pose;
+}
+
+void to_wire(const FrameInput& frame, double timestamp, v1::SensorFrame& out) {
+  out.set_frame(frame.frame);
+  out.set_timestamp(timestamp);
+  if (frame.T_previous_current) to_wire(*frame.T_previous_current, *out.mutable_odometry());
+  for (const auto& observation : frame.objects) to_wire(observation, *out.add_objects());
+  for (const auto& observation : frame.features) to_wire(observation, *out.add_features());
+}
+
+std::optional<FrameInput> from_wire(const v1::SensorFrame& message, std::string& error) {
+  FrameInput frame;
+  if (message.frame() < 0 || message.frame() > std::numeric_limits<int>::max()) {
+    error = "sensor frame: frame index " + std::to_string(message.frame()) + " out of range";
+    return std::nullopt;
+  }
+  frame.frame = static_cast<int>(message.frame());
+  if (message.has_odometry()) {
+    auto pose = from_wire(message.odometry(), error);
+    if (!pose) {
+      error = "sensor frame " + std::to_string(frame.frame) + ": odometry " + error;
+      return std::nullopt;
+    }
+    frame.T_previous_current = *pose;
+  }
+  if (!from_wire(message.objects(), frame.objects, "object", error) ||
+      !from_wire(message.features(), frame.features, "feature", error)) {
+    error = "sensor frame " + std::to_string(frame.frame) + ": " + error;
+    return std::nullopt;
+  }
+  return frame;
+}
+
+}  // namespace concord::daemon
