@@ -1,0 +1,83 @@
+// The daemon config loader: the checked-in examples load, every problem is reported with its key.
+#include <gtest/gtest.h>
+
+#include "concord/config/options_file.h"
+#include "concord/daemon/config.h"
+
+namespace concord::daemon {
+namespace {
+
+const std::filesystem::path kSource = CONCORD_SOURCE_DIR;
+
+TEST(DaemonConfig, CheckedInTeamConfigsLoad) {
+  for (int robot = 0; robot < 3; ++robot) {
+    const auto file = kSource / "configs/team-kitti00" / ("robot_0" + std::to_string(robot) + ".yaml");
+    const DaemonConfig config = load_daemon_config(file);
+    EXPECT_EQ(config.robot_id, robot);
+    EXPECT_EQ(config.source.robot, robot);
+    EXPECT_EQ(config.network.listen_port, 7100 + robot);
+    EXPECT_EQ(config.network.peers.size(), 2u);
+    EXPECT_EQ(config.consensus.mode, ConsensusMode::kLockstep);
+    // Relative paths resolve against the file's folder.
+    EXPECT_TRUE(std::filesystem::exists(config.source.dataset / "dataset.json"));
+    EXPECT_FALSE(config.estimator_file.empty());
+  }
+}
+
+TEST(DaemonConfig, DefaultsNeedOnlyADataset) {
+  const DaemonConfig config = parse_daemon_config("source: {dataset: data/x}\n", "inline", "/base");
+  EXPECT_EQ(config.source.dataset, std::filesystem::path("/base/data/x"));
+  EXPECT_EQ(config.http.address, "127.0.0.1");
+  EXPECT_FALSE(config.network.discovery);
+}
+
+TEST(DaemonConfig, InlineEstimatorOptions) {
+  const DaemonConfig config = parse_daemon_config(
+      "source: {dataset: d}\nestimator: {window_size: 7, consensus: {max_mean_shift: 2.0}}\n",
+      "inline", "/");
+  EXPECT_EQ(config.estimator.window_size, 7);
+  EXPECT_EQ(config.estimator.consensus.max_mean_shift, 2.0);
+}
+
+std::string problems_of(const std::string& yaml) {
+  try {
+    parse_daemon_config(yaml, "robot.yaml", "/");
+  } catch (const config::ConfigError& error) {
+    return error.what();
+  }
+  return "";
+}
+
+TEST(DaemonConfig, EveryProblemIsNamed) {
+  const std::string message = problems_of(
+      "robot_id: -1\n"
+      "sorce: {}\n"
+      "source: {dataset: d, rate_hz: fast}\n"
+      "network: {listen_port: 70000, peers: 5}\n"
+      "consensus: {mode: sometimes}\n"
+      "http: {prot: 80}\n"
+      "estimator: {window_size: 0}\n");
+  EXPECT_NE(message.find("robot.yaml"), std::string::npos);
+  EXPECT_NE(message.find("unknown key sorce"), std::string::npos);
+  EXPECT_NE(message.find("source.rate_hz"), std::string::npos);
+  EXPECT_NE(message.find("network.listen_port"), std::string::npos);
+  EXPECT_NE(message.find("network.peers"), std::string::npos);
+  EXPECT_NE(message.find("consensus.mode"), std::string::npos);
+  EXPECT_NE(message.find("unknown key http.prot"), std::string::npos);
+  EXPECT_NE(message.find("window_size"), std::string::npos);
+}
+
+TEST(DaemonConfig, CrossFieldChecks) {
+  EXPECT_NE(problems_of("source: {kind: replay}\n").find("source.dataset"), std::string::npos);
+  EXPECT_NE(problems_of("source: {kind: ingest}\n").find("source.camera"), std::string::npos);
+  EXPECT_NE(problems_of("source: {dataset: d}\nnetwork: {heartbeat_interval_ms: 500, "
+                        "heartbeat_timeout_ms: 100}\n")
+                .find("heartbeat_timeout"),
+            std::string::npos);
+  EXPECT_NE(problems_of("[1, 2]\n").find("expected a map"), std::string::npos);
+  EXPECT_NE(problems_of("a: [\n").find("invalid YAML"), std::string::npos);
+  EXPECT_THROW(load_daemon_config("/nonexistent/robot.yaml"), config::ConfigError);
+}
+
+}  // namespace
+}  // namespace concord::daemon

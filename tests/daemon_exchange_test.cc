@@ -1,0 +1,186 @@
+// The consensus protocol of the daemons without sockets: three ConsensusExchanges wired to each
+// other reproduce concord replay exactly; peers that are down, silent or behind are not waited
+// for; async mode fuses each fresh marginal once.
+#include <gtest/gtest.h>
+
+#include <thread>
+
+#include "concord/daemon/consensus_exchange.h"
+#include "concord/config/options_file.h"
+#include "concord/daemon/wire.h"
+#include "concord/dataset/dataset.h"
+#include "concord/estimator/estimator.h"
+#include "concord/v1/concord.pb.h"
+#include "replay/team_replay.h"
+#include "test_support.h"
+
+namespace concord::daemon {
+namespace {
+
+const std::filesystem::path kSource = CONCORD_SOURCE_DIR;
+
+/// Exchanges that deliver to each other directly (the network's job), sender id attached.
+struct Team {
+  explicit Team(int robots, ConsensusConfig config) {
+    for (int i = 0; i < robots; ++i) {
+      exchanges.push_back(std::make_unique<ConsensusExchange>(
+          config, [this, i](int robot, const v1::Envelope& envelope) {
+            if (robot < 0 || robot >= static_cast<int>(exchanges.size()) || !linked(i, robot))
+              return false;
+            exchanges[robot]->on_message(i, envelope);
+            return true;
+          }));
+    }
+  }
+  bool linked(int a, int b) const { return !(cut.count({a, b}) || cut.count({b, a})); }
+  void connect_all() {
+    for (std::size_t i = 0; i < exchanges.size(); ++i)
+      for (std::size_t j = 0; j < exchanges.size(); ++j)
+        if (i != j) exchanges[i]->on_peer(static_cast<int>(j), true);
+  }
+  std::vector<std::unique_ptr<ConsensusExchange>> exchanges;
+  std::set<std::pair<int, int>> cut;
+};
+
+TEST(DaemonExchange, LockstepReproducesTheReplay) {
+  dataset::ReadOptions read;
+  read.max_frames = 120;
+  const dataset::Dataset data = dataset::read_dataset(kSource / "data/kitti00-300", read);
+  const EstimatorOptions options =
+      config::load_estimator_options(kSource / "configs/datasets/kitti00.yaml");
+  const auto reference = replay::run_team(data, options, {});
+
+  ConsensusConfig config;
+  config.mode = ConsensusMode::kLockstep;
+  config.round_deadline = std::chrono::seconds(20);
+  Team team(3, config);
+  team.connect_all();
+  std::vector<std::vector<Eigen::Isometry3d>> trajectories(3);
+  std::vector<std::vector<ObjectEstimate>> objects(3);
+  std::vector<std::thread> robots;
+  std::atomic<int> timed_out{0};
+  for (int i = 0; i < 3; ++i) {
+    robots.emplace_back([&, i] {
+      Estimator estimator(options, data.camera, data.robots[i].groundtruth.front(), 0);
+      for (int k = 0; k < data.robots[i].num_frames(); ++k) {
+        estimator.process(data.robots[i].frame_input(k));
+        timed_out += team.exchanges[i]->run_round(static_cast<std::uint64_t>(k), estimator).timed_out;
+        trajectories[i].push_back(estimator.current_pose());
+      }
+      objects[i] = estimator.objects();
+    });
+  }
+  for (auto& robot : robots) robot.join();
+  EXPECT_EQ(timed_out, 0);
+  for (int i = 0; i < 3; ++i) {
+    ASSERT_EQ(trajectories[i].size(), reference.robots[i].trajectory.size());
+    for (std::size_t k = 0; k < trajectories[i].size(); ++k) {
+      ASSERT_TRUE(trajectories[i][k].isApprox(reference.robots[i].trajectory[k], 1e-9))
+          << "robot " << i << " frame " << k;
+    }
+    ASSERT_EQ(objects[i].size(), reference.robots[i].objects.size());
+    for (std::size_t o = 0; o < objects[i].size(); ++o) {
+      EXPECT_TRUE(objects[i][o].p_world.isApprox(reference.robots[i].objects[o].p_world, 1e-9));
+    }
+  }
+  EXPECT_GT(team.exchanges[0]->counters().marginals_fused, 50u);
+}
+
+/// A robot with one landmark (id 5), for protocol tests.
+Estimator single_object_estimator() {
+  EstimatorOptions options;
+  return Estimator(options, StereoCamera{}, Eigen::Isometry3d::Identity(), 0);
+}
+
+TEST(DaemonExchange, PeersDownOrBehindAreNotWaitedFor) {
+  ConsensusConfig config;
+  config.round_deadline = std::chrono::hours(1);  // a wait would hang the test: it must not
+  Team team(3, config);
+  team.connect_all();
+  Estimator estimator = single_object_estimator();
+  estimator.process(FrameInput{});
+  // Robot 1 went down; robot 2 announced round 3 only (a restarted robot far behind round 10).
+  team.exchanges[0]->on_peer(1, false);
+  v1::Envelope behind;
+  behind.mutable_landmark_set()->set_round(3);
+  team.exchanges[0]->on_message(2, behind);
+  const RoundReport report = team.exchanges[0]->run_round(10, estimator);
+  EXPECT_EQ(report.live, 1);
+  EXPECT_EQ(report.neighbours, 0);
+  EXPECT_EQ(report.timed_out, 0);
+}
+
+TEST(DaemonExchange, SilentLivePeerIsGivenUpAtTheDeadline) {
+  ConsensusConfig config;
+  config.round_deadline = std::chrono::milliseconds(50);
+  Team team(2, config);
+  team.cut.insert({0, 1});  // robot 1 is up but nothing gets through
+  team.connect_all();
+  Estimator estimator = single_object_estimator();
+  estimator.process(FrameInput{});
+  const RoundReport report = team.exchanges[0]->run_round(0, estimator);
+  EXPECT_EQ(report.neighbours, 0);
+  EXPECT_EQ(report.timed_out, 1);
+  EXPECT_EQ(team.exchanges[0]->counters().deadline_misses, 1u);
+}
+
+TEST(DaemonExchange, GoodbyeEndsTheWait) {
+  ConsensusConfig config;
+  config.round_deadline = std::chrono::hours(1);
+  Team team(2, config);
+  team.connect_all();
+  v1::Envelope goodbye;
+  goodbye.mutable_goodbye()->set_reason("finished");
+  team.exchanges[0]->on_message(1, goodbye);
+  Estimator estimator = single_object_estimator();
+  estimator.process(FrameInput{});
+  EXPECT_EQ(team.exchanges[0]->run_round(0, estimator).neighbours, 0);
+}
+
+/// A marginal envelope for one object.
+v1::Envelope marginal_message(std::uint64_t round, LandmarkId id, const Eigen::Vector3d& mean) {
+  v1::Envelope envelope;
+  to_wire(Marginal{{id}, mean, Eigen::Matrix3d::Identity()}, *envelope.mutable_marginal());
+  envelope.mutable_marginal()->set_round(round);
+  envelope.mutable_marginal()->set_degree(1);
+  return envelope;
+}
+
+TEST(DaemonExchange, AsyncFusesTheFreshestMarginalOnce) {
+  // A robot holding archived object 5 at the origin with unit covariance.
+  ConsensusConfig config;
+  config.mode = ConsensusMode::kAsync;
+  config.staleness_rounds = 2;
+  Team team(2, config);
+  team.cut.insert({0, 1});
+  team.connect_all();
+  EstimatorOptions options;
+  Estimator estimator(options, StereoCamera{}, Eigen::Isometry3d::Identity(), 0);
+  estimator.process(FrameInput{});
+  State& state = const_cast<State&>(estimator.state());
+  state.archived[5] = {5, Eigen::Vector3d::Zero(), Eigen::Matrix3d::Identity()};
+
+  // Stale (round 1 at round 10): not fused.
+  team.exchanges[0]->on_message(1, marginal_message(1, 5, Eigen::Vector3d(4, 0, 0)));
+  EXPECT_EQ(team.exchanges[0]->run_round(10, estimator).fused, 0);
+  // Two fresh ones: the newer (round 11) is fused, once.
+  team.exchanges[0]->on_message(1, marginal_message(10, 5, Eigen::Vector3d(8, 0, 0)));
+  team.exchanges[0]->on_message(1, marginal_message(11, 5, Eigen::Vector3d(0.4, 0, 0)));
+  EXPECT_EQ(team.exchanges[0]->run_round(11, estimator).fused, 1);
+  // Weight 1/2 each, equal covariances: the midpoint.
+  EXPECT_NEAR(estimator.state().archived.at(5).p_world.x(), 0.2, 1e-12);
+  EXPECT_EQ(team.exchanges[0]->run_round(12, estimator).fused, 0);
+}
+
+TEST(DaemonExchange, MalformedMarginalsAreCountedAndDropped) {
+  ConsensusConfig config;
+  Team team(2, config);
+  team.connect_all();
+  v1::Envelope bad = marginal_message(0, 5, Eigen::Vector3d::Zero());
+  bad.mutable_marginal()->mutable_mean()->RemoveLast();
+  team.exchanges[0]->on_message(1, bad);
+  EXPECT_EQ(team.exchanges[0]->counters().malformed, 1u);
+}
+
+}  // namespace
+}  // namespace concord::daemon

@@ -1,0 +1,125 @@
+// Wire conversions of the daemon: exact round trips, and malformed messages rejected with a
+// reason instead of crashing or producing garbage estimates.
+#include <gtest/gtest.h>
+
+#include <random>
+
+#include "concord/daemon/wire.h"
+#include "concord/v1/concord.pb.h"
+#include "test_support.h"
+
+namespace concord::daemon {
+namespace {
+
+Marginal block_marginal(std::mt19937& random) {
+  Marginal m;
+  m.ids = {3, 7, 11, 12};
+  m.mean = Eigen::VectorXd::Random(12);
+  m.blocks = {testing::random_spd(6, random), testing::random_spd(3, random),
+              testing::random_spd(3, random)};
+  return m;
+}
+
+TEST(DaemonWire, MarginalRoundTripIsExact) {
+  std::mt19937 random(3);
+  const Marginal original = block_marginal(random);
+  v1::Marginal message;
+  to_wire(original, message);
+  // Through bytes, as on the network.
+  v1::Marginal parsed;
+  ASSERT_TRUE(parsed.ParseFromString(message.SerializeAsString()));
+  std::string error;
+  const auto back = from_wire(parsed, error);
+  ASSERT_TRUE(back) << error;
+  EXPECT_EQ(back->ids, original.ids);
+  EXPECT_EQ(back->mean, original.mean);
+  ASSERT_EQ(back->blocks.size(), 3u);
+  // Upper triangles travel; the blocks were symmetric, so they come back bit for bit.
+  for (std::size_t b = 0; b < 3; ++b) {
+    const Eigen::MatrixXd symmetric =
+        original.blocks[b].triangularView<Eigen::Upper>().toDenseMatrix() +
+        original.blocks[b].triangularView<Eigen::StrictlyUpper>().toDenseMatrix().transpose();
+    EXPECT_EQ(back->blocks[b], symmetric);
+  }
+  EXPECT_EQ(parsed.blocks(0).packed_upper_size(), 21);
+}
+
+TEST(DaemonWire, MalformedMarginalsAreRejectedWithAReason) {
+  std::mt19937 random(4);
+  v1::Marginal good;
+  to_wire(block_marginal(random), good);
+  std::string error;
+
+  v1::Marginal short_mean = good;
+  short_mean.mutable_mean()->RemoveLast();
+  EXPECT_FALSE(from_wire(short_mean, error));
+  EXPECT_NE(error.find("mean"), std::string::npos);
+
+  v1::Marginal short_block = good;
+  short_block.mutable_blocks(1)->mutable_packed_upper()->RemoveLast();
+  EXPECT_FALSE(from_wire(short_block, error));
+  EXPECT_NE(error.find("packed"), std::string::npos);
+
+  v1::Marginal missing_block = good;
+  missing_block.mutable_blocks()->RemoveLast();
+  EXPECT_FALSE(from_wire(missing_block, error));
+
+  v1::Marginal too_many = good;
+  too_many.mutable_blocks(0)->set_landmarks(40);
+  EXPECT_FALSE(from_wire(too_many, error));
+
+  v1::Marginal not_finite = good;
+  not_finite.set_mean(2, std::numeric_limits<double>::quiet_NaN());
+  EXPECT_FALSE(from_wire(not_finite, error));
+
+  v1::Marginal empty;
+  const auto nothing = from_wire(empty, error);
+  ASSERT_TRUE(nothing);
+  EXPECT_TRUE(nothing->ids.empty());
+}
+
+TEST(DaemonWire, SensorFrameRoundTrip) {
+  FrameInput frame;
+  frame.frame = 12;
+  Eigen::Isometry3d motion = Eigen::Isometry3d::Identity();
+  motion.linear() = Eigen::AngleAxisd(0.1, Eigen::Vector3d(0, 0, 1)).toRotationMatrix();
+  motion.translation() = Eigen::Vector3d(1.0, 0.2, -0.1);
+  frame.T_previous_current = motion;
+  frame.objects.push_back({5, Eigen::Vector4d(100, 50, 90, 50)});
+  frame.features.push_back({77, Eigen::Vector4d(0.1, 0.2, 0.05, 0.2)});
+  v1::SensorFrame message;
+  to_wire(frame, 1.5, message);
+  std::string error;
+  const auto back = from_wire(message, error);
+  ASSERT_TRUE(back) << error;
+  EXPECT_EQ(back->frame, 12);
+  ASSERT_TRUE(back->T_previous_current);
+  EXPECT_TRUE(back->T_previous_current->isApprox(motion, 1e-12));
+  ASSERT_EQ(back->objects.size(), 1u);
+  EXPECT_EQ(back->objects[0].id, 5);
+  EXPECT_EQ(back->objects[0].uv, frame.objects[0].uv);
+  ASSERT_EQ(back->features.size(), 1u);
+  EXPECT_EQ(back->features[0].id, 77);
+}
+
+TEST(DaemonWire, MalformedSensorFramesAreRejected) {
+  std::string error;
+  v1::SensorFrame negative;
+  negative.set_frame(-1);
+  EXPECT_FALSE(from_wire(negative, error));
+
+  v1::SensorFrame bad_quaternion;
+  bad_quaternion.set_frame(1);
+  bad_quaternion.mutable_odometry()->set_qw(2.0);
+  EXPECT_FALSE(from_wire(bad_quaternion, error));
+  EXPECT_NE(error.find("quaternion"), std::string::npos);
+
+  v1::SensorFrame not_finite;
+  not_finite.set_frame(1);
+  auto* observation = not_finite.add_objects();
+  observation->set_u_left(std::numeric_limits<double>::infinity());
+  EXPECT_FALSE(from_wire(not_finite, error));
+}
+
+}  // namespace
+}  // namespace concord::daemon
