@@ -209,6 +209,16 @@ TEST(ConsensusAverage, GroupsEqualSuccessivePropositionTwoReplacements) {
   EXPECT_LT(difference.norm(), 1e-4);
 }
 
+TEST(ConsensusSafeguards, RepeatedIdsMakeAMarginalMalformed) {
+  State state = single_landmark_state();
+  const State before = state;
+  Marginal twice{{5, 5}, Eigen::VectorXd::Zero(6), Eigen::MatrixXd::Identity(6, 6)};
+  const auto report = Consensus::fuse(state, {{0.5, twice}}, no_safeguards());
+  EXPECT_EQ(report.neighbours_skipped, 1);
+  EXPECT_EQ(report.landmarks_fused, 0);
+  EXPECT_TRUE(state.covariance.isApprox(before.covariance, 0.0));
+}
+
 TEST(ConsensusSafeguards, MeanShiftIsLimited) {
   State state = single_landmark_state();
   ConsensusOptions options;

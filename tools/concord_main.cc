@@ -3,8 +3,14 @@
 ///                  [--seed S] [--frames N] [--no-point-features]
 ///   concord eval --dataset DIR --result DIR
 ///   concord slice --dataset DIR --out DIR --frames N [--robots R]
+///   concord launch --dataset DIR --out DIR [--lockstep|--async|--separate] [--base-port P]
+///                  [--http-base-port P] [--config FILE] [--robots R] [--frames N] [--rate HZ]
+///   concord sim --robots N --out DIR [--seed S] [--frames F] [--objects M] [--points-per-frame P]
+///               [--odometry-translation-noise T] [--odometry-rotation-noise R] [--pixel-noise S]
+///               ... (camera, path and object-placement parameters: concord sim --help)
 
 #include <CLI/CLI.hpp>
+#include <chrono>
 #include <cstdio>
 #include <exception>
 #include <filesystem>
@@ -16,7 +22,9 @@
 #include "concord/dataset/result_io.h"
 #include "evaluation/metrics.h"
 #include "evaluation/plot.h"
+#include "launch/launch.h"
 #include "replay/team_replay.h"
+#include "sim/simulator.h"
 
 namespace fs = std::filesystem;
 using namespace concord;
@@ -31,7 +39,7 @@ std::optional<fs::path> dataset_config(const std::string& name) {
 }
 
 std::string robot_folder(int robot) {
-  char name[16];
+  char name[32];
   std::snprintf(name, sizeof name, "robot_%02d", robot);
   return name;
 }
@@ -164,6 +172,77 @@ int run_slice(const fs::path& dataset_dir, const fs::path& out, int frames, int 
   return 0;
 }
 
+int run_sim(const sim::SimulationOptions& options, const fs::path& out) {
+  if (const auto problems = options.validate(); !problems.empty()) {
+    std::cerr << "concord sim: invalid parameters:\n";
+    for (const auto& problem : problems) std::cerr << "  " << problem << "\n";
+    return 1;
+  }
+  using Clock = std::chrono::steady_clock;
+  const auto start = Clock::now();
+  const dataset::Dataset data = sim::simulate(options);
+  const auto simulated = Clock::now();
+  dataset::write_dataset(data, out);
+  dataset::write_file_atomically(out / "simulation.json", sim::to_json(options));
+  const auto written = Clock::now();
+  const auto seconds = [](Clock::duration duration) {
+    return std::chrono::duration<double>(duration).count();
+  };
+  const sim::SimulationSummary summary = sim::summarize(data);
+  std::cout << "concord sim: " << summary.robots << " robots x " << options.frames << " frames, "
+            << summary.objects << " objects, " << summary.object_observations
+            << " object observations (" << summary.objects_per_frame << " a frame), "
+            << summary.feature_observations << " feature observations ("
+            << summary.features_per_frame << " a frame, " << summary.feature_tracks
+            << " tracks, mean length " << summary.mean_track_length << "), written to "
+            << out.string() << "\n";
+  std::cerr << "concord sim: simulated in " << seconds(simulated - start) << " s, written in "
+            << seconds(written - simulated) << " s\n";
+  return 0;
+}
+
+/// Runs a team of concordd daemons on a dataset, then scores their outputs like `eval`.
+int run_launch(launch::LaunchOptions options) {
+  dataset::ReadOptions read_options;
+  read_options.load_features = false;
+  if (options.frames > 0) read_options.max_frames = options.frames;
+  if (options.robots > 0) read_options.max_robots = options.robots;
+  const dataset::Dataset data = dataset::read_dataset(options.dataset, read_options);
+  if (options.estimator_config.empty()) {
+    if (auto found = dataset_config(data.name)) options.estimator_config = *found;
+  }
+  const int robots = static_cast<int>(data.robots.size());
+  std::cerr << "concord launch: " << robots << " concordd (" << options.mode << ") on "
+            << data.name << ", peer ports " << options.base_port << "-"
+            << options.base_port + robots - 1 << ", HTTP ports " << options.http_base_port << "-"
+            << options.http_base_port + robots - 1 << ", logs in "
+            << (options.out / "logs").string() << "\n";
+  const launch::LaunchResult result = launch::launch_team(options, robots, &std::cout);
+  bool all_ok = true;
+  for (int robot = 0; robot < robots; ++robot) {
+    if (result.exit_codes[robot] != 0) {
+      all_ok = false;
+      std::cerr << "concord launch: robot " << robot << " exited with "
+                << result.exit_codes[robot] << " (see "
+                << (options.out / "logs" / (robot_folder(robot) + ".log")).string() << ")\n";
+    }
+  }
+  std::cerr << "concord launch: team finished in " << result.wall_seconds << " s\n";
+  std::vector<evaluation::RobotResult> results;
+  for (int robot = 0; robot < robots; ++robot) {
+    const fs::path folder = options.out / robot_folder(robot);
+    results.push_back({dataset::read_trajectory_kitti(folder / "trajectory.kitti"),
+                       dataset::read_objects_csv(folder / "objects.csv")});
+  }
+  report(data, results, options.out, data.name + " launch (" + options.mode + ")",
+         {{"dataset", data.name},
+          {"mode", options.mode},
+          {"daemons", robots},
+          {"wall_seconds", result.wall_seconds},
+          {"config", options.estimator_config.string()}});
+  return all_ok ? 0 : 1;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -216,14 +295,155 @@ int main(int argc, char** argv) {
   slice_command->add_option("--robots", robots, "Robots to keep (default all)")
       ->check(CLI::PositiveNumber);
 
+  auto* sim_command = app.add_subcommand(
+      "sim", "Simulate a multi-robot dataset (Lissajous paths, docs/simulator.md)");
+  sim::SimulationOptions sim_options;
+  sim_command->add_option("--out", out_dir, "Output folder (dataset layout)")->required();
+  sim_command->add_option("--robots", sim_options.robots, "Number of robots, 1 to 1000")
+      ->capture_default_str();
+  sim_command->add_option("--frames", sim_options.frames, "Frames per robot")
+      ->capture_default_str();
+  sim_command->add_option("--objects", sim_options.objects, "Object landmarks (global ids)")
+      ->capture_default_str();
+  sim_command
+      ->add_option("--points-per-frame", sim_options.points_per_frame,
+                   "Point features visible per frame (0: no features.csv)")
+      ->capture_default_str();
+  sim_command
+      ->add_option("--point-track-loss", sim_options.point_track_loss,
+                   "Probability per frame that a visible point's track is lost, in [0, 1)")
+      ->capture_default_str();
+  sim_command->add_option("--seed", sim_options.seed, "Seed of every random stream")
+      ->check(CLI::Validator(
+          [](std::string& text) {
+            return text.starts_with('-') ? std::string("must be an integer >= 0") : std::string();
+          },
+          ""))
+      ->capture_default_str();
+  sim_command
+      ->add_option("--odometry-translation-noise", sim_options.odometry_translation_noise,
+                   "Odometry noise per axis per frame, metres (one sigma)")
+      ->capture_default_str();
+  sim_command
+      ->add_option("--odometry-rotation-noise", sim_options.odometry_rotation_noise,
+                   "Odometry noise per axis per frame, radians (one sigma)")
+      ->capture_default_str();
+  sim_command
+      ->add_option("--pixel-noise", sim_options.pixel_noise,
+                   "Observation noise per coordinate, normalized image units (one sigma)")
+      ->capture_default_str();
+  sim_command->add_option("--baseline", sim_options.baseline, "Stereo baseline, metres")
+      ->capture_default_str();
+  sim_command
+      ->add_option("--horizontal-fov", sim_options.horizontal_fov_degrees,
+                   "Horizontal field of view, degrees, in (0, 180)")
+      ->capture_default_str();
+  sim_command
+      ->add_option("--vertical-fov", sim_options.vertical_fov_degrees,
+                   "Vertical field of view, degrees, in (0, 180)")
+      ->capture_default_str();
+  sim_command
+      ->add_option("--min-depth", sim_options.min_depth,
+                   "Smallest left-camera depth of an observed landmark, metres")
+      ->capture_default_str();
+  sim_command
+      ->add_option("--max-depth", sim_options.max_depth,
+                   "Largest left-camera depth of an observed landmark, metres")
+      ->capture_default_str();
+  sim_command->add_option("--period", sim_options.period_frames, "Frames per lap of a path")
+      ->capture_default_str();
+  sim_command
+      ->add_option("--amplitude-x", sim_options.amplitude_x,
+                   "Half-extent of a path along its x axis, metres")
+      ->capture_default_str();
+  sim_command
+      ->add_option("--amplitude-y", sim_options.amplitude_y,
+                   "Half-extent of a path along its y axis, metres")
+      ->capture_default_str();
+  sim_command
+      ->add_option("--amplitude-z", sim_options.amplitude_z,
+                   "Half-extent of a path's vertical oscillation, metres")
+      ->capture_default_str();
+  sim_command
+      ->add_option("--frequency-x", sim_options.frequency_x,
+                   "Lissajous frequency along x (integer >= 1)")
+      ->capture_default_str();
+  sim_command
+      ->add_option("--frequency-y", sim_options.frequency_y,
+                   "Lissajous frequency along y (integer >= 1; over the gcd, not both odd)")
+      ->capture_default_str();
+  sim_command
+      ->add_option("--centre-offset", sim_options.centre_offset,
+                   "Distance of each path's centre from the origin, metres")
+      ->capture_default_str();
+  sim_command
+      ->add_option("--scale-spread", sim_options.scale_spread,
+                   "Path scales are uniform in [1 - s, 1 + s], s in [0, 1)")
+      ->capture_default_str();
+  sim_command
+      ->add_option("--object-min-depth", sim_options.object_min_depth,
+                   "Smallest depth of an object in view of the pose it is placed around, metres")
+      ->capture_default_str();
+  sim_command
+      ->add_option("--object-max-depth", sim_options.object_max_depth,
+                   "Largest depth of an object in view of the pose it is placed around, metres")
+      ->capture_default_str();
+
+  auto* launch_command = app.add_subcommand(
+      "launch", "Run one concordd per robot of a dataset on loopback and score the outputs");
+  launch::LaunchOptions launch_options;
+  launch_options.concordd = CONCORD_DAEMON_PATH;
+  bool launch_lockstep = false, launch_async = false, launch_separate = false;
+  std::string launch_config, concordd_path;
+  launch_command->add_option("--dataset", launch_options.dataset, "Dataset folder")
+      ->required()
+      ->check(CLI::ExistingDirectory);
+  launch_command->add_option("--out", launch_options.out, "Output folder (replay layout)")
+      ->required();
+  launch_command->add_flag("--lockstep", launch_lockstep,
+                           "Lockstep consensus (the default: reproducible)");
+  launch_command->add_flag("--async", launch_async, "Asynchronous consensus");
+  launch_command->add_flag("--separate", launch_separate, "No consensus");
+  launch_command->add_option("--base-port", launch_options.base_port,
+                             "Robot i listens for peers on base-port + i")
+      ->capture_default_str();
+  launch_command->add_option("--http-base-port", launch_options.http_base_port,
+                             "Robot i serves HTTP on http-base-port + i")
+      ->capture_default_str();
+  launch_command->add_option("--config", launch_config,
+                             "Estimator options (default configs/datasets/<name>.yaml)");
+  launch_command->add_option("--robots", launch_options.robots, "First robots only")
+      ->check(CLI::PositiveNumber);
+  launch_command->add_option("--frames", launch_options.frames, "First frames only")
+      ->check(CLI::PositiveNumber);
+  launch_command->add_option("--rate", launch_options.rate_hz,
+                             "Replay rate in frames per second (0: as fast as possible)")
+      ->check(CLI::NonNegativeNumber);
+  launch_command->add_flag("--no-point-features", no_point_features,
+                           "Ignore features.csv");
+  launch_command->add_option("--concordd", concordd_path, "The concordd binary")
+      ->check(CLI::ExistingFile);
+
   CLI11_PARSE(app, argc, argv);
   try {
+    if (launch_command->parsed()) {
+      if (int{launch_lockstep} + int{launch_async} + int{launch_separate} > 1) {
+        std::cerr << "concord launch: choose one of --lockstep, --async and --separate\n";
+        return 1;
+      }
+      launch_options.mode = launch_async ? "async" : launch_separate ? "off" : "lockstep";
+      launch_options.point_features = !no_point_features;
+      if (!launch_config.empty()) launch_options.estimator_config = launch_config;
+      if (!concordd_path.empty()) launch_options.concordd = concordd_path;
+      return run_launch(launch_options);
+    }
     if (replay_command->parsed()) {
       return run_replay(dataset_dir, out_dir, separate, config_file, graph, loss, seed, frames,
                         no_point_features);
     }
     if (eval_command->parsed()) return run_eval(dataset_dir, result_dir);
     if (slice_command->parsed()) return run_slice(dataset_dir, out_dir, frames, robots);
+    if (sim_command->parsed()) return run_sim(sim_options, out_dir);
   } catch (const std::exception& error) {
     std::cerr << "concord: error: " << error.what() << "\n";
     return 1;

@@ -23,7 +23,15 @@ struct Location {
 struct CheckedNeighbour {
   double weight = 0.0;
   const Marginal* marginal = nullptr;
-  std::map<LandmarkId, Location> location;
+  /// (id, location) sorted by id: binary search over contiguous memory.
+  std::vector<std::pair<LandmarkId, Location>> locations;
+
+  const Location* find(LandmarkId id) const {
+    const auto it = std::lower_bound(
+        locations.begin(), locations.end(), id,
+        [](const std::pair<LandmarkId, Location>& entry, LandmarkId key) { return entry.first < key; });
+    return it != locations.end() && it->first == id ? &it->second : nullptr;
+  }
 
   Eigen::Matrix3d covariance(const Location& at) const {
     return marginal->blocks[at.block].block<3, 3>(at.offset, at.offset);
@@ -58,22 +66,41 @@ void sub_marginal(const CheckedNeighbour& neighbour, const std::vector<Location>
   }
 }
 
-/// Proposition 2 on a Gaussian N(mean, covariance): replaces the marginal of the coordinates
-/// `indices` by N(target_mean, target_covariance), keeping the conditional of the others.
-/// Returns false (nothing changed) if the current marginal is not positive definite.
+/// Proposition 2 on the covariance P of a Gaussian: replaces the marginal of the coordinates
+/// `indices` (currently own_mean, P_yy) by N(target_mean, target_covariance) and keeps the
+/// conditional of the other coordinates. With B = P[:, y] and L = B P_yy^-1 (eq. 14):
+///   P <- P + L (Sigma_bar - P_yy) L^T = P + B M B^T,  M = P_yy^-1 (Sigma_bar - P_yy) P_yy^-1,
+/// and the mean correction is L (mu_bar - mu_y). Forming M (k^3) instead of L (k^2 n) and updating
+/// only the lower triangle makes it k^3 + k^2 n + n^2 k / 2. Returns the correction, or
+/// std::nullopt (P unchanged) if P_yy is not positive definite.
+std::optional<Eigen::VectorXd> proposition_two(Eigen::MatrixXd& P, const std::vector<int>& indices,
+                                               const Eigen::VectorXd& own_mean,
+                                               const Eigen::VectorXd& target_mean,
+                                               const Eigen::MatrixXd& target_covariance) {
+  const Eigen::MatrixXd own_covariance = P(indices, indices);
+  const Eigen::LLT<Eigen::MatrixXd> llt(own_covariance);
+  if (llt.info() != Eigen::Success) return std::nullopt;
+  const Eigen::MatrixXd B = P(Eigen::all, indices);
+  Eigen::VectorXd correction = B * llt.solve(target_mean - own_mean);
+  const Eigen::MatrixXd half = llt.solve(target_covariance - own_covariance);  // P_yy^-1 D
+  Eigen::MatrixXd M = llt.solve(half.transpose());                            // P_yy^-1 D P_yy^-1
+  M = 0.5 * (M + M.transpose()).eval();
+  const Eigen::MatrixXd BM = B * M;
+  P.triangularView<Eigen::Lower>() += BM * B.transpose();
+  P.triangularView<Eigen::StrictlyUpper>() = P.transpose();
+  return correction;
+}
+
+/// Proposition 2 on a Gaussian N(mean, covariance) (see proposition_two).
 bool replace_gaussian_marginal(Eigen::VectorXd& mean, Eigen::MatrixXd& covariance,
                                const std::vector<int>& indices,
                                const Eigen::VectorXd& target_mean,
                                const Eigen::MatrixXd& target_covariance) {
-  const Eigen::MatrixXd own_covariance = covariance(indices, indices);
-  const Eigen::LLT<Eigen::MatrixXd> llt(own_covariance);
-  if (llt.info() != Eigen::Success) return false;
-  const Eigen::MatrixXd L_transposed = llt.solve(covariance(indices, Eigen::all));
   const Eigen::VectorXd own_mean = mean(indices);
-  mean.noalias() += L_transposed.transpose() * (target_mean - own_mean);
-  const Eigen::MatrixXd change = target_covariance - own_covariance;
-  covariance.noalias() += L_transposed.transpose() * (change * L_transposed);
-  covariance = 0.5 * (covariance + covariance.transpose()).eval();
+  const auto correction =
+      proposition_two(covariance, indices, own_mean, target_mean, target_covariance);
+  if (!correction) return false;
+  mean += *correction;
   return true;
 }
 
@@ -132,6 +159,45 @@ void limit_mean_shift(const Eigen::VectorXd& own_mean, Eigen::VectorXd& mean, do
   }
 }
 
+/// The information average (eq. 19) of one archived object with its holders' 3x3 marginals,
+/// written into `estimate`; the same rules as information_average, without heap allocations.
+bool average_archived(ObjectEstimate& estimate, double own_weight,
+                      const std::vector<CheckedNeighbour>& checked, const std::vector<int>& holders,
+                      LandmarkId id, const ConsensusOptions& options, ConsensusReport& report) {
+  Eigen::Matrix3d information = Eigen::Matrix3d::Zero();
+  Eigen::Vector3d information_vector = Eigen::Vector3d::Zero();
+  int used = 0;
+  for (int j : holders) {
+    const Location& at = *checked[j].find(id);
+    const Eigen::LLT<Eigen::Matrix3d> llt(checked[j].covariance(at));
+    if (llt.info() != Eigen::Success || !(llt.rcond() * options.max_condition_number >= 1.0)) {
+      ++report.neighbours_skipped;
+      own_weight += checked[j].weight;
+      continue;
+    }
+    information += checked[j].weight * llt.solve(Eigen::Matrix3d::Identity());
+    information_vector +=
+        checked[j].weight * llt.solve(checked[j].marginal->mean.segment<3>(3 * at.position));
+    ++used;
+  }
+  if (used == 0) return false;
+  const Eigen::LLT<Eigen::Matrix3d> own(estimate.covariance);
+  if (own.info() != Eigen::Success) return false;
+  information += own_weight * own.solve(Eigen::Matrix3d::Identity());
+  information_vector += own_weight * own.solve(estimate.p_world);
+  information = 0.5 * (information + information.transpose()).eval();
+  const Eigen::LLT<Eigen::Matrix3d> llt(information);
+  if (llt.info() != Eigen::Success) return false;
+  Eigen::Matrix3d covariance = llt.solve(Eigen::Matrix3d::Identity());
+  covariance = 0.5 * (covariance + covariance.transpose()).eval();
+  Eigen::VectorXd mean = covariance * information_vector;
+  const Eigen::VectorXd own_mean = estimate.p_world;
+  limit_mean_shift(own_mean, mean, options.max_mean_shift, report);
+  estimate.p_world = mean;
+  estimate.covariance = covariance;
+  return true;
+}
+
 }  // namespace
 
 Marginal Consensus::marginal(const State& state, const std::vector<LandmarkId>& ids) {
@@ -166,21 +232,10 @@ bool Consensus::replace_marginal(State& state, const std::vector<int>& slots,
     own_mean.segment<3>(3 * static_cast<Eigen::Index>(i)) = state.landmarks[slots[i]].p_world;
     for (int k = 0; k < 3; ++k) indices.push_back(state.landmark_index(slots[i]) + k);
   }
-  Eigen::MatrixXd& P = state.covariance;
-  const Eigen::MatrixXd own_covariance = P(indices, indices);
-  const Eigen::LLT<Eigen::MatrixXd> llt(own_covariance);
-  if (llt.info() != Eigen::Success) return false;
-  // Proposition 2 with L = [A; I] = Sigma_{:,y} Sigma_y^-1 (eq. 14):
-  //   mu  <- mu + L (mu_y_bar - mu_y)
-  //   P   <- P + L (Sigma_y_bar - Sigma_y) L^T
-  const Eigen::MatrixXd L_transposed = llt.solve(P(indices, Eigen::all));  // 3k x n
-  const Eigen::VectorXd correction = L_transposed.transpose() * (mean - own_mean);
-  const Eigen::MatrixXd change_L_transposed = (covariance - own_covariance) * L_transposed;
-  // The update is symmetric: compute the lower triangle only (half the flops) and mirror it.
-  P.triangularView<Eigen::Lower>() += L_transposed.transpose() * change_L_transposed;
-  P.triangularView<Eigen::StrictlyUpper>() = P.transpose();
+  const auto correction = proposition_two(state.covariance, indices, own_mean, mean, covariance);
+  if (!correction) return false;
   // eq. (21): poses T <- T exp(mu_x_bar^); landmarks shift additively.
-  StateHelper::apply_correction(state, correction);
+  StateHelper::apply_correction(state, *correction);
   return true;
 }
 
@@ -202,9 +257,19 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
     int position = 0;
     for (std::size_t b = 0; b < m.blocks.size(); ++b) {
       for (Eigen::Index offset = 0; offset < m.blocks[b].rows(); offset += 3) {
-        entry.location[m.ids[position]] = {position, static_cast<int>(b), static_cast<int>(offset)};
+        entry.locations.push_back(
+            {m.ids[position], {position, static_cast<int>(b), static_cast<int>(offset)}});
         ++position;
       }
+    }
+    std::sort(entry.locations.begin(), entry.locations.end(),
+              [](const auto& a, const auto& b) { return a.first < b.first; });
+    // Repeated ids make a marginal malformed.
+    if (std::adjacent_find(entry.locations.begin(), entry.locations.end(), [](const auto& a, const auto& b) {
+          return a.first == b.first;
+        }) != entry.locations.end()) {
+      ++report.neighbours_skipped;
+      continue;
     }
     checked.push_back(std::move(entry));
   }
@@ -228,13 +293,13 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
   for (LandmarkId id : state.object_ids()) {
     std::vector<int> holders;
     for (std::size_t j = 0; j < checked.size(); ++j) {
-      const auto it = checked[j].location.find(id);
-      if (it == checked[j].location.end()) continue;
+      const Location* found = checked[j].find(id);
+      if (found == nullptr) continue;
       if (options.disagreement_gate > 0.0) {
         Eigen::Vector3d own_mean;
         Eigen::Matrix3d own_covariance;
         own_estimate(id, own_mean, own_covariance);
-        const Location& at = it->second;
+        const Location& at = *found;
         const Eigen::Vector3d difference =
             checked[j].marginal->mean.segment<3>(3 * at.position) - own_mean;
         const Eigen::Matrix3d sum = own_covariance + checked[j].covariance(at);
@@ -277,60 +342,49 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
     const auto& [in_joint_state, holders] = key;
     double own_weight = 1.0;
     for (int j : holders) own_weight -= checked[j].weight;
-    // Archived objects are independent: average them one by one.
-    const std::size_t batch = in_joint_state ? ids.size() : 1;
-    for (std::size_t start = 0; start < ids.size(); start += batch) {
-      const std::vector<LandmarkId> batch_ids(ids.begin() + start, ids.begin() + start + batch);
-      Eigen::VectorXd own_mean;
-      Eigen::MatrixXd own_covariance;
-      std::vector<int> indices;  // coordinates of the batch in U
-      if (in_joint_state) {
-        for (LandmarkId id : batch_ids) {
-          for (int k = 0; k < 3; ++k) indices.push_back(3 * union_position.at(id) + k);
+    if (!in_joint_state) {
+      // Archived objects are independent: average them one by one (fixed-size 3x3 algebra).
+      for (LandmarkId id : ids) {
+        ObjectEstimate& estimate = state.archived.at(id);
+        if (average_archived(estimate, own_weight, checked, holders, id, options, report)) {
+          ++report.landmarks_fused;
+          ++report.groups;
         }
-        own_mean = union_mean(indices);
-        own_covariance = union_covariance(indices, indices);
-      } else {
-        Eigen::Vector3d m;
-        Eigen::Matrix3d c;
-        own_estimate(batch_ids.front(), m, c);
-        own_mean = m;
-        own_covariance = c;
       }
-      std::vector<double> weights;
-      std::vector<Eigen::VectorXd> means;
-      std::vector<Eigen::MatrixXd> covariances;
-      for (int j : holders) {
-        std::vector<Location> at;
-        for (LandmarkId id : batch_ids) at.push_back(checked[j].location.at(id));
-        Eigen::VectorXd m;
-        Eigen::MatrixXd c;
-        sub_marginal(checked[j], at, m, c);
-        weights.push_back(checked[j].weight);
-        means.push_back(std::move(m));
-        covariances.push_back(std::move(c));
-      }
-      Eigen::VectorXd mean;
-      Eigen::MatrixXd covariance;
-      if (!information_average(own_weight, own_mean, own_covariance, weights, means, covariances,
-                               options.max_condition_number, mean, covariance, report)) {
-        continue;
-      }
-      limit_mean_shift(own_mean, mean, options.max_mean_shift, report);
-      if (in_joint_state) {
-        if (!replace_gaussian_marginal(union_mean, union_covariance, indices, mean, covariance)) {
-          continue;
-        }
-        union_fused += static_cast<int>(batch_ids.size());
-        ++union_groups;
-        continue;
-      }
-      ObjectEstimate& estimate = state.archived.at(batch_ids.front());
-      estimate.p_world = mean;
-      estimate.covariance = covariance;
-      report.landmarks_fused += static_cast<int>(batch_ids.size());
-      ++report.groups;
+      continue;
     }
+    // In-state group: averaged jointly on U.
+    std::vector<int> indices;  // coordinates of the group in U
+    for (LandmarkId id : ids) {
+      for (int k = 0; k < 3; ++k) indices.push_back(3 * union_position.at(id) + k);
+    }
+    const Eigen::VectorXd own_mean = union_mean(indices);
+    const Eigen::MatrixXd own_covariance = union_covariance(indices, indices);
+    std::vector<double> weights;
+    std::vector<Eigen::VectorXd> means;
+    std::vector<Eigen::MatrixXd> covariances;
+    for (int j : holders) {
+      std::vector<Location> at;
+      for (LandmarkId id : ids) at.push_back(*checked[j].find(id));
+      Eigen::VectorXd m;
+      Eigen::MatrixXd c;
+      sub_marginal(checked[j], at, m, c);
+      weights.push_back(checked[j].weight);
+      means.push_back(std::move(m));
+      covariances.push_back(std::move(c));
+    }
+    Eigen::VectorXd mean;
+    Eigen::MatrixXd covariance;
+    if (!information_average(own_weight, own_mean, own_covariance, weights, means, covariances,
+                             options.max_condition_number, mean, covariance, report)) {
+      continue;
+    }
+    limit_mean_shift(own_mean, mean, options.max_mean_shift, report);
+    if (!replace_gaussian_marginal(union_mean, union_covariance, indices, mean, covariance)) {
+      continue;
+    }
+    union_fused += static_cast<int>(ids.size());
+    ++union_groups;
   }
   if (union_groups > 0 && replace_marginal(state, union_slots, union_mean, union_covariance)) {
     report.landmarks_fused += union_fused;
