@@ -5,6 +5,7 @@
 ///   concord slice --dataset DIR --out DIR --frames N [--robots R]
 ///   concord launch --dataset DIR --out DIR [--lockstep|--async|--separate] [--base-port P]
 ///                  [--http-base-port P] [--config FILE] [--robots R] [--frames N] [--rate HZ]
+///   concord plot --input CHART.json --out CHART.png
 ///   concord sim --robots N --out DIR [--seed S] [--frames F] [--objects M] [--points-per-frame P]
 ///               [--odometry-translation-noise T] [--odometry-rotation-noise R] [--pixel-noise S]
 ///               ... (camera, path and object-placement parameters: concord sim --help)
@@ -21,6 +22,7 @@
 #include "concord/dataset/dataset.h"
 #include "concord/dataset/result_io.h"
 #include "evaluation/metrics.h"
+#include "evaluation/line_plot.h"
 #include "evaluation/plot.h"
 #include "launch/launch.h"
 #include "replay/team_replay.h"
@@ -424,8 +426,21 @@ int main(int argc, char** argv) {
   launch_command->add_option("--concordd", concordd_path, "The concordd binary")
       ->check(CLI::ExistingFile);
 
+  auto* plot_command =
+      app.add_subcommand("plot", "Draw a line chart described in JSON as a PNG (bench charts)");
+  std::string plot_input;
+  plot_command->add_option("--input", plot_input, "Chart JSON (see evaluation/line_plot.h)")
+      ->required()
+      ->check(CLI::ExistingFile);
+  plot_command->add_option("--out", out_dir, "PNG file to write")->required();
+
   CLI11_PARSE(app, argc, argv);
   try {
+    if (plot_command->parsed()) {
+      evaluation::write_line_plot_png(out_dir, evaluation::read_line_plot_json(plot_input));
+      std::cout << "plot: " << out_dir << "\n";
+      return 0;
+    }
     if (launch_command->parsed()) {
       if (int{launch_lockstep} + int{launch_async} + int{launch_separate} > 1) {
         std::cerr << "concord launch: choose one of --lockstep, --async and --separate\n";
