@@ -1,0 +1,115 @@
+#include "concord/net/frame_codec.h"
+
+#include <cassert>
+#include <limits>
+#include <utility>
+
+#include "concord/v1/concord.pb.h"
+
+namespace concord::net {
+
+std::string_view to_string(FrameErrorKind kind) {
+  switch (kind) {
+    case FrameErrorKind::kNone:
+      return "none";
+    case FrameErrorKind::kZeroLength:
+      return "zero-length";
+    case FrameErrorKind::kOversized:
+      return "oversized";
+    case FrameErrorKind::kGarbage:
+      return "garbage";
+    case FrameErrorKind::kWrongVersion:
+      return "wrong-version";
+    case FrameErrorKind::kWrongTeam:
+      return "wrong-team";
+  }
+  return "unknown";
+}
+
+void append_frame(const v1::Envelope& envelope, std::string& out) {
+  const std::size_t payload_bytes = envelope.ByteSizeLong();
+  // A 4-byte prefix cannot describe more; protobuf itself refuses messages above 2 GiB.
+  assert(payload_bytes <= std::numeric_limits<std::uint32_t>::max());
+  const auto length = static_cast<std::uint32_t>(payload_bytes);
+  const std::size_t start = out.size();
+  out.resize(start + kFrameHeaderBytes + payload_bytes);
+  auto* header = reinterpret_cast<unsigned char*>(out.data() + start);
+  header[0] = static_cast<unsigned char>(length >> 24);
+  header[1] = static_cast<unsigned char>(length >> 16);
+  header[2] = static_cast<unsigned char>(length >> 8);
+  header[3] = static_cast<unsigned char>(length);
+  envelope.SerializeWithCachedSizesToArray(header + kFrameHeaderBytes);
+}
+
+std::string encode_frame(const v1::Envelope& envelope) {
+  std::string out;
+  append_frame(envelope, out);
+  return out;
+}
+
+FrameError check_envelope(const v1::Envelope& envelope,
+                          const std::optional<std::string>& expected_team) {
+  if (envelope.protocol_version() != kProtocolVersion)
+    return {FrameErrorKind::kWrongVersion, "protocol version " +
+                                               std::to_string(envelope.protocol_version()) +
+                                               ", expected " + std::to_string(kProtocolVersion)};
+  if (expected_team && envelope.team() != *expected_team)
+    return {FrameErrorKind::kWrongTeam,
+            "team '" + envelope.team() + "', expected '" + *expected_team + "'"};
+  return {};
+}
+
+FrameDecoder::FrameDecoder(FrameDecoderOptions options) : options_(std::move(options)) {}
+
+void FrameDecoder::feed(std::string_view bytes) {
+  if (failed()) return;
+  // Drop consumed bytes before growing, so the buffer stays within one frame plus one chunk.
+  if (read_offset_ == buffer_.size()) {
+    buffer_.clear();
+    read_offset_ = 0;
+  } else if (read_offset_ > 0 && read_offset_ >= buffer_.size() / 2) {
+    buffer_.erase(0, read_offset_);
+    read_offset_ = 0;
+  }
+  buffer_.append(bytes);
+}
+
+FrameDecoder::Status FrameDecoder::fail(FrameErrorKind kind, std::string reason) {
+  error_ = {kind, std::move(reason)};
+  buffer_.clear();
+  buffer_.shrink_to_fit();
+  read_offset_ = 0;
+  return Status::kError;
+}
+
+FrameDecoder::Status FrameDecoder::next(v1::Envelope& envelope) {
+  if (failed()) return Status::kError;
+  const std::size_t available = buffer_.size() - read_offset_;
+  if (available < kFrameHeaderBytes) return Status::kNeedMore;
+
+  // 1. Length prefix: checked before any payload is waited for.
+  const auto* header = reinterpret_cast<const unsigned char*>(buffer_.data() + read_offset_);
+  const std::uint32_t length = (std::uint32_t{header[0]} << 24) | (std::uint32_t{header[1]} << 16) |
+                               (std::uint32_t{header[2]} << 8) | std::uint32_t{header[3]};
+  if (length == 0) return fail(FrameErrorKind::kZeroLength, "zero-length frame");
+  if (length > options_.max_frame_bytes ||
+      length > static_cast<std::uint32_t>(std::numeric_limits<int>::max()))
+    return fail(FrameErrorKind::kOversized, "frame of " + std::to_string(length) +
+                                                " bytes exceeds the maximum of " +
+                                                std::to_string(options_.max_frame_bytes));
+  if (available - kFrameHeaderBytes < length) return Status::kNeedMore;
+
+  // 2. Payload: one Envelope, then the checks every receiver makes.
+  const char* payload = buffer_.data() + read_offset_ + kFrameHeaderBytes;
+  envelope.Clear();
+  if (!envelope.ParseFromArray(payload, static_cast<int>(length)))
+    return fail(FrameErrorKind::kGarbage,
+                "payload of " + std::to_string(length) + " bytes is not a valid Envelope");
+  FrameError check = check_envelope(envelope, options_.team);
+  if (check.kind != FrameErrorKind::kNone) return fail(check.kind, std::move(check.reason));
+
+  read_offset_ += kFrameHeaderBytes + length;
+  return Status::kFrame;
+}
+
+}  // namespace concord::net
