@@ -139,7 +139,7 @@ LaunchResult launch_team(const LaunchOptions& options, int robots, std::ostream*
       for (auto& daemon : daemons) daemon.signal(SIGTERM);
       stopping = true;
     }
-    if (status && now - last_print >= (tty ? std::chrono::milliseconds(500) : std::chrono::seconds(5))) {
+    if (status && now - last_print >= (tty ? std::chrono::milliseconds(500) : std::chrono::milliseconds(1000))) {
       last_print = now;
       std::ostringstream line;
       line << "[" << static_cast<int>(std::chrono::duration<double>(now - start).count()) << " s]";
