@@ -135,6 +135,28 @@ TEST(DaemonProcess, ThreeDaemonsInLockstepReproduceTheReplay) {
   EXPECT_GT(marginals_fused, 200);
 }
 
+TEST(DaemonProcess, AsyncTeamFusesWithoutWaiting) {
+  const fs::path out = fresh_folder("async");
+  auto options = team_options(out, 140);
+  options.mode = "async";
+  options.frames = 200;
+  options.rate_hz = 100.0;  // live-like pacing, so that the robots overlap in time
+  const launch::LaunchResult result = launch::launch_team(options, 3, nullptr);
+  ASSERT_FALSE(result.timed_out);
+  int marginals_fused = 0;
+  for (int robot = 0; robot < 3; ++robot) {
+    EXPECT_EQ(result.exit_codes[robot], 0);
+    const fs::path folder = out / ("robot_0" + std::to_string(robot));
+    EXPECT_EQ(line_count(folder / "trajectory.kitti"), 200u);
+    std::ifstream stats_file(folder / "stats.json");
+    const json stats = json::parse(stats_file);
+    EXPECT_EQ(stats["mode"], "async");
+    marginals_fused += stats["marginals_fused"].get<int>();
+  }
+  // Robots 0 and 1 share objects: they fused each other's marginals without waiting.
+  EXPECT_GT(marginals_fused, 50);
+}
+
 TEST(DaemonProcess, TeamSurvivesAKilledPeerAndTakesItBack) {
   const fs::path out = fresh_folder("sigkill");
   auto options = team_options(out, 40);
