@@ -146,7 +146,7 @@ v1::Envelope marginal_message(std::uint64_t round, LandmarkId id, const Eigen::V
   return envelope;
 }
 
-TEST(DaemonExchange, AsyncFusesTheFreshestMarginalOnce) {
+TEST(DaemonExchange, AsyncFusesTheNewestRecentMarginalOnce) {
   // A robot holding archived object 5 at the origin with unit covariance.
   ConsensusConfig config;
   config.mode = ConsensusMode::kAsync;
@@ -160,12 +160,14 @@ TEST(DaemonExchange, AsyncFusesTheFreshestMarginalOnce) {
   State& state = const_cast<State&>(estimator.state());
   state.archived[5] = {5, Eigen::Vector3d::Zero(), Eigen::Matrix3d::Identity()};
 
-  // Stale (round 1 at round 10): not fused.
+  // Received before round 1, fused at round 10: too old (staleness 2 rounds), not fused.
+  team.exchanges[0]->run_round(1, estimator);
   team.exchanges[0]->on_message(1, marginal_message(1, 5, Eigen::Vector3d(4, 0, 0)));
   EXPECT_EQ(team.exchanges[0]->run_round(10, estimator).fused, 0);
-  // Two fresh ones: the newer (round 11) is fused, once.
-  team.exchanges[0]->on_message(1, marginal_message(10, 5, Eigen::Vector3d(8, 0, 0)));
-  team.exchanges[0]->on_message(1, marginal_message(11, 5, Eigen::Vector3d(0.4, 0, 0)));
+  // Two arrive during round 10: the newer is fused at round 11, once. The sender's round numbers
+  // (here far behind, as a restarted robot's) do not matter, only arrival.
+  team.exchanges[0]->on_message(1, marginal_message(3, 5, Eigen::Vector3d(8, 0, 0)));
+  team.exchanges[0]->on_message(1, marginal_message(4, 5, Eigen::Vector3d(0.4, 0, 0)));
   EXPECT_EQ(team.exchanges[0]->run_round(11, estimator).fused, 1);
   // Weight 1/2 each, equal covariances: the midpoint.
   EXPECT_NEAR(estimator.state().archived.at(5).p_world.x(), 0.2, 1e-12);

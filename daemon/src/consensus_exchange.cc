@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <iterator>
+#include <optional>
 
 #include "concord/daemon/wire.h"
 #include "concord/estimator/estimator.h"
@@ -46,6 +47,11 @@ struct ConsensusExchange::Peer {
   bool ids_known = false;
   std::map<std::uint64_t, std::vector<LandmarkId>> landmark_sets;
   std::map<std::uint64_t, Received> marginals;
+  /// Async: the newest marginal received, and the robot's own round when it arrived (rounds of
+  /// different robots need not be aligned: a restarted robot, or live sensors numbering frames
+  /// independently).
+  std::optional<Received> latest;
+  std::int64_t latest_received_at = -1;
 };
 
 ConsensusExchange::ConsensusExchange(ConsensusConfig config, Send send)
@@ -104,6 +110,8 @@ void ConsensusExchange::on_message(int robot, const v1::Envelope& envelope) {
       peer.ids_known = true;
       peer.last_round = std::max<std::int64_t>(peer.last_round,
                                                static_cast<std::int64_t>(message.round()));
+      // Async mode uses the current set only; lockstep keeps the set of each round.
+      if (config_.mode == ConsensusMode::kAsync) break;
       if (static_cast<std::int64_t>(message.round()) <= forgotten_up_to_) {
         ++counters_.stale_dropped;
         break;
@@ -122,6 +130,11 @@ void ConsensusExchange::on_message(int robot, const v1::Envelope& envelope) {
       }
       peer.last_round = std::max<std::int64_t>(peer.last_round,
                                                static_cast<std::int64_t>(message.round()));
+      if (config_.mode == ConsensusMode::kAsync) {
+        peer.latest = Peer::Received{std::move(*marginal), static_cast<int>(message.degree()), false};
+        peer.latest_received_at = current_round_;
+        break;
+      }
       if (static_cast<std::int64_t>(message.round()) <= forgotten_up_to_) {
         ++counters_.stale_dropped;
         break;
@@ -169,6 +182,10 @@ ExchangeCounters ConsensusExchange::counters() const {
 }
 
 RoundReport ConsensusExchange::run_round(std::uint64_t round, Estimator& estimator) {
+  {
+    std::lock_guard lock(mutex_);
+    current_round_ = static_cast<std::int64_t>(round);
+  }
   RoundReport report = config_.mode == ConsensusMode::kAsync ? async_round(round, estimator)
                                                              : lockstep_round(round, estimator);
   std::lock_guard lock(mutex_);
@@ -315,16 +332,16 @@ RoundReport ConsensusExchange::async_round(std::uint64_t round, Estimator& estim
     std::lock_guard lock(mutex_);
     for (int robot : live) {
       Peer& peer = *peers_.at(robot);
-      // The freshest marginal, if recent enough and not fused before.
-      for (auto it = peer.marginals.rbegin(); it != peer.marginals.rend(); ++it) {
-        if (static_cast<std::int64_t>(it->first) < k - config_.staleness_rounds) break;
-        if (it->second.used) break;
-        it->second.used = true;
-        if (!it->second.marginal.ids.empty()) {
-          inbox.push_back({Consensus::metropolis_weight(degree, it->second.degree),
-                           it->second.marginal});
-        }
-        break;
+      // The newest marginal, if it arrived within the last staleness_rounds of our own rounds
+      // and was not fused before.
+      if (!peer.latest || peer.latest->used ||
+          peer.latest_received_at < k - config_.staleness_rounds) {
+        continue;
+      }
+      peer.latest->used = true;
+      if (!peer.latest->marginal.ids.empty()) {
+        inbox.push_back({Consensus::metropolis_weight(degree, peer.latest->degree),
+                         std::move(peer.latest->marginal)});
       }
     }
   }
@@ -332,11 +349,6 @@ RoundReport ConsensusExchange::async_round(std::uint64_t round, Estimator& estim
     report.consensus = estimator.fuse(inbox);
     report.fused = static_cast<int>(inbox.size());
   }
-  const std::uint64_t keep_from =
-      round > static_cast<std::uint64_t>(config_.staleness_rounds)
-          ? round - static_cast<std::uint64_t>(config_.staleness_rounds)
-          : 0;
-  if (keep_from > 0) forget_rounds_up_to(keep_from - 1);
   return report;
 }
 

@@ -12,8 +12,9 @@
 ///
 /// A peer that goes down, says Goodbye, or shows it is in another round (a restarted robot far
 /// behind, or one that gave up on us and went ahead) stops being waited for at once. Async mode
-/// sends the same messages but never waits: it fuses each live peer's freshest marginal that is
-/// at most staleness_rounds old and not fused before.
+/// sends the same messages but never waits: it fuses each live peer's newest marginal if it
+/// arrived within the robot's last staleness_rounds rounds and was not fused before (arrival, not
+/// the sender's round number, decides: robots' frame numbers need not be aligned).
 ///
 /// Network callbacks (on_message, on_peer) run on the network thread; run_round on the estimator
 /// thread. Messages go out through a Send function, so the protocol is testable without sockets.
@@ -108,8 +109,10 @@ class ConsensusExchange {
   std::condition_variable changed_;
   std::map<int, std::unique_ptr<Peer>> peers_;
   bool stopped_ = false;
-  /// Rounds up to this one are over: their messages are dropped on arrival.
+  /// Rounds up to this one are over: their messages are dropped on arrival (lockstep).
   std::int64_t forgotten_up_to_ = -1;
+  /// The round run_round is in (or last ran); -1 before the first.
+  std::int64_t current_round_ = -1;
   ExchangeCounters counters_;
 };
 
