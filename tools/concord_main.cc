@@ -40,12 +40,6 @@ std::optional<fs::path> dataset_config(const std::string& name) {
   return std::nullopt;
 }
 
-std::string robot_folder(int robot) {
-  char name[32];
-  std::snprintf(name, sizeof name, "robot_%02d", robot);
-  return name;
-}
-
 std::vector<evaluation::RobotTruth> truths_of(const dataset::Dataset& data) {
   std::vector<evaluation::RobotTruth> truths;
   for (const auto& robot : data.robots) truths.push_back({robot.groundtruth, robot.odometry});
@@ -112,7 +106,7 @@ int run_replay(const fs::path& dataset_dir, const fs::path& out, bool separate,
   fs::create_directories(out);
   std::vector<evaluation::RobotResult> results;
   for (std::size_t i = 0; i < result.robots.size(); ++i) {
-    const fs::path folder = out / robot_folder(static_cast<int>(i));
+    const fs::path folder = out / dataset::robot_folder_name(static_cast<int>(i));
     fs::create_directories(folder);
     dataset::write_trajectory_kitti(folder / "trajectory.kitti", result.robots[i].trajectory);
     dataset::write_objects_csv(folder / "objects.csv", result.robots[i].objects);
@@ -156,7 +150,7 @@ int run_eval(const fs::path& dataset_dir, const fs::path& result_dir) {
   const dataset::Dataset data = dataset::read_dataset(dataset_dir, read_options);
   std::vector<evaluation::RobotResult> results;
   for (std::size_t i = 0; i < data.robots.size(); ++i) {
-    const fs::path folder = result_dir / robot_folder(static_cast<int>(i));
+    const fs::path folder = result_dir / dataset::robot_folder_name(static_cast<int>(i));
     results.push_back({dataset::read_trajectory_kitti(folder / "trajectory.kitti"),
                        dataset::read_objects_csv(folder / "objects.csv")});
   }
@@ -226,13 +220,13 @@ int run_launch(launch::LaunchOptions options) {
       all_ok = false;
       std::cerr << "concord launch: robot " << robot << " exited with "
                 << result.exit_codes[robot] << " (see "
-                << (options.out / "logs" / (robot_folder(robot) + ".log")).string() << ")\n";
+                << (options.out / "logs" / (dataset::robot_folder_name(robot) + ".log")).string() << ")\n";
     }
   }
   std::cerr << "concord launch: team finished in " << result.wall_seconds << " s\n";
   std::vector<evaluation::RobotResult> results;
   for (int robot = 0; robot < robots; ++robot) {
-    const fs::path folder = options.out / robot_folder(robot);
+    const fs::path folder = options.out / dataset::robot_folder_name(robot);
     results.push_back({dataset::read_trajectory_kitti(folder / "trajectory.kitti"),
                        dataset::read_objects_csv(folder / "objects.csv")});
   }

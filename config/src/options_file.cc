@@ -243,14 +243,16 @@ EstimatorOptions parse_estimator_options(const std::string& yaml_text,
   return options;
 }
 
-EstimatorOptions load_estimator_options(const std::filesystem::path& file) {
+std::string read_config_text(const std::filesystem::path& file, const std::string& what) {
   std::ifstream stream(file, std::ios::binary);
   if (!stream || !std::filesystem::is_regular_file(file)) {
-    throw ConfigError(file.string() + ": cannot open the options file");
+    throw ConfigError(file.string() + ": cannot open the " + what);
   }
-  const std::string text((std::istreambuf_iterator<char>(stream)),
-                         std::istreambuf_iterator<char>());
-  return parse_estimator_options(text, file.string());
+  return std::string((std::istreambuf_iterator<char>(stream)), std::istreambuf_iterator<char>());
+}
+
+EstimatorOptions load_estimator_options(const std::filesystem::path& file) {
+  return parse_estimator_options(read_config_text(file, "options file"), file.string());
 }
 
 std::string to_yaml(const EstimatorOptions& options) {

@@ -2,8 +2,6 @@
 
 #include <yaml-cpp/yaml.h>
 
-#include <fstream>
-#include <iterator>
 #include <limits>
 #include <map>
 #include <set>
@@ -311,13 +309,8 @@ DaemonConfig parse_daemon_config(const std::string& yaml_text, const std::string
 }
 
 DaemonConfig load_daemon_config(const std::filesystem::path& file) {
-  std::ifstream stream(file, std::ios::binary);
-  if (!stream || !std::filesystem::is_regular_file(file)) {
-    throw ConfigError(file.string() + ": cannot open the config file");
-  }
-  const std::string text((std::istreambuf_iterator<char>(stream)),
-                         std::istreambuf_iterator<char>());
-  return parse_daemon_config(text, file.string(), file.parent_path());
+  return parse_daemon_config(config::read_config_text(file, "config file"), file.string(),
+                             file.parent_path());
 }
 
 }  // namespace concord::daemon

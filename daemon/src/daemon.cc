@@ -477,22 +477,19 @@ void Daemon::Impl::register_routes() {
       }
       return web::json_response(200, {{"robot_id", config_.robot_id}, {"poses", poses}});
     }
-    if (format == "kitti" || format == "tum") {
+    if (format == "kitti") {
+      return web::Response{200, "text/plain; charset=utf-8",
+                           dataset::format_trajectory_kitti(live_.poses), {}};
+    }
+    if (format == "tum") {
       std::string text;
       char line[256];
       for (std::size_t i = 0; i < live_.poses.size(); ++i) {
         const Eigen::Isometry3d& T = live_.poses[i];
-        if (format == "kitti") {
-          const Eigen::Matrix<double, 3, 4> m = T.matrix().topRows<3>();
-          std::snprintf(line, sizeof line, "%.9g %.9g %.9g %.9g %.9g %.9g %.9g %.9g %.9g %.9g %.9g %.9g\n",
-                        m(0, 0), m(0, 1), m(0, 2), m(0, 3), m(1, 0), m(1, 1), m(1, 2), m(1, 3),
-                        m(2, 0), m(2, 1), m(2, 2), m(2, 3));
-        } else {
-          const Eigen::Quaterniond q(T.rotation());
-          std::snprintf(line, sizeof line, "%.9f %.9g %.9g %.9g %.9g %.9g %.9g %.9g\n",
-                        live_.timestamps[i], T.translation().x(), T.translation().y(),
-                        T.translation().z(), q.x(), q.y(), q.z(), q.w());
-        }
+        const Eigen::Quaterniond q(T.rotation());
+        std::snprintf(line, sizeof line, "%.9f %.9g %.9g %.9g %.9g %.9g %.9g %.9g\n",
+                      live_.timestamps[i], T.translation().x(), T.translation().y(),
+                      T.translation().z(), q.x(), q.y(), q.z(), q.w());
         text += line;
       }
       return web::Response{200, "text/plain; charset=utf-8", std::move(text), {}};

@@ -32,12 +32,6 @@ constexpr std::array<std::string_view, 4> kObjectsGroundtruthColumns{"id", "x", 
 constexpr std::array<std::string_view, 6> kObservationColumns{"frame",  "id",      "u_left",
                                                               "v_left", "u_right", "v_right"};
 
-/// robot_00, robot_01, ..., robot_100 ...
-std::string robot_folder_name(int index) {
-  std::string name(kRobotFolderPrefix);
-  if (index < 10) name += '0';
-  return name + std::to_string(index);
-}
 
 /// The NN of a robot_NN folder name (two or more digits); nullopt if the name does not start
 /// with "robot_"; DatasetError if it does but is not of that form.
@@ -303,6 +297,12 @@ FrameInput RobotData::frame_input(int frame) const {
   input.objects = objects.at(frame);
   if (frame < static_cast<int>(features.size())) input.features = features[frame];
   return input;
+}
+
+std::string robot_folder_name(int index) {
+  std::string name(kRobotFolderPrefix);
+  if (index < 10) name += '0';
+  return name + std::to_string(index);
 }
 
 StereoCamera read_camera(const std::filesystem::path& dataset_json) {

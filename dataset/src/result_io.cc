@@ -54,9 +54,13 @@ void write_file_atomically(const std::filesystem::path& file, const std::string&
   if (error) fail("cannot rename " + temporary.string() + ": " + error.message());
 }
 
+std::string format_trajectory_kitti(const std::vector<Eigen::Isometry3d>& poses) {
+  return text_parsing::format_kitti_poses(poses);
+}
+
 void write_trajectory_kitti(const std::filesystem::path& file,
                             const std::vector<Eigen::Isometry3d>& poses) {
-  write_file_atomically(file, text_parsing::format_kitti_poses(poses));
+  write_file_atomically(file, format_trajectory_kitti(poses));
 }
 
 std::vector<Eigen::Isometry3d> read_trajectory_kitti(const std::filesystem::path& file) {

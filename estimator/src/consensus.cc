@@ -40,9 +40,10 @@ struct CheckedNeighbour {
 
 /// Cholesky factor of a covariance if it is positive definite and its (1-norm) condition
 /// number, estimated from the factor, is below max_condition_number.
-std::optional<Eigen::LLT<Eigen::MatrixXd>> checked_cholesky(const Eigen::MatrixXd& covariance,
-                                                            double max_condition_number) {
-  Eigen::LLT<Eigen::MatrixXd> llt(covariance);
+template <typename Matrix>
+std::optional<Eigen::LLT<Matrix>> checked_cholesky(const Matrix& covariance,
+                                                   double max_condition_number) {
+  Eigen::LLT<Matrix> llt(covariance);
   if (llt.info() != Eigen::Success) return std::nullopt;
   const double reciprocal_condition = llt.rcond();
   if (!(reciprocal_condition * max_condition_number >= 1.0)) return std::nullopt;
@@ -169,15 +170,16 @@ bool average_archived(ObjectEstimate& estimate, double own_weight,
   int used = 0;
   for (int j : holders) {
     const Location& at = *checked[j].find(id);
-    const Eigen::LLT<Eigen::Matrix3d> llt(checked[j].covariance(at));
-    if (llt.info() != Eigen::Success || !(llt.rcond() * options.max_condition_number >= 1.0)) {
+    const auto llt = checked_cholesky<Eigen::Matrix3d>(checked[j].covariance(at),
+                                                       options.max_condition_number);
+    if (!llt) {
       ++report.neighbours_skipped;
       own_weight += checked[j].weight;
       continue;
     }
-    information += checked[j].weight * llt.solve(Eigen::Matrix3d::Identity());
+    information += checked[j].weight * llt->solve(Eigen::Matrix3d::Identity());
     information_vector +=
-        checked[j].weight * llt.solve(checked[j].marginal->mean.segment<3>(3 * at.position));
+        checked[j].weight * llt->solve(checked[j].marginal->mean.segment<3>(3 * at.position));
     ++used;
   }
   if (used == 0) return false;

@@ -24,12 +24,6 @@ std::atomic<int> interrupted{0};
 
 void on_interrupt(int signal_number) { interrupted = signal_number; }
 
-std::string robot_folder(int robot) {
-  char name[32];
-  std::snprintf(name, sizeof name, "robot_%02d", robot);
-  return name;
-}
-
 /// YAML double-quoted string.
 std::string quoted(const std::string& text) {
   std::string out = "\"";
@@ -91,7 +85,7 @@ std::string daemon_config_yaml(const LaunchOptions& options, int robot, int robo
        << "  address: 127.0.0.1\n"
        << "  port: " << options.http_base_port + robot << "\n"
        << "output:\n"
-       << "  directory: " << quoted((out / robot_folder(robot)).string()) << "\n";
+       << "  directory: " << quoted((out / dataset::robot_folder_name(robot)).string()) << "\n";
   return yaml.str();
 }
 
@@ -111,9 +105,9 @@ LaunchResult launch_team(const LaunchOptions& options, int robots, std::ostream*
   std::vector<ChildProcess> daemons;
   daemons.reserve(static_cast<std::size_t>(robots));
   for (int robot = 0; robot < robots; ++robot) {
-    const auto config = configs / (robot_folder(robot) + ".yaml");
+    const auto config = configs / (dataset::robot_folder_name(robot) + ".yaml");
     dataset::write_file_atomically(config, daemon_config_yaml(options, robot, robots));
-    const auto log = logs / (robot_folder(robot) + ".log");
+    const auto log = logs / (dataset::robot_folder_name(robot) + ".log");
     std::filesystem::remove(log);
     daemons.emplace_back(std::vector<std::string>{options.concordd.string(), "--config",
                                                   config.string()},

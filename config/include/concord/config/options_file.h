@@ -25,6 +25,10 @@ class ConfigError : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
+/// The whole text of a configuration file; ConfigError "<file>: cannot open the <what>" if it
+/// cannot be read.
+std::string read_config_text(const std::filesystem::path& file, const std::string& what);
+
 /// Loads EstimatorOptions from a YAML file. Missing keys keep the in-class defaults; unknown keys
 /// (typo protection), repeated keys and values of the wrong type are errors; after loading,
 /// EstimatorOptions::validate() runs. Every problem is reported in one ConfigError.

@@ -87,6 +87,10 @@ struct ReadOptions {
 /// std::invalid_argument on max_frames or max_robots < 1.
 Dataset read_dataset(const std::filesystem::path& directory, const ReadOptions& options = {});
 
+/// The folder of robot `index`: robot_00, robot_01, ..., robot_100 (the replay and launch output
+/// layout uses the same names).
+std::string robot_folder_name(int index);
+
 /// The stereo camera of a dataset.json file (its "camera" object), checked as read_dataset
 /// checks it. Throws DatasetError naming the file and the problem.
 StereoCamera read_camera(const std::filesystem::path& dataset_json);

@@ -21,6 +21,9 @@ void write_trajectory_kitti(const std::filesystem::path& file,
 
 /// Reads a KITTI pose file; rotation blocks with small errors are re-orthonormalized. Throws
 /// DatasetError on bad input (naming the file and line).
+/// The text write_trajectory_kitti writes: one line of 12 numbers (3x4, row-major) per pose.
+std::string format_trajectory_kitti(const std::vector<Eigen::Isometry3d>& poses);
+
 std::vector<Eigen::Isometry3d> read_trajectory_kitti(const std::filesystem::path& file);
 
 /// Writes object estimates under the header "id,x,y,z,cxx,cxy,cxz,cyy,cyz,czz" (the upper
