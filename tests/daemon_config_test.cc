@@ -33,10 +33,10 @@ TEST(DaemonConfig, DefaultsNeedOnlyADataset) {
 
 TEST(DaemonConfig, InlineEstimatorOptions) {
   const DaemonConfig config = parse_daemon_config(
-      "source: {dataset: d}\nestimator: {window_size: 7, consensus: {max_mean_shift: 2.0}}\n",
+      "source: {dataset: d}\nestimator: {window_size: 7, consensus: {neighbour_chi2_probability: 0.99}}\n",
       "inline", "/");
   EXPECT_EQ(config.estimator.window_size, 7);
-  EXPECT_EQ(config.estimator.consensus.max_mean_shift, 2.0);
+  EXPECT_EQ(config.estimator.consensus.neighbour_chi2_probability, 0.99);
 }
 
 std::string problems_of(const std::string& yaml) {

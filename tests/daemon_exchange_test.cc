@@ -47,7 +47,7 @@ TEST(DaemonExchange, LockstepReproducesTheReplay) {
   read.max_frames = 120;
   const dataset::Dataset data = dataset::read_dataset(kSource / "data/kitti00-300", read);
   const EstimatorOptions options =
-      config::load_estimator_options(kSource / "configs/datasets/kitti00.yaml");
+      config::load_estimator_options(kSource / "configs/sensors/kitti-stereo.yaml");
   const auto reference = replay::run_team(data, options, {});
 
   ConsensusConfig config;

@@ -53,7 +53,7 @@ launch::LaunchOptions team_options(const fs::path& out, int port_offset) {
   options.dataset = kSource / "data/kitti00-300";
   options.out = out;
   options.concordd = kDaemon;
-  options.estimator_config = kSource / "configs/datasets/kitti00.yaml";
+  options.estimator_config = kSource / "configs/sensors/kitti-stereo.yaml";
   options.base_port = port_base(port_offset);
   options.http_base_port = port_base(port_offset + 10);
   options.timeout = 240s;
@@ -311,7 +311,7 @@ TEST(DaemonProcess, IngestsSensorFramesOverTcp) {
   const fs::path config = out / "robot.yaml";
   dataset::write_file_atomically(
       config, "robot_id: 0\nteam: ingest\nestimator: " +
-                  (kSource / "configs/datasets/kitti00.yaml").string() +
+                  (kSource / "configs/sensors/kitti-stereo.yaml").string() +
                   "\nsource:\n  kind: ingest\n  ingest_port: " + std::to_string(ingest_port) +
                   "\n  camera: " + (kSource / "data/kitti00-300/dataset.json").string() +
                   "\nconsensus: {mode: off}\nhttp: {port: " + std::to_string(http) +
@@ -338,7 +338,7 @@ TEST(DaemonProcess, IngestsSensorFramesOverTcp) {
   EXPECT_EQ(daemon.exit_code(), 0);
 
   // The start pose of an ingest daemon is configured (identity here): compare relative motion.
-  Estimator reference(config::load_estimator_options(kSource / "configs/datasets/kitti00.yaml"),
+  Estimator reference(config::load_estimator_options(kSource / "configs/sensors/kitti-stereo.yaml"),
                       data.camera, Eigen::Isometry3d::Identity(), 0);
   for (int k = 0; k < 30; ++k) {
     FrameInput input = data.robots[0].frame_input(k);

@@ -28,12 +28,38 @@ TEST(StereoProjection, PoseJacobianMatchesFiniteDifferences) {
   const double h = 1e-6;
   for (int i = 0; i < 6; ++i) {
     const lie::Vector6d d = h * lie::Vector6d::Unit(i);
-    const auto plus = UpdaterHelper::project(camera, T * lie::se3_exp(d), p_world);
-    const auto minus = UpdaterHelper::project(camera, T * lie::se3_exp(-d), p_world);
+    // The state's left perturbation: T = exp(eps^) T_hat.
+    const auto plus = UpdaterHelper::project(camera, lie::se3_exp(d) * T, p_world);
+    const auto minus = UpdaterHelper::project(camera, lie::se3_exp(-d) * T, p_world);
     const Eigen::Vector4d numeric = (plus->xy - minus->xy) / (2 * h);
     EXPECT_TRUE(numeric.isApprox(projection->jacobian_pose.col(i), 1e-6))
         << "column " << i << ": numeric " << numeric.transpose() << " analytic "
         << projection->jacobian_pose.col(i).transpose();
+  }
+}
+
+TEST(StereoProjection, AChangeOfWorldFrameIsUnobservable) {
+  // Moving the world frame by exp(xi^) moves every pose to exp(xi^) T and every point to
+  // exp(xi^) p: to first order the pose error is xi itself (left perturbation) and the point
+  // error rho + phi x p. The observation does not change: H_pose xi + H_point (rho + phi x p)
+  // = 0 for every xi, whatever the pose and point, when the pose Jacobian is evaluated with the
+  // same point (first-estimate Jacobians keep this across a landmark's observations).
+  const StereoCamera camera = kitti_like_camera();
+  std::mt19937 random(5);
+  for (int trial = 0; trial < 5; ++trial) {
+    const Eigen::Isometry3d T =
+        lie::se3_exp(testing::random_vector(6, random, 0.5)) * some_pose();
+    const Eigen::Vector3d p_world = T * Eigen::Vector3d(10.0 + trial, 1.0, -0.5);
+    const auto projection = UpdaterHelper::project(camera, T, p_world);
+    ASSERT_TRUE(projection);
+    const Eigen::Vector3d p_linearization = p_world + testing::random_vector(3, random, 0.3);
+    const Eigen::Matrix<double, 4, 6> H_pose =
+        UpdaterHelper::pose_jacobian(projection->jacobian_point, p_linearization);
+    Eigen::Matrix<double, 3, 6> point_motion;
+    point_motion.leftCols<3>() = Eigen::Matrix3d::Identity();
+    point_motion.rightCols<3>() = -lie::skew(p_linearization);
+    const Eigen::Matrix<double, 4, 6> total = H_pose + projection->jacobian_point * point_motion;
+    EXPECT_LT(total.norm(), 1e-9 * H_pose.norm()) << total;
   }
 }
 
@@ -101,14 +127,17 @@ TEST(Propagation, CovarianceMatchesTheLinearizedModel) {
   EXPECT_EQ(state.poses.back().frame, 3);
   EXPECT_TRUE(state.poses.back().T_world_body.matrix().isApprox(
       (before.poses.back().T_world_body * dT).matrix(), 1e-12));
-  // Dense reference: F with rows [drop pose 0 | keep 1, 2 | new = Ad(dT^-1) pose 2 | landmarks].
+  // Dense reference: F with rows [drop pose 0 | keep 1, 2 | new = pose 2 | landmarks]: with
+  // left perturbations the new pose's error is the newest one's, and the odometry noise (a
+  // right perturbation of dT) enters through Ad(T_new).
   const int n = before.dimension();
   Eigen::MatrixXd F = Eigen::MatrixXd::Zero(n, n);
   F.block<12, 12>(0, 6).setIdentity();
-  F.block<6, 6>(12, 12) = lie::adjoint(dT.inverse());
+  F.block<6, 6>(12, 12).setIdentity();
   F.bottomRightCorner(6, 6).setIdentity();
+  const lie::Matrix6d adjoint_new = lie::adjoint(state.poses.back().T_world_body);
   Eigen::MatrixXd Q = Eigen::MatrixXd::Zero(n, n);
-  Q.block<6, 6>(12, 12) = propagator.odometry_noise();
+  Q.block<6, 6>(12, 12) = adjoint_new * propagator.odometry_noise() * adjoint_new.transpose();
   const Eigen::MatrixXd expected = F * before.covariance * F.transpose() + Q;
   EXPECT_TRUE(state.covariance.isApprox(expected, 1e-12));
 }
@@ -127,9 +156,16 @@ TEST(NullspaceProjection, RemovesTheFeatureError) {
   UpdaterHelper::nullspace_project_inplace(H2, P2, r2);
   EXPECT_EQ(r1.size(), rows - 3);
   EXPECT_TRUE(r1.isApprox(r2, 1e-12));
-  // The projection is orthonormal: it keeps the noise isotropic (N^T N = I), checked through
-  // the norms of the state Jacobian's Gram matrix being no larger than before.
-  EXPECT_LE((H1.transpose() * H1).trace(), (H_state.transpose() * H_state).trace() + 1e-9);
+  // The result is N^T (H_state, r) for an orthonormal basis N of the left null space of H_point
+  // (N^T H_point = 0, N^T N = I): then N N^T is the projector I - H_p (H_p^T H_p)^-1 H_p^T, so
+  // the projected system keeps exactly the information outside the point's directions.
+  const Eigen::MatrixXd projector =
+      Eigen::MatrixXd::Identity(rows, rows) -
+      H_point * (H_point.transpose() * H_point).inverse() * H_point.transpose();
+  EXPECT_TRUE((H1.transpose() * H1).isApprox(H_state.transpose() * projector * H_state, 1e-9));
+  EXPECT_TRUE((H1.transpose() * r1).isApprox(H_state.transpose() * projector * residual, 1e-9));
+  EXPECT_NEAR(r1.squaredNorm(), residual.dot(projector * residual), 1e-9);
+  EXPECT_GT(r1.norm(), 0.1);
 }
 
 TEST(MeasurementCompression, PreservesTheInformation) {
@@ -201,7 +237,7 @@ TEST(KalmanUpdate, CorrelatedNoiseMatchesGaussianConditioning) {
   EXPECT_TRUE(state.landmarks[0].p_world.isApprox(
       before.landmarks[0].p_world + expected_correction.tail<3>(), 1e-10));
   const Eigen::Isometry3d expected_pose =
-      before.poses[1].T_world_body * lie::se3_exp(expected_correction.segment<6>(6));
+      lie::se3_exp(expected_correction.segment<6>(6)) * before.poses[1].T_world_body;
   EXPECT_TRUE(state.poses[1].T_world_body.matrix().isApprox(expected_pose.matrix(), 1e-10));
 }
 
@@ -215,7 +251,8 @@ TEST(Augmentation, MatchesEquation30) {
   Eigen::Matrix3d R1 = Eigen::Matrix3d::Random().triangularView<Eigen::Upper>();
   R1.diagonal() = Eigen::Vector3d(2.0, 1.5, 3.0);
   const Eigen::Matrix3d V1 = 0.1 * Eigen::Matrix3d::Identity();
-  StateHelper::augment_landmark(state, 7, Eigen::Vector3d(1, 2, 3), 1, H1, R1, V1);
+  StateHelper::augment_landmark(state, 7, Eigen::Vector3d(1, 2, 3), Eigen::Vector3d(1, 2, 2.9),
+                                1, H1, R1, V1);
   ASSERT_EQ(state.dimension(), n + 3);
   const Eigen::Matrix3d R1i = R1.inverse();
   const Eigen::MatrixXd expected_cross = -before.covariance * H1.transpose() * R1i.transpose();
@@ -226,6 +263,88 @@ TEST(Augmentation, MatchesEquation30) {
   const Eigen::Matrix3d block = state.covariance.block<3, 3>(n, n);
   EXPECT_TRUE(block.isApprox(expected_block, 1e-12));
   EXPECT_EQ(state.landmark_slot(7), 1);
+  EXPECT_TRUE(state.landmarks[1].p_linearization.isApprox(Eigen::Vector3d(1, 2, 2.9)));
+}
+
+TEST(Linearization, FullAssemblyMatchesFiniteDifferencesOfTheState) {
+  // Two observations of in-state landmark 1 from poses 0 and 2 of a three-pose window: every
+  // column of H_state (all poses, all landmarks) against the change of the predicted
+  // observations when the state moves by a small correction (apply_correction: the filter's
+  // own retraction).
+  const StereoCamera camera = kitti_like_camera();
+  std::mt19937 random(15);
+  State state;
+  for (int k = 0; k < 3; ++k) {
+    Eigen::Isometry3d pose = lie::se3_exp(testing::random_vector(6, random, 0.05));
+    pose.translation() += Eigen::Vector3d(1.0 * k, 0.0, 0.0);
+    state.poses.push_back({k, pose});
+  }
+  for (int j = 0; j < 2; ++j) {
+    const Eigen::Vector3d p_world(14.0 + 3.0 * j, -1.0 + j, 0.5);
+    state.landmarks.push_back({10 + j, p_world, 0, p_world});
+  }
+  state.rebuild_landmark_index();
+  state.covariance = Eigen::MatrixXd::Identity(state.dimension(), state.dimension());
+  const int slot = 1;
+  std::vector<TrackObservation> track;
+  for (int frame : {0, 2}) {
+    const auto projection = UpdaterHelper::project(
+        camera, state.poses[frame].T_world_body, state.landmarks[slot].p_world);
+    ASSERT_TRUE(projection);
+    track.push_back({frame, projection->xy + testing::random_vector(4, random, 1e-3)});
+  }
+  const auto linearized =
+      UpdaterHelper::linearize(state, camera, track, state.landmarks[slot].p_world, slot);
+  ASSERT_TRUE(linearized);
+  ASSERT_EQ(linearized->H_state.cols(), state.dimension());
+  const auto predict = [&](const State& s) {
+    Eigen::VectorXd xy(8);
+    for (int i = 0; i < 2; ++i) {
+      xy.segment<4>(4 * i) = UpdaterHelper::project(camera,
+                                                    s.poses[track[i].frame].T_world_body,
+                                                    s.landmarks[slot].p_world)
+                                 ->xy;
+    }
+    return xy;
+  };
+  const double h = 1e-6;
+  for (int column = 0; column < state.dimension(); ++column) {
+    State plus = state, minus = state;
+    StateHelper::apply_correction(plus, h * Eigen::VectorXd::Unit(state.dimension(), column));
+    StateHelper::apply_correction(minus, -h * Eigen::VectorXd::Unit(state.dimension(), column));
+    const Eigen::VectorXd numeric = (predict(plus) - predict(minus)) / (2 * h);
+    const Eigen::VectorXd analytic = linearized->H_state.col(column);
+    EXPECT_LT((numeric - analytic).norm(), 1e-6 * (1.0 + analytic.norm()))
+        << "column " << column << ": numeric " << numeric.transpose() << " analytic "
+        << analytic.transpose();
+  }
+  // The residual is the observation minus the prediction.
+  Eigen::VectorXd observed(8);
+  for (int i = 0; i < 2; ++i) observed.segment<4>(4 * i) = track[i].xy;
+  EXPECT_TRUE(linearized->residual.isApprox(observed - predict(state), 1e-12));
+}
+
+TEST(StereoNoise, CovarianceOfTheComponentsAndWhitening) {
+  const StereoCamera camera = kitti_like_camera();
+  const StereoNoise noise{20.0, 4.0, 2.0, 0.5};
+  const Eigen::Matrix4d covariance = UpdaterHelper::observation_covariance(noise, camera);
+  const double fx = camera.K(0, 0), fy = camera.K(1, 1);
+  // The common mode (u_l + u_r) / 2 has the horizontal variance, u_l - u_r the disparity one.
+  const Eigen::Vector4d common(0.5, 0.0, 0.5, 0.0), disparity(1.0, 0.0, -1.0, 0.0);
+  const Eigen::Vector4d vertical(0.0, 0.5, 0.0, 0.5), vertical_difference(0.0, 1.0, 0.0, -1.0);
+  EXPECT_NEAR(common.dot(covariance * common) * fx * fx, 400.0, 1e-9);
+  EXPECT_NEAR(disparity.dot(covariance * disparity) * fx * fx, 4.0, 1e-9);
+  EXPECT_NEAR(vertical.dot(covariance * vertical) * fy * fy, 16.0, 1e-9);
+  EXPECT_NEAR(vertical_difference.dot(covariance * vertical_difference) * fy * fy, 0.25, 1e-9);
+  EXPECT_NEAR(common.dot(covariance * disparity), 0.0, 1e-15);
+  // Isotropic noise is independent per coordinate.
+  const Eigen::Matrix4d isotropic =
+      UpdaterHelper::observation_covariance(StereoNoise::isotropic(3.0), camera);
+  EXPECT_NEAR(isotropic(0, 2), 0.0, 1e-15);
+  EXPECT_NEAR(isotropic(0, 0) * fx * fx, 9.0, 1e-9);
+  // Whitening: W C W^T = I.
+  const Eigen::Matrix4d W = UpdaterHelper::whitening(covariance);
+  EXPECT_TRUE((W * covariance * W.transpose()).isApprox(Eigen::Matrix4d::Identity(), 1e-9));
 }
 
 }  // namespace

@@ -36,16 +36,15 @@ EstimatorOptions unusual_options() {
   options.odometry_translation_sigma = 2e-7;
   options.odometry_rotation_sigma = 0.0123456789012345678;
   options.use_objects = false;
-  options.object_sigma = 4.2;
+  options.object_noise = {4.2, 1.0 / 3.0, 0.7, 0.05};
   options.object_min_observations = 5;
   options.object_min_distance = 1.0 / 7.0;
   options.object_max_distance = 123.456;
   options.object_init_max_reprojection_error = 3.3;
-  options.object_update_gate = 0.0;
   options.object_chi2_probability = 0.99;
   options.object_archive_after_frames = 250;
   options.use_point_features = false;
-  options.feature_sigma = 0.75;
+  options.feature_noise = StereoNoise::isotropic(0.75);
   options.feature_min_observations = 4;
   options.feature_max_reprojection_error = 2.5;
   options.feature_min_distance = 0.3;
@@ -54,9 +53,8 @@ EstimatorOptions unusual_options() {
   for (std::size_t index = 0; index < options.feature_odometry_correlation.size(); ++index) {
     options.feature_odometry_correlation[index] = (static_cast<double>(index) - 11.5) / 3.0;
   }
-  options.consensus.max_mean_shift = 0.0;
   options.consensus.max_condition_number = 1e15 / 3.0;
-  options.consensus.disagreement_gate = 9.21;
+  options.consensus.neighbour_chi2_probability = 0.9876;
   return options;
 }
 
@@ -67,25 +65,30 @@ void expect_same_options(const EstimatorOptions& actual, const EstimatorOptions&
   EXPECT_EQ(actual.odometry_translation_sigma, expected.odometry_translation_sigma);
   EXPECT_EQ(actual.odometry_rotation_sigma, expected.odometry_rotation_sigma);
   EXPECT_EQ(actual.use_objects, expected.use_objects);
-  EXPECT_EQ(actual.object_sigma, expected.object_sigma);
+  EXPECT_EQ(actual.object_noise.horizontal, expected.object_noise.horizontal);
+  EXPECT_EQ(actual.object_noise.vertical, expected.object_noise.vertical);
+  EXPECT_EQ(actual.object_noise.disparity, expected.object_noise.disparity);
+  EXPECT_EQ(actual.object_noise.vertical_disparity, expected.object_noise.vertical_disparity);
   EXPECT_EQ(actual.object_min_observations, expected.object_min_observations);
   EXPECT_EQ(actual.object_min_distance, expected.object_min_distance);
   EXPECT_EQ(actual.object_max_distance, expected.object_max_distance);
   EXPECT_EQ(actual.object_init_max_reprojection_error, expected.object_init_max_reprojection_error);
-  EXPECT_EQ(actual.object_update_gate, expected.object_update_gate);
   EXPECT_EQ(actual.object_chi2_probability, expected.object_chi2_probability);
   EXPECT_EQ(actual.object_archive_after_frames, expected.object_archive_after_frames);
   EXPECT_EQ(actual.use_point_features, expected.use_point_features);
-  EXPECT_EQ(actual.feature_sigma, expected.feature_sigma);
+  EXPECT_EQ(actual.feature_noise.horizontal, expected.feature_noise.horizontal);
+  EXPECT_EQ(actual.feature_noise.vertical, expected.feature_noise.vertical);
+  EXPECT_EQ(actual.feature_noise.disparity, expected.feature_noise.disparity);
+  EXPECT_EQ(actual.feature_noise.vertical_disparity, expected.feature_noise.vertical_disparity);
   EXPECT_EQ(actual.feature_min_observations, expected.feature_min_observations);
   EXPECT_EQ(actual.feature_max_reprojection_error, expected.feature_max_reprojection_error);
   EXPECT_EQ(actual.feature_min_distance, expected.feature_min_distance);
   EXPECT_EQ(actual.feature_max_distance, expected.feature_max_distance);
   EXPECT_EQ(actual.feature_chi2_probability, expected.feature_chi2_probability);
   EXPECT_EQ(actual.feature_odometry_correlation, expected.feature_odometry_correlation);
-  EXPECT_EQ(actual.consensus.max_mean_shift, expected.consensus.max_mean_shift);
   EXPECT_EQ(actual.consensus.max_condition_number, expected.consensus.max_condition_number);
-  EXPECT_EQ(actual.consensus.disagreement_gate, expected.consensus.disagreement_gate);
+  EXPECT_EQ(actual.consensus.neighbour_chi2_probability,
+            expected.consensus.neighbour_chi2_probability);
 }
 
 // --- YAML round trip and loading ---
@@ -96,7 +99,7 @@ TEST(OptionsFileTest, DefaultsRoundTrip) {
   expect_same_options(parse_estimator_options(text, "defaults"), defaults);
   EXPECT_THAT(text, HasSubstr("\nwindow_size: 20\n"));
   EXPECT_THAT(text, HasSubstr("\nuse_objects: true\n"));
-  EXPECT_THAT(text, HasSubstr("\nconsensus:\n  max_mean_shift: 0.5\n"));
+  EXPECT_THAT(text, HasSubstr("\nconsensus:\n  max_condition_number: 1e+12\n"));
 }
 
 TEST(OptionsFileTest, EveryFieldRoundTripsExactly) {
@@ -110,12 +113,13 @@ TEST(OptionsFileTest, EveryFieldRoundTripsExactly) {
 
 TEST(OptionsFileTest, MissingKeysKeepTheDefaults) {
   const EstimatorOptions options =
-      parse_estimator_options("window_size: 7\nconsensus:\n  disagreement_gate: 3\n", "partial");
+      parse_estimator_options("window_size: 7\nconsensus:\n  neighbour_chi2_probability: 0.9\n",
+                              "partial");
   EXPECT_EQ(options.window_size, 7);
-  EXPECT_EQ(options.consensus.disagreement_gate, 3.0);
+  EXPECT_EQ(options.consensus.neighbour_chi2_probability, 0.9);
   EstimatorOptions expected;
   expected.window_size = 7;
-  expected.consensus.disagreement_gate = 3.0;
+  expected.consensus.neighbour_chi2_probability = 0.9;
   expect_same_options(options, expected);
 
   expect_same_options(parse_estimator_options("", "empty"), EstimatorOptions{});
@@ -160,20 +164,24 @@ TEST(OptionsFileTest, WrongTypeIsAnError) {
   EXPECT_THAT(config_error_message("window_size: 3.5\n"), HasSubstr("test.yaml"));
   EXPECT_THAT(config_error_message("window_size: 3.5\n"),
               HasSubstr("line 1: window_size = '3.5': expected an integer"));
-  EXPECT_THAT(config_error_message("object_sigma: five\n"),
-              HasSubstr("object_sigma = 'five': expected a number"));
+  EXPECT_THAT(config_error_message("object_noise: five\n"),
+              HasSubstr("object_noise = 'five': expected a number or a map of noise components"));
   EXPECT_THAT(config_error_message("use_objects: maybe\n"),
               HasSubstr("use_objects = 'maybe': expected true or false"));
-  EXPECT_THAT(config_error_message("object_sigma: [1, 2]\n"),
-              HasSubstr("object_sigma = a sequence: expected a number"));
-  EXPECT_THAT(config_error_message("object_sigma:\n"),
-              HasSubstr("object_sigma = nothing (null): expected a number"));
+  EXPECT_THAT(config_error_message("object_noise: [1, 2]\n"),
+              HasSubstr("object_noise = a sequence: expected a number or a map"));
+  EXPECT_THAT(config_error_message("object_noise:\n"),
+              HasSubstr("object_noise = nothing (null): expected a number or a map"));
+  EXPECT_THAT(config_error_message("object_noise: {horizontal: 2, depth: 1}\n"),
+              HasSubstr("unknown key object_noise.depth"));
+  EXPECT_THAT(config_error_message("feature_noise: {vertical: x}\n"),
+              HasSubstr("feature_noise.vertical = 'x': expected a number"));
   EXPECT_THAT(config_error_message("feature_odometry_correlation: [1, 2, 3]\n"),
               HasSubstr("feature_odometry_correlation = a sequence of 3 entries: expected a "
                         "sequence of 24 numbers"));
   EXPECT_THAT(config_error_message("consensus: 3\n"), HasSubstr("consensus = '3': expected a map"));
-  EXPECT_THAT(config_error_message("consensus:\n  max_mean_shift: far\n"),
-              HasSubstr("line 2: consensus.max_mean_shift = 'far': expected a number"));
+  EXPECT_THAT(config_error_message("consensus:\n  neighbour_chi2_probability: far\n"),
+              HasSubstr("line 2: consensus.neighbour_chi2_probability = 'far': expected a number"));
   EXPECT_THAT(config_error_message("- window_size\n"), HasSubstr("expected a map of option keys"));
 
   std::string correlation = "feature_odometry_correlation: [";
@@ -182,21 +190,34 @@ TEST(OptionsFileTest, WrongTypeIsAnError) {
               HasSubstr("feature_odometry_correlation[17] = 'x': expected a number"));
 }
 
+TEST(OptionsFileTest, StereoNoiseIsOneNumberOrAMapOfComponents) {
+  const EstimatorOptions isotropic = parse_estimator_options("object_noise: 2\n", "isotropic");
+  // Independent noise of 2 per coordinate: common mode 2 / sqrt(2), differences 2 sqrt(2).
+  EXPECT_DOUBLE_EQ(isotropic.object_noise.horizontal, std::sqrt(2.0));
+  EXPECT_DOUBLE_EQ(isotropic.object_noise.disparity, 2.0 * std::sqrt(2.0));
+  const EstimatorOptions partial = parse_estimator_options(
+      "feature_noise: {horizontal: 20, disparity: 1.5}\n", "partial");
+  EXPECT_EQ(partial.feature_noise.horizontal, 20.0);
+  EXPECT_EQ(partial.feature_noise.disparity, 1.5);
+  // Components not given keep the default.
+  EXPECT_EQ(partial.feature_noise.vertical, EstimatorOptions{}.feature_noise.vertical);
+}
+
 TEST(OptionsFileTest, InvalidValueIsAnError) {
   const std::string message = config_error_message("window_size: 1\n");
   EXPECT_THAT(message, HasSubstr("test.yaml"));
   EXPECT_THAT(message, HasSubstr("window_size = 1: must be >= 2"));
   EXPECT_THAT(config_error_message("consensus:\n  max_condition_number: 0.5\n"),
               HasSubstr("consensus.max_condition_number = 0.5: must be finite and > 1"));
-  EXPECT_THAT(config_error_message("object_sigma: .nan\n"),
-              HasSubstr("object_sigma = nan: must be finite and > 0"));
+  EXPECT_THAT(config_error_message("object_noise: .nan\n"),
+              HasSubstr("object_noise.horizontal = nan: must be finite and > 0"));
 }
 
 TEST(OptionsFileTest, EveryProblemIsReportedAtOnce) {
   const std::string message =
-      config_error_message("windw_size: 3\nobject_sigma: -1\nuse_objects: 2\n");
+      config_error_message("windw_size: 3\nobject_noise: -1\nuse_objects: 2\n");
   EXPECT_THAT(message, HasSubstr("unknown key windw_size"));
-  EXPECT_THAT(message, HasSubstr("object_sigma = -1"));
+  EXPECT_THAT(message, HasSubstr("object_noise.disparity = -1.41"));
   EXPECT_THAT(message, HasSubstr("use_objects = '2'"));
 }
 
@@ -212,14 +233,12 @@ TEST(OptionsValidateTest, DefaultsAreValid) { EXPECT_TRUE(EstimatorOptions{}.val
 
 TEST(OptionsValidateTest, BoundariesThatDisableAreValid) {
   EstimatorOptions options;
-  options.object_update_gate = 0.0;
   options.object_chi2_probability = 0.0;
   options.feature_chi2_probability = 0.0;
   options.object_archive_after_frames = 0;
   options.window_size = 2;
   options.object_min_observations = 2;
-  options.consensus.max_mean_shift = 0.0;
-  options.consensus.disagreement_gate = 0.0;
+  options.consensus.neighbour_chi2_probability = 0.0;
   EXPECT_TRUE(options.validate().empty());
 }
 
@@ -243,10 +262,10 @@ TEST(OptionsValidateTest, EachRuleNamesTheKeyTheValueAndTheRange) {
        "odometry_translation_sigma = inf: must be finite and > 0"},
       {"sigma nan", [&](auto& o) { o.odometry_rotation_sigma = kNan; },
        "odometry_rotation_sigma = nan: must be finite and > 0"},
-      {"object sigma", [](auto& o) { o.object_sigma = 0; },
-       "object_sigma = 0: must be finite and > 0"},
-      {"feature sigma", [](auto& o) { o.feature_sigma = -0.5; },
-       "feature_sigma = -0.5: must be finite and > 0"},
+      {"object noise", [](auto& o) { o.object_noise.disparity = 0; },
+       "object_noise.disparity = 0: must be finite and > 0"},
+      {"feature noise", [](auto& o) { o.feature_noise.vertical = -0.5; },
+       "feature_noise.vertical = -0.5: must be finite and > 0"},
       {"object observations", [](auto& o) { o.object_min_observations = 1; },
        "object_min_observations = 1: must be >= 2"},
       {"feature observations", [](auto& o) { o.feature_min_observations = 0; },
@@ -265,8 +284,6 @@ TEST(OptionsValidateTest, EachRuleNamesTheKeyTheValueAndTheRange) {
        "object_init_max_reprojection_error = 0: must be finite and > 0"},
       {"feature reprojection", [](auto& o) { o.feature_max_reprojection_error = -1; },
        "feature_max_reprojection_error = -1: must be finite and > 0"},
-      {"gate", [](auto& o) { o.object_update_gate = -1; },
-       "object_update_gate = -1: must be finite and >= 0"},
       {"object chi2", [](auto& o) { o.object_chi2_probability = 1; },
        "object_chi2_probability = 1: must be in [0, 1)"},
       {"feature chi2", [](auto& o) { o.feature_chi2_probability = -0.1; },
@@ -275,12 +292,10 @@ TEST(OptionsValidateTest, EachRuleNamesTheKeyTheValueAndTheRange) {
        "object_archive_after_frames = -1: must be >= 0"},
       {"correlation", [&](auto& o) { o.feature_odometry_correlation[5] = kNan; },
        "feature_odometry_correlation[5] = nan: must be finite"},
-      {"mean shift", [](auto& o) { o.consensus.max_mean_shift = -0.1; },
-       "consensus.max_mean_shift = -0.1: must be finite and >= 0"},
       {"condition number", [](auto& o) { o.consensus.max_condition_number = 1; },
        "consensus.max_condition_number = 1: must be finite and > 1"},
-      {"disagreement gate", [](auto& o) { o.consensus.disagreement_gate = -2; },
-       "consensus.disagreement_gate = -2: must be finite and >= 0"},
+      {"neighbour chi2", [](auto& o) { o.consensus.neighbour_chi2_probability = 1.5; },
+       "consensus.neighbour_chi2_probability = 1.5: must be in [0, 1)"},
   };
   for (const ValidationCase& test_case : cases) {
     SCOPED_TRACE(test_case.description);
@@ -295,8 +310,8 @@ TEST(OptionsValidateTest, EachRuleNamesTheKeyTheValueAndTheRange) {
 TEST(OptionsValidateTest, ReportsEveryProblem) {
   EstimatorOptions options;
   options.window_size = 0;
-  options.object_sigma = -1;
-  options.consensus.max_mean_shift = -1;
+  options.object_noise.horizontal = -1;
+  options.consensus.neighbour_chi2_probability = -1;
   EXPECT_EQ(options.validate().size(), 3u);
 }
 

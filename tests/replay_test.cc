@@ -17,7 +17,7 @@ namespace concord {
 namespace {
 
 const std::string kData = std::string(CONCORD_SOURCE_DIR) + "/data/";
-const std::string kConfigs = std::string(CONCORD_SOURCE_DIR) + "/configs/datasets/";
+const std::string kConfigs = std::string(CONCORD_SOURCE_DIR) + "/configs/sensors/";
 
 dataset::ReadOptions first_frames(int frames) {
   dataset::ReadOptions options;
@@ -61,7 +61,7 @@ void expect_finite_and_complete(const dataset::Dataset& data, const TeamRun& r) 
 
 TEST(TeamReplay, Sim15SliceConsensusAgreesBetterThanSeparate) {
   const auto data = dataset::read_dataset(kData + "sim15-3x200");
-  const auto options = config::load_estimator_options(kConfigs + "sim15.yaml");
+  const auto options = config::load_estimator_options(kConfigs + "sim.yaml");
   const TeamRun separate = run_replay(data, options, false);
   const TeamRun consensus = run_replay(data, options, true);
   expect_finite_and_complete(data, separate);
@@ -74,7 +74,7 @@ TEST(TeamReplay, Sim15SliceConsensusAgreesBetterThanSeparate) {
 
 TEST(TeamReplay, Kitti00SliceConsensusAgreesBetterThanSeparate) {
   const auto data = dataset::read_dataset(kData + "kitti00-300");
-  const auto options = config::load_estimator_options(kConfigs + "kitti00.yaml");
+  const auto options = config::load_estimator_options(kConfigs + "kitti-stereo.yaml");
   const TeamRun separate = run_replay(data, options, false);
   const TeamRun consensus = run_replay(data, options, true);
   expect_finite_and_complete(data, separate);
@@ -85,7 +85,7 @@ TEST(TeamReplay, Kitti00SliceConsensusAgreesBetterThanSeparate) {
 
 TEST(TeamReplay, IsDeterministic) {
   auto data = dataset::read_dataset(kData + "sim15-3x200", first_frames(60));
-  const auto options = config::load_estimator_options(kConfigs + "sim15.yaml");
+  const auto options = config::load_estimator_options(kConfigs + "sim.yaml");
   replay::ReplayOptions replay_options;
   replay_options.link_loss = 0.3;
   replay_options.graph = replay::GraphKind::kRandom;
@@ -129,7 +129,7 @@ TEST(Graphs, RandomGraphsAreConnected) {
 TEST(ObjectInitialization, RecoversAKnownPointFromNoiselessStereo) {
   const StereoCamera camera = testing::kitti_like_camera();
   EstimatorOptions options;
-  options.object_sigma = 1.0;
+  options.object_noise = StereoNoise::isotropic(1.0);
   const Eigen::Vector3d p_object(15.0, 3.0, 0.5);
   Eigen::Isometry3d step = Eigen::Isometry3d::Identity();
   step.translation() = Eigen::Vector3d(0.8, 0.0, 0.0);

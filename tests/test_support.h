@@ -52,7 +52,8 @@ inline State random_state(int poses, int landmarks, std::mt19937& random) {
     state.poses.push_back({i, pose});
   }
   for (int j = 0; j < landmarks; ++j) {
-    state.landmarks.push_back({100 + j, Eigen::Vector3d(10.0 + j, normal(random), 1.0), 0});
+    const Eigen::Vector3d p_world(10.0 + j, normal(random), 1.0);
+    state.landmarks.push_back({100 + j, p_world, 0, p_world});
   }
   state.rebuild_landmark_index();
   state.covariance = random_spd(state.dimension(), random, 0.05, 1.0);

@@ -17,6 +17,7 @@
 #include <filesystem>
 #include <iostream>
 #include <nlohmann/json.hpp>
+#include <yaml-cpp/yaml.h>
 
 #include "concord/config/options_file.h"
 #include "concord/dataset/dataset.h"
@@ -33,11 +34,53 @@ using namespace concord;
 
 namespace {
 
-/// The checked-in config of a dataset, configs/datasets/<name>.yaml, if there is one.
-std::optional<fs::path> dataset_config(const std::string& name) {
-  const fs::path candidate = fs::path(CONCORD_CONFIG_DIR) / "datasets" / (name + ".yaml");
-  if (fs::exists(candidate)) return candidate;
-  return std::nullopt;
+/// The checked-in config of the sensor that recorded a dataset (one config per sensor, not per
+/// dataset): configs/sensors/<sensor>.yaml, the sensor from dataset.json's "sensor" or, for the
+/// shared sets that have none, from configs/sensors/datasets.yaml (dataset name -> sensor).
+std::optional<fs::path> dataset_config(const dataset::Dataset& data) {
+  const fs::path sensors = fs::path(CONCORD_CONFIG_DIR) / "sensors";
+  std::string sensor = data.sensor;
+  if (sensor.empty()) {
+    const YAML::Node known = YAML::LoadFile((sensors / "datasets.yaml").string());
+    if (known[data.name]) sensor = known[data.name].as<std::string>();
+  }
+  if (sensor.empty()) return std::nullopt;
+  const fs::path candidate = sensors / (sensor + ".yaml");
+  if (!fs::exists(candidate)) {
+    throw std::runtime_error("dataset " + data.name + ": no config for sensor '" + sensor +
+                             "' (" + candidate.string() + ")");
+  }
+  return candidate;
+}
+
+/// One robot's outputs in a result folder: trajectory.kitti, objects.csv and, when present,
+/// pose_covariance.csv (one row per trajectory pose, frames 0, 1, ...).
+evaluation::RobotResult read_robot_result(const fs::path& folder) {
+  evaluation::RobotResult result{dataset::read_trajectory_kitti(folder / "trajectory.kitti"),
+                                 dataset::read_objects_csv(folder / "objects.csv"),
+                                 {}};
+  const fs::path covariance_file = folder / "pose_covariance.csv";
+  if (!fs::exists(covariance_file)) return result;
+  const auto covariances = dataset::read_pose_covariances_csv(covariance_file);
+  for (std::size_t k = 0; k < covariances.size(); ++k) {
+    if (covariances[k].frame != static_cast<int>(k)) {
+      throw dataset::DatasetError(covariance_file.string() + ": row " + std::to_string(k + 1) +
+                                  " holds frame " + std::to_string(covariances[k].frame) +
+                                  ", expected frame " + std::to_string(k));
+    }
+    result.pose_covariances.push_back(covariances[k].covariance);
+  }
+  return result;
+}
+
+std::vector<dataset::PoseCovariance> numbered(
+    const std::vector<Eigen::Matrix<double, 6, 6>>& covariances) {
+  std::vector<dataset::PoseCovariance> out;
+  out.reserve(covariances.size());
+  for (std::size_t k = 0; k < covariances.size(); ++k) {
+    out.push_back({static_cast<int>(k), covariances[k]});
+  }
+  return out;
 }
 
 std::vector<evaluation::RobotTruth> truths_of(const dataset::Dataset& data) {
@@ -60,8 +103,15 @@ evaluation::TeamMetrics report(const dataset::Dataset& data,
   evaluation::write_top_view_png(out / "plot.png", truths, results, data.objects_groundtruth,
                                  title);
   std::cout << "metrics: " << (out / "metrics.json").string() << "\n"
-            << "plot:    " << (out / "plot.png").string() << "\n"
-            << "outputs: " << out.string() << "/robot_XX/{trajectory.kitti,objects.csv}\n";
+            << "plot:    " << (out / "plot.png").string() << "\n";
+  if (const auto nees = evaluation::pose_nees_plot(
+          truths, results, std::max<int>(1, metrics.maximum.frames / 100), title + ": pose NEES")) {
+    evaluation::write_line_plot_png(out / "nees.png", *nees);
+    std::cout << "NEES:    " << (out / "nees.png").string() << "\n";
+  }
+  std::cout
+            << "outputs: " << out.string()
+            << "/robot_XX/{trajectory.kitti,pose_covariance.csv,objects.csv}\n";
   return metrics;
 }
 
@@ -77,7 +127,7 @@ int run_replay(const fs::path& dataset_dir, const fs::path& out, bool separate,
   EstimatorOptions options;
   if (!config_file.empty()) {
     config_path = config_file;
-  } else if (auto found = dataset_config(data.name)) {
+  } else if (auto found = dataset_config(data)) {
     config_path = *found;
   }
   if (!config_path.empty()) options = config::load_estimator_options(config_path);
@@ -110,7 +160,10 @@ int run_replay(const fs::path& dataset_dir, const fs::path& out, bool separate,
     fs::create_directories(folder);
     dataset::write_trajectory_kitti(folder / "trajectory.kitti", result.robots[i].trajectory);
     dataset::write_objects_csv(folder / "objects.csv", result.robots[i].objects);
-    results.push_back({result.robots[i].trajectory, result.robots[i].objects});
+    dataset::write_pose_covariances_csv(folder / "pose_covariance.csv",
+                                        numbered(result.robots[i].pose_covariances));
+    results.push_back({result.robots[i].trajectory, result.robots[i].objects,
+                       result.robots[i].pose_covariances});
   }
   const auto& s = result.statistics;
   nlohmann::json run = {
@@ -124,7 +177,10 @@ int run_replay(const fs::path& dataset_dir, const fs::path& out, bool separate,
       {"robot_steps", s.robot_steps},
       {"landmarks_fused", s.landmarks_fused},
       {"neighbours_skipped", s.neighbours_skipped},
-      {"mean_shifts_limited", s.mean_shifts_limited},
+      {"landmarks_refused", s.landmarks_refused},
+      {"object_initializations_gated", s.object_initializations_gated},
+      {"objects_reactivated", s.objects_reactivated},
+      {"update_failures", s.update_failures},
       {"objects_initialized", s.objects_initialized},
       {"object_observations_rejected", s.object_observations_rejected},
       {"feature_tracks_used", s.feature_tracks_used},
@@ -150,9 +206,8 @@ int run_eval(const fs::path& dataset_dir, const fs::path& result_dir) {
   const dataset::Dataset data = dataset::read_dataset(dataset_dir, read_options);
   std::vector<evaluation::RobotResult> results;
   for (std::size_t i = 0; i < data.robots.size(); ++i) {
-    const fs::path folder = result_dir / dataset::robot_folder_name(static_cast<int>(i));
-    results.push_back({dataset::read_trajectory_kitti(folder / "trajectory.kitti"),
-                       dataset::read_objects_csv(folder / "objects.csv")});
+    results.push_back(
+        read_robot_result(result_dir / dataset::robot_folder_name(static_cast<int>(i))));
   }
   report(data, results, result_dir, data.name + " eval of " + result_dir.filename().string(),
          {{"dataset", data.name}, {"result", result_dir.string()}});
@@ -205,7 +260,7 @@ int run_launch(launch::LaunchOptions options) {
   if (options.robots > 0) read_options.max_robots = options.robots;
   const dataset::Dataset data = dataset::read_dataset(options.dataset, read_options);
   if (options.estimator_config.empty()) {
-    if (auto found = dataset_config(data.name)) options.estimator_config = *found;
+    if (auto found = dataset_config(data)) options.estimator_config = *found;
   }
   const int robots = static_cast<int>(data.robots.size());
   std::cerr << "concord launch: " << robots << " concordd (" << options.mode << ") on "
@@ -226,9 +281,7 @@ int run_launch(launch::LaunchOptions options) {
   std::cerr << "concord launch: team finished in " << result.wall_seconds << " s\n";
   std::vector<evaluation::RobotResult> results;
   for (int robot = 0; robot < robots; ++robot) {
-    const fs::path folder = options.out / dataset::robot_folder_name(robot);
-    results.push_back({dataset::read_trajectory_kitti(folder / "trajectory.kitti"),
-                       dataset::read_objects_csv(folder / "objects.csv")});
+    results.push_back(read_robot_result(options.out / dataset::robot_folder_name(robot)));
   }
   report(data, results, options.out, data.name + " launch (" + options.mode + ")",
          {{"dataset", data.name},
@@ -258,7 +311,7 @@ int main(int argc, char** argv) {
   replay_command->add_flag("--separate", separate, "No consensus (each robot alone)");
   replay_command
       ->add_option("--config", config_file,
-                   "Estimator config (default: configs/datasets/<dataset name>.yaml)")
+                   "Estimator config (default: the sensor's, configs/sensors/)")
       ->check(CLI::ExistingFile);
   replay_command->add_option("--graph", graph, "Communication graph: complete, ring or random")
       ->check(CLI::IsMember({"complete", "ring", "random"}));
@@ -407,7 +460,7 @@ int main(int argc, char** argv) {
                              "Robot i serves HTTP on http-base-port + i")
       ->capture_default_str();
   launch_command->add_option("--config", launch_config,
-                             "Estimator options (default configs/datasets/<name>.yaml)");
+                             "Estimator options (default: the sensor's, configs/sensors/)");
   launch_command->add_option("--robots", launch_options.robots, "First robots only")
       ->check(CLI::PositiveNumber);
   launch_command->add_option("--frames", launch_options.frames, "First frames only")

@@ -21,9 +21,17 @@ constexpr std::string_view kConsensusKey = "consensus";
 /// consensus keys, shared by the loader and the writer.
 template <typename Consensus, typename Visitor>
 void for_each_consensus_field(Consensus& consensus, Visitor&& visit) {
-  visit("max_mean_shift", consensus.max_mean_shift);
   visit("max_condition_number", consensus.max_condition_number);
-  visit("disagreement_gate", consensus.disagreement_gate);
+  visit("neighbour_chi2_probability", consensus.neighbour_chi2_probability);
+}
+
+/// Calls visit(key, field) for every component of a StereoNoise.
+template <typename Noise, typename Visitor>
+void for_each_noise_field(Noise& noise, Visitor&& visit) {
+  visit("horizontal", noise.horizontal);
+  visit("vertical", noise.vertical);
+  visit("disparity", noise.disparity);
+  visit("vertical_disparity", noise.vertical_disparity);
 }
 
 /// Calls visit(key, field) for every top-level field of EstimatorOptions except `consensus`, in
@@ -35,17 +43,17 @@ void for_each_field(Options& options, Visitor&& visit) {
   visit("initial_rotation_sigma", options.initial_rotation_sigma);
   visit("odometry_translation_sigma", options.odometry_translation_sigma);
   visit("odometry_rotation_sigma", options.odometry_rotation_sigma);
+  visit("odometry_translation_scale", options.odometry_translation_scale);
   visit("use_objects", options.use_objects);
-  visit("object_sigma", options.object_sigma);
+  visit("object_noise", options.object_noise);
   visit("object_min_observations", options.object_min_observations);
   visit("object_min_distance", options.object_min_distance);
   visit("object_max_distance", options.object_max_distance);
   visit("object_init_max_reprojection_error", options.object_init_max_reprojection_error);
-  visit("object_update_gate", options.object_update_gate);
   visit("object_chi2_probability", options.object_chi2_probability);
   visit("object_archive_after_frames", options.object_archive_after_frames);
   visit("use_point_features", options.use_point_features);
-  visit("feature_sigma", options.feature_sigma);
+  visit("feature_noise", options.feature_noise);
   visit("feature_min_observations", options.feature_min_observations);
   visit("feature_max_reprojection_error", options.feature_max_reprojection_error);
   visit("feature_min_distance", options.feature_min_distance);
@@ -99,6 +107,32 @@ class Loader {
                               "a number");
     }
     if (all_read) field = values;
+  }
+
+  /// A StereoNoise: one number (isotropic) or a map of its four components.
+  void read(const YAML::Node& node, const std::string& key, StereoNoise& field) {
+    if (node.IsScalar()) {
+      double sigma = 0.0;
+      if (read_scalar(node, key, sigma, "a number or a map of noise components")) {
+        field = StereoNoise::isotropic(sigma);
+      }
+      return;
+    }
+    if (!node.IsMap()) {
+      add(node, key + " = " + describe(node) + ": expected a number or a map of noise components");
+      return;
+    }
+    StereoNoise noise = field;
+    for_each_entry(node, key + ".",
+                   [&](const std::string& name, const YAML::Node& key_node, const YAML::Node& value) {
+                     if (!read_field(noise, name, key + "." + name, value,
+                                     [](auto& target, auto&& visit) {
+                                       for_each_noise_field(target, visit);
+                                     })) {
+                       add(key_node, "unknown key " + key + "." + name);
+                     }
+                   });
+    field = noise;
   }
 
   /// Reads a top-level map of option keys into `options`.
@@ -203,6 +237,16 @@ std::string format_number(double value) {
 std::string format_value(int value) { return std::to_string(value); }
 std::string format_value(double value) { return format_number(value); }
 std::string format_value(bool value) { return value ? "true" : "false"; }
+/// Flow map of the four components.
+std::string format_value(const StereoNoise& noise) {
+  std::string text = "{";
+  for_each_noise_field(noise, [&](std::string_view key, double value) {
+    if (text.size() > 1) text += ", ";
+    text += std::string(key) + ": " + format_number(value);
+  });
+  return text + "}";
+}
+
 /// Flow sequence, one row of the 6x4 matrix per line.
 std::string format_value(const Correlation& values) {
   constexpr std::size_t kColumns = 4;

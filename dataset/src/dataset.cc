@@ -63,6 +63,7 @@ std::vector<int> list_robot_folders(const std::filesystem::path& directory) {
 /// The contents of dataset.json that the reader uses.
 struct Description {
   std::optional<std::string> name;
+  std::string sensor;
   std::optional<int> robots;
   StereoCamera camera;
 };
@@ -119,6 +120,10 @@ Description read_description(const std::filesystem::path& file) {
   if (root.contains("name")) {
     if (!root["name"].is_string()) fail_in_file(file, "\"name\" must be a string");
     description.name = root["name"].get<std::string>();
+  }
+  if (root.contains("sensor")) {
+    if (!root["sensor"].is_string()) fail_in_file(file, "\"sensor\" must be a string");
+    description.sensor = root["sensor"].get<std::string>();
   }
   if (root.contains("robots")) {
     if (!root["robots"].is_number_integer() || root["robots"].get<int>() < 1) {
@@ -257,6 +262,7 @@ std::string format_description(const Dataset& dataset) {
                                         [](const RobotData& robot) { return robot.has_features; });
   nlohmann::ordered_json root;
   root["name"] = dataset.name;
+  if (!dataset.sensor.empty()) root["sensor"] = dataset.sensor;
   root["robots"] = dataset.robots.size();
   root["camera"] = {{"K", matrix_to_json(camera.K)},
                     {"T_cam_body", matrix_to_json(camera.T_cam0_body.matrix())},
@@ -328,6 +334,7 @@ Dataset read_dataset(const std::filesystem::path& directory, const ReadOptions& 
   Dataset dataset;
   dataset.root = directory;
   dataset.camera = description.camera;
+  dataset.sensor = description.sensor;
   if (description.name) {
     dataset.name = *description.name;
   } else {
@@ -410,6 +417,7 @@ Dataset slice(const Dataset& dataset, int frames, int robots) {
   }
   Dataset cut;
   cut.name = dataset.name;
+  cut.sensor = dataset.sensor;
   cut.root = dataset.root;
   cut.camera = dataset.camera;
   cut.objects_groundtruth = dataset.objects_groundtruth;

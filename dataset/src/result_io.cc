@@ -6,6 +6,7 @@
 #include <array>
 #include <atomic>
 #include <fstream>
+#include <limits>
 #include <set>
 #include <stdexcept>
 #include <string_view>
@@ -23,6 +24,10 @@ constexpr std::array<std::string_view, 10> kObjectEstimateColumns{
 /// (row, column) of the covariance entries in the order of the columns cxx ... czz.
 constexpr std::array<std::pair<int, int>, 6> kCovarianceUpperTriangle{
     {{0, 0}, {0, 1}, {0, 2}, {1, 1}, {1, 2}, {2, 2}}};
+
+constexpr std::array<std::string_view, 22> kPoseCovarianceColumns{
+    "frame", "c00", "c01", "c02", "c03", "c04", "c05", "c11", "c12", "c13", "c14",
+    "c15",   "c22", "c23", "c24", "c25", "c33", "c34", "c35", "c44", "c45", "c55"};
 
 /// A name in the folder of `file` that no other writer (process or thread) uses at the same time.
 std::filesystem::path temporary_path_for(const std::filesystem::path& file) {
@@ -109,6 +114,49 @@ std::vector<ObjectEstimate> read_objects_csv(const std::filesystem::path& file) 
     objects.push_back(object);
   }
   return objects;
+}
+
+std::string format_pose_covariances_csv(const std::vector<PoseCovariance>& covariances) {
+  std::string out = text_parsing::csv_header(kPoseCovarianceColumns) + '\n';
+  for (const PoseCovariance& entry : covariances) {
+    text_parsing::append_integer(out, entry.frame);
+    for (int row = 0; row < 6; ++row) {
+      for (int column = row; column < 6; ++column) {
+        out += ',';
+        text_parsing::append_number(out, entry.covariance(row, column));
+      }
+    }
+    out += '\n';
+  }
+  return out;
+}
+
+void write_pose_covariances_csv(const std::filesystem::path& file,
+                                const std::vector<PoseCovariance>& covariances) {
+  write_file_atomically(file, format_pose_covariances_csv(covariances));
+}
+
+std::vector<PoseCovariance> read_pose_covariances_csv(const std::filesystem::path& file) {
+  std::vector<PoseCovariance> covariances;
+  text_parsing::CsvReader table(file, kPoseCovarianceColumns);
+  while (table.next_row()) {
+    PoseCovariance entry;
+    const std::int64_t frame = table.integer(0);
+    if (frame < 0 || frame > std::numeric_limits<int>::max()) {
+      table.fail("frame " + std::to_string(frame) + " out of range");
+    }
+    entry.frame = static_cast<int>(frame);
+    std::size_t column_index = 1;
+    for (int row = 0; row < 6; ++row) {
+      for (int column = row; column < 6; ++column) {
+        const double value = table.number(column_index++);
+        entry.covariance(row, column) = value;
+        entry.covariance(column, row) = value;
+      }
+    }
+    covariances.push_back(entry);
+  }
+  return covariances;
 }
 
 }  // namespace concord::dataset

@@ -2,11 +2,13 @@
 
 #include <Eigen/Cholesky>
 #include <algorithm>
+#include <cmath>
+#include <limits>
 #include <map>
 #include <optional>
-#include <set>
 
 #include "concord/estimator/state_helper.h"
+#include "concord/estimator/updater_helper.h"
 
 namespace concord {
 
@@ -19,24 +21,59 @@ struct Location {
   int offset = 0;    ///< row of its first coordinate in that block
 };
 
-/// A neighbour's marginal checked once: its weight and where each id sits in it.
-struct CheckedNeighbour {
+/// (id, location) of every landmark of a block-diagonal Gaussian, sorted by id; nullopt when an
+/// id repeats.
+std::optional<std::vector<std::pair<LandmarkId, Location>>> locate(
+    const std::vector<LandmarkId>& ids, const std::vector<Eigen::MatrixXd>& blocks) {
+  std::vector<std::pair<LandmarkId, Location>> locations;
+  locations.reserve(ids.size());
+  int position = 0;
+  for (std::size_t b = 0; b < blocks.size(); ++b) {
+    for (Eigen::Index offset = 0; offset < blocks[b].rows(); offset += 3) {
+      locations.push_back({ids[position], {position, static_cast<int>(b), static_cast<int>(offset)}});
+      ++position;
+    }
+  }
+  std::sort(locations.begin(), locations.end(),
+            [](const auto& a, const auto& b) { return a.first < b.first; });
+  const auto repeated = std::adjacent_find(
+      locations.begin(), locations.end(), [](const auto& a, const auto& b) { return a.first == b.first; });
+  if (repeated != locations.end()) return std::nullopt;
+  return locations;
+}
+
+const Location* find_location(const std::vector<std::pair<LandmarkId, Location>>& locations,
+                              LandmarkId id) {
+  const auto it = std::lower_bound(
+      locations.begin(), locations.end(), id,
+      [](const std::pair<LandmarkId, Location>& entry, LandmarkId key) { return entry.first < key; });
+  return it != locations.end() && it->first == id ? &it->second : nullptr;
+}
+
+/// A member of an average: the robot itself or a neighbour, its marginal checked once, with
+/// its weight and where each id sits in it.
+struct Member {
+  int index = -1;  ///< position in the neighbours given to fuse(), -1 for the robot itself
   double weight = 0.0;
   const Marginal* marginal = nullptr;
-  /// (id, location) sorted by id: binary search over contiguous memory.
   std::vector<std::pair<LandmarkId, Location>> locations;
 
-  const Location* find(LandmarkId id) const {
-    const auto it = std::lower_bound(
-        locations.begin(), locations.end(), id,
-        [](const std::pair<LandmarkId, Location>& entry, LandmarkId key) { return entry.first < key; });
-    return it != locations.end() && it->first == id ? &it->second : nullptr;
+  const Location* find(LandmarkId id) const { return find_location(locations, id); }
+  Eigen::Vector3d mean(const Location& at) const {
+    return marginal->mean.segment<3>(3 * at.position);
   }
-
   Eigen::Matrix3d covariance(const Location& at) const {
     return marginal->blocks[at.block].block<3, 3>(at.offset, at.offset);
   }
 };
+
+/// Checks a marginal (shapes, finite values, no repeated id); nullopt when malformed.
+std::optional<Member> check(const Marginal& marginal, int index, double weight) {
+  if (!marginal.well_formed()) return std::nullopt;
+  auto locations = locate(marginal.ids, marginal.blocks);
+  if (!locations) return std::nullopt;
+  return Member{index, weight, &marginal, std::move(*locations)};
+}
 
 /// Cholesky factor of a covariance if it is positive definite and its (1-norm) condition
 /// number, estimated from the factor, is below max_condition_number.
@@ -50,18 +87,17 @@ std::optional<Eigen::LLT<Matrix>> checked_cholesky(const Matrix& covariance,
   return llt;
 }
 
-/// Mean and covariance of the given landmarks of a block-diagonal marginal (zero covariance
-/// between landmarks of different blocks).
-void sub_marginal(const CheckedNeighbour& neighbour, const std::vector<Location>& at,
-                  Eigen::VectorXd& mean, Eigen::MatrixXd& covariance) {
+/// Mean and covariance of the landmarks at `at` (all in one block) of a block-diagonal Gaussian.
+void sub_gaussian(const Eigen::VectorXd& full_mean, const std::vector<Eigen::MatrixXd>& blocks,
+                  const std::vector<Location>& at, Eigen::VectorXd& mean,
+                  Eigen::MatrixXd& covariance) {
   const auto k = static_cast<Eigen::Index>(at.size());
   mean.resize(3 * k);
-  covariance = Eigen::MatrixXd::Zero(3 * k, 3 * k);
+  covariance.resize(3 * k, 3 * k);
   for (Eigen::Index a = 0; a < k; ++a) {
-    mean.segment<3>(3 * a) = neighbour.marginal->mean.segment<3>(3 * at[a].position);
-    const Eigen::MatrixXd& block = neighbour.marginal->blocks[at[a].block];
+    mean.segment<3>(3 * a) = full_mean.segment<3>(3 * at[a].position);
+    const Eigen::MatrixXd& block = blocks[at[a].block];
     for (Eigen::Index b = 0; b < k; ++b) {
-      if (at[b].block != at[a].block) continue;
       covariance.block<3, 3>(3 * a, 3 * b) = block.block<3, 3>(at[a].offset, at[b].offset);
     }
   }
@@ -105,99 +141,66 @@ bool replace_gaussian_marginal(Eigen::VectorXd& mean, Eigen::MatrixXd& covarianc
   return true;
 }
 
-/// Information-form weighted average (eq. 19) of the robot's own marginal and its neighbours'.
-/// A neighbour whose covariance is not positive definite or is ill-conditioned is left out (its
-/// weight goes to the robot) and counted. Returns false if no neighbour is usable or the robot's
-/// own marginal is not positive definite (nothing to average).
-bool information_average(double own_weight, const Eigen::VectorXd& own_mean,
-                         const Eigen::MatrixXd& own_covariance, std::vector<double> weights,
-                         const std::vector<Eigen::VectorXd>& means,
-                         const std::vector<Eigen::MatrixXd>& covariances,
-                         double max_condition_number, Eigen::VectorXd& mean,
-                         Eigen::MatrixXd& covariance, ConsensusReport& report) {
-  const Eigen::Index d = own_mean.size();
-  Eigen::MatrixXd information = Eigen::MatrixXd::Zero(d, d);
-  Eigen::VectorXd information_vector = Eigen::VectorXd::Zero(d);
-  const Eigen::MatrixXd identity = Eigen::MatrixXd::Identity(d, d);
-  int used = 0;
-  for (std::size_t j = 0; j < weights.size(); ++j) {
-    const auto llt = checked_cholesky(covariances[j], max_condition_number);
-    if (!llt) {
-      ++report.neighbours_skipped;
-      own_weight += weights[j];
-      continue;
-    }
-    information += weights[j] * llt->solve(identity);
-    information_vector += weights[j] * llt->solve(means[j]);
-    ++used;
-  }
-  if (used == 0) return false;
-  const Eigen::LLT<Eigen::MatrixXd> own(own_covariance);
-  if (own.info() != Eigen::Success) return false;
-  information += own_weight * own.solve(identity);
-  information_vector += own_weight * own.solve(own_mean);
-  information = 0.5 * (information + information.transpose()).eval();
-  const Eigen::LLT<Eigen::MatrixXd> llt(information);
-  if (llt.info() != Eigen::Success) return false;
-  covariance = llt.solve(identity);
-  covariance = 0.5 * (covariance + covariance.transpose()).eval();
-  mean = covariance * information_vector;
-  return true;
+/// A Gaussian over a group of landmarks in information form (matrix, vector = matrix * mean).
+struct Information {
+  Eigen::MatrixXd matrix;
+  Eigen::VectorXd vector;
+};
+
+/// A member's marginal of `ids` (all in one block of it) in information form; nullopt when its
+/// covariance is not positive definite or ill-conditioned.
+std::optional<Information> information_of(const Member& member, const std::vector<LandmarkId>& ids,
+                                          double max_condition_number) {
+  std::vector<Location> at;
+  at.reserve(ids.size());
+  for (LandmarkId id : ids) at.push_back(*member.find(id));
+  Eigen::VectorXd mean;
+  Eigen::MatrixXd covariance;
+  sub_gaussian(member.marginal->mean, member.marginal->blocks, at, mean, covariance);
+  const auto llt = checked_cholesky(covariance, max_condition_number);
+  if (!llt) return std::nullopt;
+  const Eigen::Index d = covariance.rows();
+  Information out;
+  out.matrix = llt->solve(Eigen::MatrixXd::Identity(d, d));
+  out.matrix = 0.5 * (out.matrix + out.matrix.transpose()).eval();
+  out.vector = out.matrix * mean;
+  return out;
 }
 
-/// Shortens each landmark's mean shift to at most max_shift metres.
-void limit_mean_shift(const Eigen::VectorXd& own_mean, Eigen::VectorXd& mean, double max_shift,
-                      ConsensusReport& report) {
+/// The weighted average of eq. (19) in information form (a geometric mean of Gaussians:
+/// consistent whatever the correlation between the members, if each is). Returns false when the
+/// result is not positive definite.
+bool information_average(const std::vector<std::pair<double, Information>>& members,
+                         Eigen::VectorXd& mean, Eigen::MatrixXd& covariance) {
+  const Eigen::Index d = members.front().second.vector.size();
+  double total_weight = 0.0;
+  for (const auto& [weight, information] : members) {
+    if (information.matrix.diagonal().maxCoeff() > 0.0) total_weight += weight;
+  }
+  if (!(total_weight > 0.0)) return false;
+  Eigen::MatrixXd matrix = Eigen::MatrixXd::Zero(d, d);
+  Eigen::VectorXd vector = Eigen::VectorXd::Zero(d);
+  for (const auto& [weight, information] : members) {
+    if (!(information.matrix.diagonal().maxCoeff() > 0.0)) continue;
+    matrix += (weight / total_weight) * information.matrix;
+    vector += (weight / total_weight) * information.vector;
+  }
+  matrix = 0.5 * (matrix + matrix.transpose()).eval();
+  const Eigen::LLT<Eigen::MatrixXd> llt(matrix);
+  if (llt.info() != Eigen::Success) return false;
+  covariance = llt.solve(Eigen::MatrixXd::Identity(d, d));
+  covariance = 0.5 * (covariance + covariance.transpose()).eval();
+  mean = covariance * vector;
+  return mean.allFinite() && covariance.allFinite();
+}
+
+/// Records the longest landmark step of an average.
+void note_mean_shift(const Eigen::VectorXd& own_mean, const Eigen::VectorXd& mean,
+                     ConsensusReport& report) {
   for (Eigen::Index i = 0; i < own_mean.size(); i += 3) {
-    Eigen::Vector3d shift = mean.segment<3>(i) - own_mean.segment<3>(i);
-    const double length = shift.norm();
-    if (max_shift > 0.0 && length > max_shift) {
-      shift *= max_shift / length;
-      mean.segment<3>(i) = own_mean.segment<3>(i) + shift;
-      ++report.mean_shifts_limited;
-    }
-    report.largest_mean_shift = std::max(report.largest_mean_shift, shift.norm());
+    report.largest_mean_shift = std::max(report.largest_mean_shift,
+                                         (mean.segment<3>(i) - own_mean.segment<3>(i)).norm());
   }
-}
-
-/// The information average (eq. 19) of one archived object with its holders' 3x3 marginals,
-/// written into `estimate`; the same rules as information_average, without heap allocations.
-bool average_archived(ObjectEstimate& estimate, double own_weight,
-                      const std::vector<CheckedNeighbour>& checked, const std::vector<int>& holders,
-                      LandmarkId id, const ConsensusOptions& options, ConsensusReport& report) {
-  Eigen::Matrix3d information = Eigen::Matrix3d::Zero();
-  Eigen::Vector3d information_vector = Eigen::Vector3d::Zero();
-  int used = 0;
-  for (int j : holders) {
-    const Location& at = *checked[j].find(id);
-    const auto llt = checked_cholesky<Eigen::Matrix3d>(checked[j].covariance(at),
-                                                       options.max_condition_number);
-    if (!llt) {
-      ++report.neighbours_skipped;
-      own_weight += checked[j].weight;
-      continue;
-    }
-    information += checked[j].weight * llt->solve(Eigen::Matrix3d::Identity());
-    information_vector +=
-        checked[j].weight * llt->solve(checked[j].marginal->mean.segment<3>(3 * at.position));
-    ++used;
-  }
-  if (used == 0) return false;
-  const Eigen::LLT<Eigen::Matrix3d> own(estimate.covariance);
-  if (own.info() != Eigen::Success) return false;
-  information += own_weight * own.solve(Eigen::Matrix3d::Identity());
-  information_vector += own_weight * own.solve(estimate.p_world);
-  information = 0.5 * (information + information.transpose()).eval();
-  const Eigen::LLT<Eigen::Matrix3d> llt(information);
-  if (llt.info() != Eigen::Success) return false;
-  Eigen::Matrix3d covariance = llt.solve(Eigen::Matrix3d::Identity());
-  covariance = 0.5 * (covariance + covariance.transpose()).eval();
-  Eigen::VectorXd mean = covariance * information_vector;
-  const Eigen::VectorXd own_mean = estimate.p_world;
-  limit_mean_shift(own_mean, mean, options.max_mean_shift, report);
-  estimate.p_world = mean;
-  estimate.covariance = covariance;
-  return true;
 }
 
 }  // namespace
@@ -222,6 +225,7 @@ Marginal Consensus::marginal(const State& state, const std::vector<LandmarkId>& 
     out.mean.segment<3>(joint + 3 * static_cast<Eigen::Index>(i)) = archived[i]->p_world;
     out.blocks.emplace_back(archived[i]->covariance);
   }
+
   return out;
 }
 
@@ -236,7 +240,7 @@ bool Consensus::replace_marginal(State& state, const std::vector<int>& slots,
   }
   const auto correction = proposition_two(state.covariance, indices, own_mean, mean, covariance);
   if (!correction) return false;
-  // eq. (21): poses T <- T exp(mu_x_bar^); landmarks shift additively.
+  // eq. (21): poses move by the correction (left perturbation, see State); landmarks additively.
   StateHelper::apply_correction(state, *correction);
   return true;
 }
@@ -244,83 +248,80 @@ bool Consensus::replace_marginal(State& state, const std::vector<int>& slots,
 ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal>& neighbours,
                                 const ConsensusOptions& options) {
   ConsensusReport report;
+  report.refused_per_neighbour.assign(neighbours.size(), 0);
+  report.tested_per_neighbour.assign(neighbours.size(), 0);
 
-  // 1. Check every neighbour's marginal once.
-  std::vector<CheckedNeighbour> checked;
-  for (const WeightedMarginal& neighbour : neighbours) {
-    const Marginal& m = neighbour.marginal;
+  // 1. The robot's own marginal of everything it holds, and every neighbour's marginal checked
+  //    once.
+  const Marginal own_marginal = marginal(state, state.object_ids());
+  std::vector<Member> neighbour_members;
+  for (std::size_t j = 0; j < neighbours.size(); ++j) {
+    const Marginal& m = neighbours[j].marginal;
     if (m.ids.empty()) continue;
     // Positive definiteness and conditioning are checked per averaged group, below.
-    if (!m.well_formed() || !(neighbour.weight > 0.0 && neighbour.weight < 1.0)) {
+    std::optional<Member> member;
+    if (neighbours[j].weight > 0.0 && neighbours[j].weight < 1.0) {
+      member = check(m, static_cast<int>(j), neighbours[j].weight);
+    }
+    if (!member) {
       ++report.neighbours_skipped;
       continue;
     }
-    CheckedNeighbour entry{neighbour.weight, &m, {}};
-    int position = 0;
-    for (std::size_t b = 0; b < m.blocks.size(); ++b) {
-      for (Eigen::Index offset = 0; offset < m.blocks[b].rows(); offset += 3) {
-        entry.locations.push_back(
-            {m.ids[position], {position, static_cast<int>(b), static_cast<int>(offset)}});
-        ++position;
-      }
-    }
-    std::sort(entry.locations.begin(), entry.locations.end(),
-              [](const auto& a, const auto& b) { return a.first < b.first; });
-    // Repeated ids make a marginal malformed.
-    if (std::adjacent_find(entry.locations.begin(), entry.locations.end(), [](const auto& a, const auto& b) {
-          return a.first == b.first;
-        }) != entry.locations.end()) {
-      ++report.neighbours_skipped;
-      continue;
-    }
-    checked.push_back(std::move(entry));
+    neighbour_members.push_back(std::move(*member));
   }
-  if (checked.empty()) return report;
+  double neighbour_weight = 0.0;
+  for (const Member& member : neighbour_members) neighbour_weight += member.weight;
+  const std::optional<Member> own = check(own_marginal, -1, 1.0 - neighbour_weight);
+  if (neighbour_members.empty() || own_marginal.ids.empty() || !own) return report;
+  const double refusal_bound =
+      options.neighbour_chi2_probability > 0.0
+          ? UpdaterHelper::chi2_quantile(options.neighbour_chi2_probability, 3)
+          : std::numeric_limits<double>::infinity();
 
-  // 2. For every landmark the robot holds, the neighbours that hold it (after the gate).
-  auto own_estimate = [&](LandmarkId id, Eigen::Vector3d& mean, Eigen::Matrix3d& covariance) {
-    const int slot = state.landmark_slot(id);
-    if (slot >= 0) {
-      const int index = state.landmark_index(slot);
-      mean = state.landmarks[slot].p_world;
-      covariance = state.covariance.block<3, 3>(index, index);
-    } else {
-      const ObjectEstimate& estimate = state.archived.at(id);
-      mean = estimate.p_world;
-      covariance = estimate.covariance;
-    }
-  };
-  // Groups keyed by (in joint state?, holder neighbours), landmarks in id order.
-  std::map<std::pair<bool, std::vector<int>>, std::vector<LandmarkId>> groups;
-  for (LandmarkId id : state.object_ids()) {
-    std::vector<int> holders;
-    for (std::size_t j = 0; j < checked.size(); ++j) {
-      const Location* found = checked[j].find(id);
+  // 2. For every landmark the robot holds, the neighbours that hold it and agree with the robot
+  //    (a neighbour's mean beyond the chi-square bound under the sum of both covariances is
+  //    refused: an outlier, a wrong association or a lie; not averaged in, counted).
+  std::map<LandmarkId, std::vector<int>> accepted;  // id -> neighbours (positions)
+  for (LandmarkId id : own_marginal.ids) {
+    const Location& own_at = *own->find(id);
+    for (std::size_t j = 0; j < neighbour_members.size(); ++j) {
+      const Member& neighbour = neighbour_members[j];
+      const Location* found = neighbour.find(id);
       if (found == nullptr) continue;
-      if (options.disagreement_gate > 0.0) {
-        Eigen::Vector3d own_mean;
-        Eigen::Matrix3d own_covariance;
-        own_estimate(id, own_mean, own_covariance);
-        const Location& at = *found;
-        const Eigen::Vector3d difference =
-            checked[j].marginal->mean.segment<3>(3 * at.position) - own_mean;
-        const Eigen::Matrix3d sum = own_covariance + checked[j].covariance(at);
-        if (difference.dot(sum.ldlt().solve(difference)) >
-            options.disagreement_gate * options.disagreement_gate) {
-          ++report.landmarks_gated;
+      ++report.tested_per_neighbour[neighbour.index];
+      if (options.neighbour_chi2_probability > 0.0) {
+        const Eigen::Vector3d difference = neighbour.mean(*found) - own->mean(own_at);
+        const Eigen::LLT<Eigen::Matrix3d> sum(own->covariance(own_at) +
+                                              neighbour.covariance(*found));
+        if (sum.info() != Eigen::Success ||
+            !(difference.dot(sum.solve(difference)) <= refusal_bound)) {
+          ++report.landmarks_refused;
+          ++report.refused_per_neighbour[neighbour.index];
           continue;
         }
       }
-      holders.push_back(static_cast<int>(j));
+      accepted[id].push_back(static_cast<int>(j));
     }
-    if (holders.empty()) continue;
-    groups[{state.landmark_slot(id) >= 0, holders}].push_back(id);
   }
 
-  // 3. In-state groups are averaged one after another on the joint marginal of all in-state
-  //    landmarks being fused (U): replacing a group's marginal keeps the conditional of the rest
-  //    given it, so p(rest of the state | U) never changes and the sequence of replacements
-  //    equals one replacement of U's marginal at the end (Proposition 2 once, not per group).
+  // 3. The weighted average (eq. 19) of landmarks grouped by (in joint state?, and for the
+  //    robot and each holder the block of its marginal that holds the landmark). A marginal claims nothing about
+  //    the correlation of landmarks in different blocks (archived objects lost theirs), so only
+  //    landmarks that share a block in every member's contribution are averaged jointly;
+  //    averaging them jointly as if independent would credit the member with information it
+  //    does not have (e.g. on their common offset) and make the robot overconfident. In-state
+  //    groups are replaced one after another on the joint marginal of all in-state landmarks
+  //    being fused (U): replacing a group's marginal keeps the conditional of the rest given it,
+  //    so p(rest of the state | U) never changes and the sequence of replacements equals one
+  //    replacement of U's marginal at the end (Proposition 2 once, not per group).
+  using Key = std::pair<bool, std::vector<std::pair<int, int>>>;  // (member, block)
+  std::map<Key, std::vector<LandmarkId>> groups;
+  for (const auto& [id, holders] : accepted) {
+    std::vector<std::pair<int, int>> members;
+    for (int j : holders) members.emplace_back(j, neighbour_members[j].find(id)->block);
+    members.emplace_back(-1, own->find(id)->block);
+    groups[{state.landmark_slot(id) >= 0, std::move(members)}].push_back(id);
+  }
   std::vector<int> union_slots;
   std::map<LandmarkId, int> union_position;
   for (const auto& [key, ids] : groups) {
@@ -333,55 +334,66 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
   Eigen::VectorXd union_mean;
   Eigen::MatrixXd union_covariance;
   if (!union_slots.empty()) {
-    Marginal own = StateHelper::landmark_marginal(state, union_slots);
-    union_mean = std::move(own.mean);
-    union_covariance = std::move(own.blocks.front());
+    Marginal own_union = StateHelper::landmark_marginal(state, union_slots);
+    union_mean = std::move(own_union.mean);
+    union_covariance = std::move(own_union.blocks.front());
   }
   int union_fused = 0;
   int union_groups = 0;
-
   for (const auto& [key, ids] : groups) {
-    const auto& [in_joint_state, holders] = key;
+    const auto& [in_joint_state, members] = key;
+    std::vector<std::pair<double, Information>> shares;
     double own_weight = 1.0;
-    for (int j : holders) own_weight -= checked[j].weight;
-    if (!in_joint_state) {
-      // Archived objects are independent: average them one by one (fixed-size 3x3 algebra).
-      for (LandmarkId id : ids) {
-        ObjectEstimate& estimate = state.archived.at(id);
-        if (average_archived(estimate, own_weight, checked, holders, id, options, report)) {
-          ++report.landmarks_fused;
-          ++report.groups;
-        }
+    for (const auto& [j, block] : members) {
+      if (j < 0) continue;
+      const Member& neighbour = neighbour_members[j];
+      if (auto information = information_of(neighbour, ids, options.max_condition_number)) {
+        own_weight -= neighbour.weight;
+        shares.emplace_back(neighbour.weight, std::move(*information));
+      } else {
+        ++report.neighbours_skipped;  // its weight stays with the robot
       }
-      continue;
     }
-    // In-state group: averaged jointly on U.
-    std::vector<int> indices;  // coordinates of the group in U
-    for (LandmarkId id : ids) {
-      for (int k = 0; k < 3; ++k) indices.push_back(3 * union_position.at(id) + k);
+    if (shares.empty()) continue;  // no usable neighbour: nothing to average
+    // The robot's own marginal as it is now: after the groups replaced before this one (the
+    // replacements are sequential Bayesian steps; see above).
+    std::vector<int> indices;  // coordinates of an in-state group in U
+    Eigen::VectorXd own_mean;
+    Eigen::MatrixXd own_covariance;
+    if (in_joint_state) {
+      for (LandmarkId id : ids) {
+        for (int k = 0; k < 3; ++k) indices.push_back(3 * union_position.at(id) + k);
+      }
+      own_mean = union_mean(indices);
+      own_covariance = union_covariance(indices, indices);
+    } else {
+      const ObjectEstimate& estimate = state.archived.at(ids.front());
+      own_mean = estimate.p_world;
+      own_covariance = estimate.covariance;
     }
-    const Eigen::VectorXd own_mean = union_mean(indices);
-    const Eigen::MatrixXd own_covariance = union_covariance(indices, indices);
-    std::vector<double> weights;
-    std::vector<Eigen::VectorXd> means;
-    std::vector<Eigen::MatrixXd> covariances;
-    for (int j : holders) {
-      std::vector<Location> at;
-      for (LandmarkId id : ids) at.push_back(*checked[j].find(id));
-      Eigen::VectorXd m;
-      Eigen::MatrixXd c;
-      sub_marginal(checked[j], at, m, c);
-      weights.push_back(checked[j].weight);
-      means.push_back(std::move(m));
-      covariances.push_back(std::move(c));
-    }
+    const Eigen::LLT<Eigen::MatrixXd> own_llt(own_covariance);
+    if (own_llt.info() != Eigen::Success) continue;
+    Information own_information;
+    own_information.matrix =
+        own_llt.solve(Eigen::MatrixXd::Identity(own_covariance.rows(), own_covariance.rows()));
+    own_information.matrix = 0.5 * (own_information.matrix + own_information.matrix.transpose()).eval();
+    own_information.vector = own_information.matrix * own_mean;
+    shares.emplace_back(own_weight, std::move(own_information));
     Eigen::VectorXd mean;
     Eigen::MatrixXd covariance;
-    if (!information_average(own_weight, own_mean, own_covariance, weights, means, covariances,
-                             options.max_condition_number, mean, covariance, report)) {
+    if (!information_average(shares, mean, covariance)) continue;
+
+    if (!in_joint_state) {
+      // An archived object (each is its own group): independent of the state, set directly.
+      ObjectEstimate& estimate = state.archived.at(ids.front());
+      note_mean_shift(estimate.p_world, mean, report);
+      estimate.p_world = mean;
+      estimate.covariance = covariance;
+      ++report.landmarks_fused;
+      ++report.groups;
       continue;
     }
-    limit_mean_shift(own_mean, mean, options.max_mean_shift, report);
+    note_mean_shift(own_mean, mean, report);
     if (!replace_gaussian_marginal(union_mean, union_covariance, indices, mean, covariance)) {
       continue;
     }
@@ -392,7 +404,58 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
     report.landmarks_fused += union_fused;
     report.groups += union_groups;
   }
+
   return report;
+}
+
+std::optional<ObjectEstimate> Consensus::covariance_intersection(const ObjectEstimate& a,
+                                                               const ObjectEstimate& b) {
+  const Eigen::LLT<Eigen::Matrix3d> llt_a(a.covariance);
+  const Eigen::LLT<Eigen::Matrix3d> llt_b(b.covariance);
+  if (llt_a.info() != Eigen::Success || llt_b.info() != Eigen::Success ||
+      !a.p_world.allFinite() || !b.p_world.allFinite()) {
+    return std::nullopt;
+  }
+  const Eigen::Matrix3d information_a = llt_a.solve(Eigen::Matrix3d::Identity());
+  const Eigen::Matrix3d information_b = llt_b.solve(Eigen::Matrix3d::Identity());
+  // The fused covariance's determinant is 1 / det(w I_a + (1 - w) I_b), and log det of that
+  // information is concave in w: golden-section search for its maximum.
+  const auto log_information = [&](double w) {
+    return std::log((w * information_a + (1.0 - w) * information_b).determinant());
+  };
+  const double golden = 0.5 * (std::sqrt(5.0) - 1.0);
+  double low = 0.0, high = 1.0;
+  double left = high - golden * (high - low), right = low + golden * (high - low);
+  double value_left = log_information(left), value_right = log_information(right);
+  for (int iteration = 0; iteration < 40; ++iteration) {
+    if (value_left < value_right) {
+      low = left;
+      left = right;
+      value_left = value_right;
+      right = low + golden * (high - low);
+      value_right = log_information(right);
+    } else {
+      high = right;
+      right = left;
+      value_right = value_left;
+      left = high - golden * (high - low);
+      value_left = log_information(left);
+    }
+  }
+  double w = 0.5 * (low + high);
+  // The ends are candidates too (one estimate may be better in every direction).
+  for (double end : {0.0, 1.0}) {
+    if (log_information(end) > log_information(w)) w = end;
+  }
+  const Eigen::Matrix3d information = w * information_a + (1.0 - w) * information_b;
+  const Eigen::LLT<Eigen::Matrix3d> llt(information);
+  if (llt.info() != Eigen::Success) return std::nullopt;
+  ObjectEstimate fused;
+  fused.id = a.id;
+  fused.covariance = llt.solve(Eigen::Matrix3d::Identity());
+  fused.covariance = 0.5 * (fused.covariance + fused.covariance.transpose()).eval();
+  fused.p_world = fused.covariance * (w * information_a * a.p_world + (1.0 - w) * information_b * b.p_world);
+  return fused;
 }
 
 double Consensus::metropolis_weight(int degree_i, int degree_j) {

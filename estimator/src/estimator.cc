@@ -3,6 +3,8 @@
 #include <stdexcept>
 #include <string>
 
+#include "concord/estimator/lie.h"
+
 namespace concord {
 
 namespace {
@@ -38,11 +40,13 @@ Estimator::Estimator(const EstimatorOptions& options, const StereoCamera& camera
       object_updater_(options_, camera_),
       feature_updater_(options_, camera_) {
   state_.poses.push_back({first_frame, T_world_body_start});
-  state_.covariance = Eigen::MatrixXd::Zero(6, 6);
-  state_.covariance.diagonal().head<3>().setConstant(options_.initial_position_sigma *
-                                                     options_.initial_position_sigma);
-  state_.covariance.diagonal().tail<3>().setConstant(options_.initial_rotation_sigma *
-                                                     options_.initial_rotation_sigma);
+  // The start pose's uncertainty is given in the body frame (right perturbation).
+  lie::Matrix6d start = lie::Matrix6d::Zero();
+  start.diagonal().head<3>().setConstant(options_.initial_position_sigma *
+                                         options_.initial_position_sigma);
+  start.diagonal().tail<3>().setConstant(options_.initial_rotation_sigma *
+                                         options_.initial_rotation_sigma);
+  state_.covariance = lie::left_from_right_covariance(T_world_body_start, start);
 }
 
 FrameReport Estimator::process(const FrameInput& input) {
@@ -56,7 +60,9 @@ FrameReport Estimator::process(const FrameInput& input) {
                                   std::to_string(frame() + 1) + " with odometry, got frame " +
                                   std::to_string(input.frame));
     }
-    propagator_.propagate(state_, *input.T_previous_current, input.frame);
+    Eigen::Isometry3d motion = *input.T_previous_current;
+    motion.translation() *= options_.odometry_translation_scale;
+    propagator_.propagate(state_, motion, input.frame);
   }
   started_ = true;
   if (options_.use_point_features) {
@@ -76,7 +82,7 @@ ConsensusReport Estimator::fuse(const std::vector<WeightedMarginal>& neighbours)
 
 Eigen::Matrix<double, 6, 6> Estimator::current_pose_covariance() const {
   const int index = state_.pose_index(state_.num_poses() - 1);
-  return state_.covariance.block<6, 6>(index, index);
+  return lie::right_from_left_covariance(current_pose(), state_.covariance.block<6, 6>(index, index));
 }
 
 }  // namespace concord

@@ -5,9 +5,10 @@
 namespace concord {
 
 FeatureUpdater::FeatureUpdater(const EstimatorOptions& options, const StereoCamera& camera)
-    : options_(options), camera_(camera) {
-  const double sigma = options.feature_sigma / camera.focal_length();
-  noise_variance_ = sigma * sigma;
+    : options_(options),
+      camera_(camera),
+      whitening_(UpdaterHelper::whitening(
+          UpdaterHelper::observation_covariance(options.feature_noise, camera))) {
   Eigen::Matrix<double, 6, 4> correlation;
   for (int row = 0; row < 6; ++row) {
     for (int col = 0; col < 4; ++col) {
@@ -15,7 +16,8 @@ FeatureUpdater::FeatureUpdater(const EstimatorOptions& options, const StereoCame
     }
   }
   correlation /= camera.focal_length();
-  correlation_transposed_ = correlation.transpose();
+  // Whitened like the observations: S^T rows are left-multiplied by the same matrix.
+  correlation_transposed_ = whitening_ * correlation.transpose();
   has_correlation_ = !correlation.isZero(0.0);
 }
 
@@ -74,7 +76,8 @@ FeatureUpdateStats FeatureUpdater::process(State& state,
       ++stats.tracks_rejected;
       continue;
     }
-    Eigen::MatrixXd correlation_rows;  // S^T rows (rows x 6, newest pose columns)
+    UpdaterHelper::whiten_inplace(*linearized, whitening_);
+    Eigen::MatrixXd correlation_rows;  // S^T rows (rows x 6, newest pose columns), whitened
     Eigen::MatrixXd* extra = nullptr;
     if (has_correlation_) {
       correlation_rows = Eigen::MatrixXd::Zero(linearized->residual.size(), 6);
@@ -86,13 +89,19 @@ FeatureUpdateStats FeatureUpdater::process(State& state,
     UpdaterHelper::nullspace_project_inplace(linearized->H_state, linearized->H_point,
                                              linearized->residual, extra);
     const Eigen::Index rows = linearized->residual.size();
-    const Eigen::MatrixXd noise = noise_variance_ * Eigen::MatrixXd::Identity(rows, rows);
+    const Eigen::MatrixXd noise = Eigen::MatrixXd::Identity(rows, rows);
     const double threshold = options_.feature_chi2_probability > 0.0
                                  ? UpdaterHelper::chi2_quantile(options_.feature_chi2_probability,
                                                                 static_cast<int>(rows))
                                  : std::numeric_limits<double>::infinity();
-    if (StateHelper::mahalanobis_squared(state, linearized->H_state, linearized->residual, noise) >
-        threshold) {
+    // The gate uses the innovation covariance of the update, correlation term included.
+    Eigen::MatrixXd S_track;
+    if (has_correlation_) {
+      S_track = Eigen::MatrixXd::Zero(state.dimension(), rows);
+      S_track.middleRows<6>(state.pose_index(state.num_poses() - 1)) = correlation_rows.transpose();
+    }
+    if (StateHelper::mahalanobis_squared(state, linearized->H_state, linearized->residual, noise,
+                                         has_correlation_ ? &S_track : nullptr) > threshold) {
       ++stats.tracks_rejected;
       continue;
     }
@@ -131,15 +140,17 @@ FeatureUpdateStats FeatureUpdater::process(State& state,
   UpdaterHelper::measurement_compress_inplace(H, residual,
                                               has_correlation_ ? &correlation_rows : nullptr);
   const Eigen::Index rows = residual.size();
-  const Eigen::MatrixXd noise = noise_variance_ * Eigen::MatrixXd::Identity(rows, rows);
+  const Eigen::MatrixXd noise = Eigen::MatrixXd::Identity(rows, rows);
+  bool updated = false;
   if (has_correlation_) {
     // S (n x m): non-zero only in the newest pose's rows, where the odometry noise enters.
     Eigen::MatrixXd S = Eigen::MatrixXd::Zero(state.dimension(), rows);
     S.middleRows<6>(state.pose_index(state.num_poses() - 1)) = correlation_rows.transpose();
-    StateHelper::update(state, H, residual, noise, &S);
+    updated = StateHelper::update(state, H, residual, noise, &S);
   } else {
-    StateHelper::update(state, H, residual, noise);
+    updated = StateHelper::update(state, H, residual, noise);
   }
+  if (!updated) ++stats.update_failures;
   return stats;
 }
 

@@ -90,4 +90,16 @@ Eigen::Isometry3d orthonormalized(const Eigen::Isometry3d& pose) {
   return out;
 }
 
+Matrix6d right_from_left_covariance(const Eigen::Isometry3d& T_hat, const Matrix6d& left) {
+  const Matrix6d A = adjoint(T_hat.inverse());
+  const Matrix6d right = A * left * A.transpose();
+  return 0.5 * (right + right.transpose());
+}
+
+Matrix6d left_from_right_covariance(const Eigen::Isometry3d& T_hat, const Matrix6d& right) {
+  const Matrix6d A = adjoint(T_hat);
+  const Matrix6d left = A * right * A.transpose();
+  return 0.5 * (left + left.transpose());
+}
+
 }  // namespace concord::lie

@@ -34,14 +34,17 @@ class Problems {
     if (!(std::isfinite(value) && value > 0.0)) add(key, value, "finite and > 0");
   }
 
-  /// A gate or limit where 0 disables: finite and >= 0.
-  void check_non_negative(std::string_view key, double value) {
-    if (!(std::isfinite(value) && value >= 0.0)) add(key, value, "finite and >= 0 (0 disables)");
-  }
-
   /// A chi-square gate probability: in [0, 1), 0 disables.
   void check_probability(std::string_view key, double value) {
     if (!(value >= 0.0 && value < 1.0)) add(key, value, "in [0, 1) (0 disables)");
+  }
+
+  void check_stereo_noise(std::string_view key, const StereoNoise& noise) {
+    const std::string prefix(key);
+    check_positive(prefix + ".horizontal", noise.horizontal);
+    check_positive(prefix + ".vertical", noise.vertical);
+    check_positive(prefix + ".disparity", noise.disparity);
+    check_positive(prefix + ".vertical_disparity", noise.vertical_disparity);
   }
 
   void check_at_least(std::string_view key, int value, int minimum) {
@@ -68,6 +71,11 @@ class Problems {
 
 }  // namespace
 
+StereoNoise StereoNoise::isotropic(double sigma) {
+  const double root_two = std::sqrt(2.0);
+  return {sigma / root_two, sigma / root_two, sigma * root_two, sigma * root_two};
+}
+
 std::vector<std::string> EstimatorOptions::validate() const {
   Problems problems;
   problems.check_at_least("window_size", window_size, 2);
@@ -75,17 +83,20 @@ std::vector<std::string> EstimatorOptions::validate() const {
   problems.check_positive("initial_rotation_sigma", initial_rotation_sigma);
   problems.check_positive("odometry_translation_sigma", odometry_translation_sigma);
   problems.check_positive("odometry_rotation_sigma", odometry_rotation_sigma);
+  if (!(std::isfinite(odometry_translation_scale) && odometry_translation_scale > 0.5 &&
+        odometry_translation_scale < 2.0)) {
+    problems.add("odometry_translation_scale", odometry_translation_scale, "in (0.5, 2)");
+  }
 
-  problems.check_positive("object_sigma", object_sigma);
+  problems.check_stereo_noise("object_noise", object_noise);
   problems.check_at_least("object_min_observations", object_min_observations, 2);
   problems.check_distance_range("object_min_distance", object_min_distance, "object_max_distance",
                                 object_max_distance);
   problems.check_positive("object_init_max_reprojection_error", object_init_max_reprojection_error);
-  problems.check_non_negative("object_update_gate", object_update_gate);
   problems.check_probability("object_chi2_probability", object_chi2_probability);
   problems.check_at_least("object_archive_after_frames", object_archive_after_frames, 0);
 
-  problems.check_positive("feature_sigma", feature_sigma);
+  problems.check_stereo_noise("feature_noise", feature_noise);
   problems.check_at_least("feature_min_observations", feature_min_observations, 2);
   problems.check_positive("feature_max_reprojection_error", feature_max_reprojection_error);
   problems.check_distance_range("feature_min_distance", feature_min_distance,
@@ -98,12 +109,12 @@ std::vector<std::string> EstimatorOptions::validate() const {
     }
   }
 
-  problems.check_non_negative("consensus.max_mean_shift", consensus.max_mean_shift);
   if (!(std::isfinite(consensus.max_condition_number) && consensus.max_condition_number > 1.0)) {
     problems.add("consensus.max_condition_number", consensus.max_condition_number,
                  "finite and > 1");
   }
-  problems.check_non_negative("consensus.disagreement_gate", consensus.disagreement_gate);
+  problems.check_probability("consensus.neighbour_chi2_probability",
+                             consensus.neighbour_chi2_probability);
   return problems.take();
 }
 

@@ -22,15 +22,19 @@ void Propagator::propagate(State& state, const Eigen::Isometry3d& T_previous_cur
   const int newest = state.pose_index(state.num_poses() - 1);
   const Eigen::Isometry3d T_world_new =
       lie::orthonormalized(state.newest_pose().T_world_body * T_previous_current);
-  const lie::Matrix6d J = lie::adjoint(T_previous_current.inverse());
+  // With left perturbations, exp(eps_new^) T_new = exp(eps^) T_newest dT exp(-w^) gives
+  // eps_new = eps - Ad(T_new) w: the error carries over unchanged (eq. 23's J_t becomes the
+  // identity in this chart) and the odometry noise enters rotated into the world frame.
+  const lie::Matrix6d adjoint_new = lie::adjoint(T_world_new);
+  const lie::Matrix6d noise = adjoint_new * odometry_noise_ * adjoint_new.transpose();
 
   // 3. Covariance: insert the new pose block after the poses, before the landmarks:
-  //    rows J * P[newest, :], block J P_newest J^T + W (eq. 23).
+  //    rows P[newest, :], block P_newest + Ad W Ad^T (eq. 23).
   const Eigen::MatrixXd& P = state.covariance;
   const int n = state.dimension();
   const int poses = state.pose_block_size();
   const int landmarks = n - poses;
-  const Eigen::MatrixXd new_rows = J * P.middleRows(newest, 6);  // 6 x n
+  const Eigen::MatrixXd new_rows = P.middleRows(newest, 6);  // 6 x n
   Eigen::MatrixXd propagated(n + 6, n + 6);
   propagated.topLeftCorner(poses, poses) = P.topLeftCorner(poses, poses);
   propagated.bottomRightCorner(landmarks, landmarks) = P.bottomRightCorner(landmarks, landmarks);
@@ -40,8 +44,7 @@ void Propagator::propagate(State& state, const Eigen::Isometry3d& T_previous_cur
   propagated.block(0, poses, poses, 6) = new_rows.leftCols(poses).transpose();
   propagated.block(poses, poses + 6, 6, landmarks) = new_rows.rightCols(landmarks);
   propagated.block(poses + 6, poses, landmarks, 6) = new_rows.rightCols(landmarks).transpose();
-  Eigen::Matrix<double, 6, 6> block =
-      new_rows.middleCols<6>(newest) * J.transpose() + odometry_noise_;
+  Eigen::Matrix<double, 6, 6> block = new_rows.middleCols<6>(newest) + noise;
   propagated.block<6, 6>(poses, poses) = 0.5 * (block + block.transpose());
   state.covariance = std::move(propagated);
   state.poses.push_back({frame, T_world_new});

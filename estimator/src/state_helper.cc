@@ -21,7 +21,7 @@ void StateHelper::apply_correction(State& state, const Eigen::VectorXd& correcti
   for (int slot = 0; slot < state.num_poses(); ++slot) {
     auto& pose = state.poses[slot].T_world_body;
     pose = lie::orthonormalized(
-        pose * lie::se3_exp(correction.segment<State::kPoseDim>(state.pose_index(slot))));
+        lie::se3_exp(correction.segment<State::kPoseDim>(state.pose_index(slot))) * pose);
   }
   for (int slot = 0; slot < state.num_landmarks(); ++slot) {
     state.landmarks[slot].p_world += correction.segment<3>(state.landmark_index(slot));
@@ -59,18 +59,23 @@ bool StateHelper::update(State& state, const Eigen::MatrixXd& H, const Eigen::Ve
 
 double StateHelper::mahalanobis_squared(const State& state, const Eigen::MatrixXd& H,
                                         const Eigen::VectorXd& residual,
-                                        const Eigen::MatrixXd& noise) {
+                                        const Eigen::MatrixXd& noise,
+                                        const Eigen::MatrixXd* correlation) {
   const std::vector<int> columns = nonzero_columns(H);
   const Eigen::MatrixXd Hc = H(Eigen::all, columns);
-  const Eigen::MatrixXd innovation =
-      Hc * state.covariance(columns, columns) * Hc.transpose() + noise;
+  Eigen::MatrixXd innovation = Hc * state.covariance(columns, columns) * Hc.transpose() + noise;
+  if (correlation != nullptr) {
+    const Eigen::MatrixXd HS = H * (*correlation);
+    innovation += HS + HS.transpose();
+  }
   const Eigen::LLT<Eigen::MatrixXd> llt(innovation);
   if (llt.info() != Eigen::Success) return std::numeric_limits<double>::infinity();
   return residual.dot(llt.solve(residual));
 }
 
 void StateHelper::augment_landmark(State& state, LandmarkId id, const Eigen::Vector3d& p_world,
-                                   int frame, const Eigen::MatrixXd& H_state1,
+                                   const Eigen::Vector3d& p_linearization, int frame,
+                                   const Eigen::MatrixXd& H_state1,
                                    const Eigen::Matrix3d& R1, const Eigen::Matrix3d& noise1) {
   const int n = state.dimension();
   Eigen::MatrixXd& P = state.covariance;
@@ -88,19 +93,7 @@ void StateHelper::augment_landmark(State& state, LandmarkId id, const Eigen::Vec
   P.block(0, n, n, 3) = cross;
   P.block(n, 0, 3, n) = cross.transpose();
   P.block<3, 3>(n, n) = landmark_covariance;
-  state.landmarks.push_back({id, p_world, frame});
-  state.rebuild_landmark_index();
-}
-
-void StateHelper::insert_independent_landmark(State& state, const ObjectEstimate& estimate,
-                                              int frame) {
-  const int n = state.dimension();
-  Eigen::MatrixXd& P = state.covariance;
-  P.conservativeResize(n + 3, n + 3);
-  P.block(0, n, n, 3).setZero();
-  P.block(n, 0, 3, n).setZero();
-  P.block<3, 3>(n, n) = estimate.covariance;
-  state.landmarks.push_back({estimate.id, estimate.p_world, frame});
+  state.landmarks.push_back({id, p_world, frame, p_linearization});
   state.rebuild_landmark_index();
 }
 

@@ -2,6 +2,8 @@
 
 #include <Eigen/Cholesky>
 #include <Eigen/QR>
+#include <boost/math/distributions/chi_squared.hpp>
+#include <cassert>
 #include <cmath>
 #include <limits>
 
@@ -20,68 +22,15 @@ Eigen::Matrix<double, 2, 3> projection_jacobian(const Eigen::Vector3d& p) {
   return J;
 }
 
-/// Inverse of the standard normal CDF (Acklam's rational approximation, relative error below
-/// 1.2e-9); the starting point of the chi-square quantile.
-double normal_quantile(double p) {
-  static constexpr double a[] = {-3.969683028665376e+01, 2.209460984245205e+02,
-                                 -2.759285104469687e+02, 1.383577518672690e+02,
-                                 -3.066479806614716e+01, 2.506628277459239e+00};
-  static constexpr double b[] = {-5.447609879822406e+01, 1.615858368580409e+02,
-                                 -1.556989798598866e+02, 6.680131188771972e+01,
-                                 -1.328068155288572e+01};
-  static constexpr double c[] = {-7.784894002430293e-03, -3.223964580411365e-01,
-                                 -2.400758277161838e+00, -2.549732539343734e+00,
-                                 4.374664141464968e+00,  2.938163982698783e+00};
-  static constexpr double d[] = {7.784695709041462e-03, 3.224671290700398e-01,
-                                 2.445134137142996e+00, 3.754408661907416e+00};
-  constexpr double low = 0.02425;
-  if (p < low) {
-    const double q = std::sqrt(-2.0 * std::log(p));
-    return (((((c[0] * q + c[1]) * q + c[2]) * q + c[3]) * q + c[4]) * q + c[5]) /
-           ((((d[0] * q + d[1]) * q + d[2]) * q + d[3]) * q + 1.0);
-  }
-  if (p > 1.0 - low) {
-    const double q = std::sqrt(-2.0 * std::log(1.0 - p));
-    return -(((((c[0] * q + c[1]) * q + c[2]) * q + c[3]) * q + c[4]) * q + c[5]) /
-           ((((d[0] * q + d[1]) * q + d[2]) * q + d[3]) * q + 1.0);
-  }
-  const double q = p - 0.5;
-  const double r = q * q;
-  return (((((a[0] * r + a[1]) * r + a[2]) * r + a[3]) * r + a[4]) * r + a[5]) * q /
-         (((((b[0] * r + b[1]) * r + b[2]) * r + b[3]) * r + b[4]) * r + 1.0);
-}
-
-/// Regularized lower incomplete gamma function P(a, x) (Numerical Recipes: series for
-/// x < a + 1, continued fraction otherwise).
-double regularized_lower_gamma(double a, double x) {
-  if (x <= 0.0) return 0.0;
-  const double log_prefactor = a * std::log(x) - x - std::lgamma(a);
-  if (x < a + 1.0) {
-    double term = 1.0 / a, sum = term;
-    for (int n = 1; n < 500 && std::abs(term) > 1e-16 * std::abs(sum); ++n) {
-      term *= x / (a + n);
-      sum += term;
-    }
-    return sum * std::exp(log_prefactor);
-  }
-  constexpr double tiny = 1e-300;
-  double b = x + 1.0 - a, c = 1.0 / tiny, d = 1.0 / b, fraction = d;
-  for (int i = 1; i < 500; ++i) {
-    const double an = -i * (i - a);
-    b += 2.0;
-    d = an * d + b;
-    if (std::abs(d) < tiny) d = tiny;
-    c = b + an / c;
-    if (std::abs(c) < tiny) c = tiny;
-    d = 1.0 / d;
-    const double delta = d * c;
-    fraction *= delta;
-    if (std::abs(delta - 1.0) < 1e-16) break;
-  }
-  return 1.0 - std::exp(log_prefactor) * fraction;
-}
-
 }  // namespace
+
+Eigen::Matrix<double, 4, 6> UpdaterHelper::pose_jacobian(
+    const Eigen::Matrix<double, 4, 3>& jacobian_point, const Eigen::Vector3d& p_linearization) {
+  Eigen::Matrix<double, 4, 6> jacobian;
+  jacobian.leftCols<3>() = -jacobian_point;
+  jacobian.rightCols<3>() = jacobian_point * lie::skew(p_linearization);
+  return jacobian;
+}
 
 std::optional<StereoProjection> UpdaterHelper::project(const StereoCamera& camera,
                                                        const Eigen::Isometry3d& T_world_body,
@@ -94,10 +43,6 @@ std::optional<StereoProjection> UpdaterHelper::project(const StereoCamera& camer
   const Eigen::Vector3d p_cam1 = T_cam1_body * p_body;
   if (p_cam0.z() < min_depth || p_cam1.z() < min_depth) return std::nullopt;
 
-  // d p_body / d [rho; phi] = [-I, [p_body]_x] for T = T_hat exp(eps^); d p_body / d p_w = R^T.
-  Eigen::Matrix<double, 3, 6> body_wrt_pose;
-  body_wrt_pose.leftCols<3>() = -Eigen::Matrix3d::Identity();
-  body_wrt_pose.rightCols<3>() = lie::skew(p_body);
 
   StereoProjection out;
   out.depth_left = p_cam0.z();
@@ -107,10 +52,10 @@ std::optional<StereoProjection> UpdaterHelper::project(const StereoCamera& camer
   const Eigen::Matrix<double, 2, 3> J_left =
       projection_jacobian(p_cam0) * camera.T_cam0_body.linear();
   const Eigen::Matrix<double, 2, 3> J_right = projection_jacobian(p_cam1) * T_cam1_body.linear();
-  out.jacobian_pose.topRows<2>() = J_left * body_wrt_pose;
-  out.jacobian_pose.bottomRows<2>() = J_right * body_wrt_pose;
+  // d p_body / d p_w = R^T; d p_body / d [rho; phi] = R^T [-I, [p_w]_x] for T = exp(eps^) T_hat.
   out.jacobian_point.topRows<2>() = J_left * R_world_body.transpose();
   out.jacobian_point.bottomRows<2>() = J_right * R_world_body.transpose();
+  out.jacobian_pose = pose_jacobian(out.jacobian_point, p_world);
   return out;
 }
 
@@ -197,6 +142,9 @@ std::optional<LinearizedTrack> UpdaterHelper::linearize(const State& state,
                                                         const std::vector<TrackObservation>& track,
                                                         const Eigen::Vector3d& p_world,
                                                         int landmark_slot) {
+  // In-state objects: pose Jacobians at the landmark's first estimate (see ObjectLandmark).
+  const Eigen::Vector3d& p_linearization =
+      landmark_slot >= 0 ? state.landmarks[landmark_slot].p_linearization : p_world;
   const Eigen::Index rows = 4 * static_cast<Eigen::Index>(track.size());
   LinearizedTrack out;
   out.H_state = Eigen::MatrixXd::Zero(rows, state.dimension());
@@ -209,7 +157,9 @@ std::optional<LinearizedTrack> UpdaterHelper::linearize(const State& state,
     const auto projection = project(camera, state.poses[slot].T_world_body, p_world);
     if (!projection) return std::nullopt;
     const Eigen::Index row = 4 * static_cast<Eigen::Index>(i);
-    out.H_state.block<4, 6>(row, state.pose_index(slot)) = projection->jacobian_pose;
+    out.H_state.block<4, 6>(row, state.pose_index(slot)) =
+        landmark_slot >= 0 ? pose_jacobian(projection->jacobian_point, p_linearization)
+                           : projection->jacobian_pose;
     out.H_point.block<4, 3>(row, 0) = projection->jacobian_point;
     out.residual.segment<4>(row) = track[i].xy - projection->xy;
     if (track[i].frame == newest_frame) out.newest_frame_row = static_cast<int>(row);
@@ -219,6 +169,44 @@ std::optional<LinearizedTrack> UpdaterHelper::linearize(const State& state,
     out.H_state.middleCols<3>(index) = out.H_point;
   }
   return out;
+}
+
+Eigen::Matrix4d UpdaterHelper::observation_covariance(const StereoNoise& noise,
+                                                     const StereoCamera& camera) {
+  // (u_left, u_right) = c + (d/2, -d/2) with c ~ N(0, horizontal^2), d ~ N(0, disparity^2);
+  // likewise vertically. Then to normalized units.
+  const auto pair = [](double common, double difference) {
+    const double a = common * common, b = 0.25 * difference * difference;
+    return Eigen::Matrix2d{{a + b, a - b}, {a - b, a + b}};
+  };
+  const Eigen::Matrix2d horizontal = pair(noise.horizontal, noise.disparity) /
+                                     (camera.K(0, 0) * camera.K(0, 0));
+  const Eigen::Matrix2d vertical = pair(noise.vertical, noise.vertical_disparity) /
+                                   (camera.K(1, 1) * camera.K(1, 1));
+  Eigen::Matrix4d covariance = Eigen::Matrix4d::Zero();
+  for (int i = 0; i < 2; ++i) {
+    for (int j = 0; j < 2; ++j) {
+      covariance(2 * i, 2 * j) = horizontal(i, j);
+      covariance(2 * i + 1, 2 * j + 1) = vertical(i, j);
+    }
+  }
+  return covariance;
+}
+
+Eigen::Matrix4d UpdaterHelper::whitening(const Eigen::Matrix4d& covariance) {
+  const Eigen::LLT<Eigen::Matrix4d> llt(covariance);
+  assert(llt.info() == Eigen::Success);
+  return llt.matrixL().solve(Eigen::Matrix4d::Identity());
+}
+
+void UpdaterHelper::whiten_inplace(LinearizedTrack& track, const Eigen::Matrix4d& whitening,
+                                   Eigen::MatrixXd* extra) {
+  for (Eigen::Index row = 0; row + 4 <= track.residual.size(); row += 4) {
+    track.H_state.middleRows<4>(row) = (whitening * track.H_state.middleRows<4>(row)).eval();
+    track.H_point.middleRows<4>(row) = (whitening * track.H_point.middleRows<4>(row)).eval();
+    track.residual.segment<4>(row) = (whitening * track.residual.segment<4>(row)).eval();
+    if (extra != nullptr) extra->middleRows<4>(row) = (whitening * extra->middleRows<4>(row)).eval();
+  }
 }
 
 void UpdaterHelper::nullspace_project_inplace(Eigen::MatrixXd& H_state, Eigen::MatrixXd& H_point,
@@ -251,22 +239,7 @@ void UpdaterHelper::measurement_compress_inplace(Eigen::MatrixXd& H, Eigen::Vect
 double UpdaterHelper::chi2_quantile(double probability, int dof) {
   if (dof <= 0 || probability <= 0.0) return 0.0;
   if (probability >= 1.0) return std::numeric_limits<double>::infinity();
-  // Start from Wilson-Hilferty ((X/k)^(1/3) is nearly normal with mean 1 - 2/(9k), variance
-  // 2/(9k)), then polish with Newton steps on the exact CDF P(k/2, x/2).
-  const double k = dof;
-  const double h = 2.0 / (9.0 * k);
-  const double cube = std::max(1.0 - h + normal_quantile(probability) * std::sqrt(h), 0.1);
-  double x = k * cube * cube * cube;
-  for (int iteration = 0; iteration < 50; ++iteration) {
-    const double error = regularized_lower_gamma(0.5 * k, 0.5 * x) - probability;
-    // Chi-square density at x.
-    const double density = std::exp((0.5 * k - 1.0) * std::log(x) - 0.5 * x -
-                                    0.5 * k * std::log(2.0) - std::lgamma(0.5 * k));
-    const double step = error / density;
-    x = std::max(x - step, 0.5 * x);
-    if (std::abs(step) < 1e-10 * x) break;
-  }
-  return x;
+  return boost::math::quantile(boost::math::chi_squared(static_cast<double>(dof)), probability);
 }
 
 }  // namespace concord

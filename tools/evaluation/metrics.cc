@@ -3,9 +3,13 @@
 #include <algorithm>
 #include <cassert>
 #include <cmath>
+#include <Eigen/Cholesky>
 #include <cstdio>
 #include <sstream>
 #include <stdexcept>
+
+#include "concord/estimator/lie.h"
+#include "concord/estimator/updater_helper.h"
 
 namespace concord::evaluation {
 namespace {
@@ -38,6 +42,12 @@ void check_inputs(const std::vector<RobotTruth>& truths, const std::vector<Robot
                                   std::to_string(trajectory_length) + " poses, ground truth has " +
                                   std::to_string(truth_length));
     }
+    const std::size_t covariance_length = results[robot].pose_covariances.size();
+    if (covariance_length != 0 && covariance_length != trajectory_length) {
+      throw std::invalid_argument("robot " + std::to_string(robot) + ": " +
+                                  std::to_string(covariance_length) + " pose covariances for " +
+                                  std::to_string(trajectory_length) + " poses");
+    }
     const std::size_t odometry_length = truths[robot].odometry.size();
     if (odometry_length != 0 && odometry_length + 1 != truth_length) {
       throw std::invalid_argument("robot " + std::to_string(robot) + ": odometry has " +
@@ -61,6 +71,52 @@ void fill_object_error(const std::map<LandmarkId, Eigen::Vector3d>& estimated,
   }
   metrics.objects_evaluated = count;
   metrics.object_error = count > 0 ? error_sum / count : kNaN;
+}
+
+/// Object NEES of the estimated objects that have ground truth, in id order.
+NeesSummary object_nees_of(const RobotResult& result,
+                           const std::map<LandmarkId, Eigen::Vector3d>& objects_groundtruth) {
+  std::vector<const ObjectEstimate*> sorted;
+  for (const ObjectEstimate& object : result.objects) sorted.push_back(&object);
+  std::sort(sorted.begin(), sorted.end(),
+            [](const ObjectEstimate* a, const ObjectEstimate* b) { return a->id < b->id; });
+  std::vector<double> samples;
+  for (const ObjectEstimate* object : sorted) {
+    const auto truth = objects_groundtruth.find(object->id);
+    if (truth == objects_groundtruth.end()) continue;
+    samples.push_back(point_nees(object->p_world, object->covariance, truth->second));
+  }
+  return summarize_nees(samples, 3);
+}
+
+/// Mean over robots (average) and maximum of every field of one NEES summary, NaN-aware; the
+/// sample counts are summed (average) and maximized.
+void aggregate(const std::vector<RobotMetrics>& robots, NeesSummary RobotMetrics::*field,
+               RobotMetrics& average, RobotMetrics& maximum) {
+  NeesSummary& mean_of = average.*field;
+  NeesSummary& max_of = maximum.*field;
+  mean_of.samples = 0;
+  max_of.samples = 0;
+  for (const RobotMetrics& metrics : robots) {
+    mean_of.samples += (metrics.*field).samples;
+    max_of.samples = std::max(max_of.samples, (metrics.*field).samples);
+  }
+  for (double NeesSummary::*value :
+       {&NeesSummary::mean, &NeesSummary::median, &NeesSummary::inside_95,
+        &NeesSummary::first_quarter_median, &NeesSummary::last_quarter_median}) {
+    double sum = 0.0;
+    double largest = -std::numeric_limits<double>::infinity();
+    int count = 0;
+    for (const RobotMetrics& metrics : robots) {
+      const double x = (metrics.*field).*value;
+      if (std::isnan(x)) continue;
+      sum += x;
+      largest = std::max(largest, x);
+      ++count;
+    }
+    mean_of.*value = count > 0 ? sum / count : kNaN;
+    max_of.*value = count > 0 ? largest : kNaN;
+  }
 }
 
 /// Mean ||p_i - p_j|| over every (object, other robot j) pair where robot j also holds the object
@@ -117,8 +173,24 @@ nlohmann::json number_or_null(double value) {
   return std::isnan(value) ? nlohmann::json(nullptr) : nlohmann::json(value);
 }
 
+nlohmann::json nees_to_json(const NeesSummary& nees) {
+  return {
+      {"dof", nees.dof},
+      {"samples", nees.samples},
+      {"mean", number_or_null(nees.mean)},
+      {"median", number_or_null(nees.median)},
+      {"inside_95", number_or_null(nees.inside_95)},
+      {"first_quarter_median", number_or_null(nees.first_quarter_median)},
+      {"last_quarter_median", number_or_null(nees.last_quarter_median)},
+  };
+}
+
 nlohmann::json robot_to_json(const RobotMetrics& metrics) {
   return {
+      {"pose_nees", nees_to_json(metrics.pose_nees)},
+      {"position_nees", nees_to_json(metrics.position_nees)},
+      {"orientation_nees", nees_to_json(metrics.orientation_nees)},
+      {"object_nees", nees_to_json(metrics.object_nees)},
       {"robot", metrics.robot},
       {"trajectory_rmse", number_or_null(metrics.trajectory_rmse)},
       {"odometry_rmse", number_or_null(metrics.odometry_rmse)},
@@ -138,7 +210,84 @@ std::string format_metres(double value) {
   return text;
 }
 
+/// Median of a non-empty range (copied, partially sorted).
+double median_of(std::vector<double> values) {
+  const std::size_t middle = values.size() / 2;
+  std::nth_element(values.begin(), values.begin() + static_cast<std::ptrdiff_t>(middle),
+                   values.end());
+  const double upper = values[middle];
+  if (values.size() % 2 == 1) return upper;
+  const double lower = *std::max_element(values.begin(),
+                                         values.begin() + static_cast<std::ptrdiff_t>(middle));
+  return 0.5 * (lower + upper);
+}
+
+/// e^T P^-1 e, NaN when P is not positive definite.
+template <int N>
+double mahalanobis_squared(const Eigen::Matrix<double, N, 1>& error,
+                           const Eigen::Matrix<double, N, N>& covariance) {
+  const Eigen::LLT<Eigen::Matrix<double, N, N>> llt(covariance);
+  if (llt.info() != Eigen::Success || !covariance.allFinite()) return kNaN;
+  return error.dot(llt.solve(error));
+}
+
 }  // namespace
+
+NeesSummary summarize_nees(const std::vector<double>& samples, int dof) {
+  NeesSummary summary;
+  summary.dof = dof;
+  std::vector<double> valid;
+  valid.reserve(samples.size());
+  for (double sample : samples) {
+    if (!std::isnan(sample)) valid.push_back(sample);
+  }
+  summary.samples = static_cast<int>(valid.size());
+  if (valid.empty()) return summary;
+  const double bound = UpdaterHelper::chi2_quantile(0.95, dof);
+  double sum = 0.0;
+  int inside = 0;
+  for (double sample : valid) {
+    sum += sample;
+    if (sample <= bound) ++inside;
+  }
+  summary.mean = sum / static_cast<double>(valid.size());
+  summary.inside_95 = static_cast<double>(inside) / static_cast<double>(valid.size());
+  summary.median = median_of(valid);
+  const std::size_t quarter = valid.size() / 4;
+  if (quarter > 0) {
+    summary.first_quarter_median =
+        median_of({valid.begin(), valid.begin() + static_cast<std::ptrdiff_t>(quarter)});
+    summary.last_quarter_median =
+        median_of({valid.end() - static_cast<std::ptrdiff_t>(quarter), valid.end()});
+  }
+  return summary;
+}
+
+PoseNees pose_nees(const Eigen::Isometry3d& estimate, const Eigen::Matrix<double, 6, 6>& covariance,
+                   const Eigen::Isometry3d& truth) {
+  const lie::Vector6d xi = lie::se3_log(estimate.inverse() * truth);
+  PoseNees nees;
+  nees.pose = mahalanobis_squared<6>(xi, covariance);
+  nees.position = mahalanobis_squared<3>(xi.head<3>(), covariance.topLeftCorner<3, 3>());
+  nees.orientation = mahalanobis_squared<3>(xi.tail<3>(), covariance.bottomRightCorner<3, 3>());
+  return nees;
+}
+
+double point_nees(const Eigen::Vector3d& estimate, const Eigen::Matrix3d& covariance,
+                  const Eigen::Vector3d& truth) {
+  return mahalanobis_squared<3>(estimate - truth, covariance);
+}
+
+std::vector<double> pose_nees_series(const RobotTruth& truth, const RobotResult& result) {
+  std::vector<double> series;
+  series.reserve(result.pose_covariances.size());
+  for (std::size_t frame = 0; frame < result.pose_covariances.size(); ++frame) {
+    series.push_back(pose_nees(result.trajectory[frame], result.pose_covariances[frame],
+                               truth.groundtruth[frame])
+                         .pose);
+  }
+  return series;
+}
 
 double translation_rmse(const std::vector<Eigen::Isometry3d>& estimate,
                         const std::vector<Eigen::Isometry3d>& groundtruth) {
@@ -189,6 +338,20 @@ TeamMetrics evaluate(const std::vector<RobotTruth>& truths, const std::vector<Ro
     fill_object_error(estimated_objects[robot], objects_groundtruth, metrics);
     // 4. Object position differences across robots (Table III).
     fill_disagreement(estimated_objects, robot, metrics);
+    // 5. Consistency: NEES of the online poses and of the final objects.
+    std::vector<double> pose, position, orientation;
+    const RobotResult& result = results[robot];
+    for (std::size_t frame = 0; frame < result.pose_covariances.size(); ++frame) {
+      const PoseNees nees =
+          pose_nees(result.trajectory[frame], result.pose_covariances[frame], truth.groundtruth[frame]);
+      pose.push_back(nees.pose);
+      position.push_back(nees.position);
+      orientation.push_back(nees.orientation);
+    }
+    metrics.pose_nees = summarize_nees(pose, 6);
+    metrics.position_nees = summarize_nees(position, 3);
+    metrics.orientation_nees = summarize_nees(orientation, 3);
+    metrics.object_nees = object_nees_of(result, objects_groundtruth);
     team.robots.push_back(metrics);
   }
 
@@ -196,6 +359,11 @@ TeamMetrics evaluate(const std::vector<RobotTruth>& truths, const std::vector<Ro
   team.maximum.robot = -1;
   for (double RobotMetrics::*field : {&RobotMetrics::trajectory_rmse, &RobotMetrics::odometry_rmse,
                                       &RobotMetrics::object_error, &RobotMetrics::disagreement}) {
+    aggregate(team.robots, field, team.average, team.maximum);
+  }
+  for (NeesSummary RobotMetrics::*field : {&RobotMetrics::pose_nees, &RobotMetrics::position_nees,
+                                           &RobotMetrics::orientation_nees,
+                                           &RobotMetrics::object_nees}) {
     aggregate(team.robots, field, team.average, team.maximum);
   }
   for (int RobotMetrics::*field : {&RobotMetrics::objects_evaluated,
@@ -238,6 +406,35 @@ std::string format_table(const TeamMetrics& metrics, const std::string& title) {
   }
   write_row("Avg", metrics.average);
   write_row("Max", metrics.maximum);
+
+  bool any_nees = false;
+  for (const RobotMetrics& robot : metrics.robots) {
+    any_nees = any_nees || robot.pose_nees.samples > 0 || robot.object_nees.samples > 0;
+  }
+  if (!any_nees) return table.str();
+  // Consistency: mean / median / fraction inside the 95 % bound of each NEES.
+  table << "NEES (mean / median / inside 95 %; consistent: mean near dof, about 95 % inside)\n";
+  std::snprintf(line, sizeof(line), "%-*s%*s%*s%*s%*s\n", kLabelWidth, "", 22, "pose (6-D)", 22,
+                "position (3-D)", 22, "orientation (3-D)", 22, "object (3-D)");
+  table << line;
+  const auto format_nees = [](const NeesSummary& nees) {
+    if (nees.samples == 0) return std::string("-");
+    char text[64];
+    std::snprintf(text, sizeof(text), "%.2f / %.2f / %.0f%%", nees.mean, nees.median,
+                  100.0 * nees.inside_95);
+    return std::string(text);
+  };
+  const auto write_nees_row = [&](const std::string& label, const RobotMetrics& row) {
+    std::snprintf(line, sizeof(line), "%-*s%*s%*s%*s%*s\n", kLabelWidth, label.c_str(), 22,
+                  format_nees(row.pose_nees).c_str(), 22, format_nees(row.position_nees).c_str(),
+                  22, format_nees(row.orientation_nees).c_str(), 22,
+                  format_nees(row.object_nees).c_str());
+    table << line;
+  };
+  for (const RobotMetrics& robot : metrics.robots) {
+    write_nees_row("Robot " + std::to_string(robot.robot), robot);
+  }
+  write_nees_row("Avg", metrics.average);
   return table.str();
 }
 

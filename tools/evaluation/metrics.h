@@ -16,6 +16,49 @@
 
 namespace concord::evaluation {
 
+/// Normalized estimation error squared (NEES) of a set of samples of one kind, e = estimate
+/// error, NEES = e^T P^-1 e with the estimator's own covariance P. For a consistent estimator the
+/// NEES follows a chi-square distribution with `dof` degrees of freedom: its mean is about `dof`
+/// and 95 % of the samples lie at or below the 95 % quantile of chi2(dof). Larger values mean the
+/// estimator is overconfident (its covariance is smaller than its actual error), smaller values
+/// that it is too cautious. NaN fields: no samples.
+struct NeesSummary {
+  int dof = 0;
+  /// Samples that entered the summary (estimates with ground truth and a positive definite
+  /// covariance).
+  int samples = 0;
+  double mean = std::numeric_limits<double>::quiet_NaN();
+  double median = std::numeric_limits<double>::quiet_NaN();
+  /// Fraction of the samples at or below chi2_{0.95}(dof).
+  double inside_95 = std::numeric_limits<double>::quiet_NaN();
+  /// Median of the first and of the last quarter of the samples in time order (frames; for
+  /// objects, their id order): a filter that grows overconfident over a run has a last-quarter
+  /// median well above its first-quarter median.
+  double first_quarter_median = std::numeric_limits<double>::quiet_NaN();
+  double last_quarter_median = std::numeric_limits<double>::quiet_NaN();
+};
+
+/// Summary of NEES samples (NaN samples are skipped) against chi2(dof).
+NeesSummary summarize_nees(const std::vector<double>& samples, int dof);
+
+/// NEES of one pose estimate T_hat with the 6x6 covariance of its right perturbation
+/// xi = [rho; phi] (T = T_hat exp(xi^), the convention of pose_covariance.csv and /pose), against
+/// the true pose: xi = log(T_hat^-1 T_true). Pose is 6-D; position (rho with the translation
+/// block) and orientation (phi with the rotation block) 3-D each. NaN where the covariance (block)
+/// is not positive definite.
+struct PoseNees {
+  double pose = std::numeric_limits<double>::quiet_NaN();
+  double position = std::numeric_limits<double>::quiet_NaN();
+  double orientation = std::numeric_limits<double>::quiet_NaN();
+};
+PoseNees pose_nees(const Eigen::Isometry3d& estimate, const Eigen::Matrix<double, 6, 6>& covariance,
+                   const Eigen::Isometry3d& truth);
+
+/// NEES of a point estimate with covariance against the true point (3-D); NaN when the covariance
+/// is not positive definite.
+double point_nees(const Eigen::Vector3d& estimate, const Eigen::Matrix3d& covariance,
+                  const Eigen::Vector3d& truth);
+
 /// Metrics of one robot. A double field is NaN when there is nothing to evaluate (for example no
 /// estimated object has ground truth).
 struct RobotMetrics {
@@ -36,6 +79,13 @@ struct RobotMetrics {
   int disagreement_pairs = 0;
   /// Number of evaluated trajectory frames.
   int frames = 0;
+  /// Consistency: NEES of every frame's online pose estimate (6-D, and its position and
+  /// orientation parts, 3-D each; needs the pose covariances), and of the final object
+  /// estimates that have ground truth (3-D).
+  NeesSummary pose_nees{6};
+  NeesSummary position_nees{3};
+  NeesSummary orientation_nees{3};
+  NeesSummary object_nees{3};
 };
 
 /// Metrics of the whole team.
@@ -54,8 +104,11 @@ struct TeamMetrics {
 struct RobotResult {
   /// Estimated T_world_body per frame.
   std::vector<Eigen::Isometry3d> trajectory;
-  /// Estimated object positions; each id at most once.
+  /// Estimated object positions with their covariances; each id at most once.
   std::vector<ObjectEstimate> objects;
+  /// Covariance of the right perturbation of each estimated pose (one per trajectory pose), as in
+  /// pose_covariance.csv; empty when the run did not record them (no pose NEES then).
+  std::vector<Eigen::Matrix<double, 6, 6>> pose_covariances;
 };
 
 /// Ground truth and measured motion of one robot.
@@ -70,10 +123,15 @@ struct RobotTruth {
 ///
 /// Throws std::invalid_argument when the two vectors differ in size, when a robot's trajectory
 /// length differs from its ground-truth length (the message names the robot and both lengths),
-/// when a robot's odometry is neither empty nor one shorter than its ground truth, or when a robot
-/// lists an object id twice. Empty odometry leaves odometry_rmse NaN.
+/// when a robot's odometry is neither empty nor one shorter than its ground truth, when a robot's
+/// pose covariances are neither empty nor one per trajectory pose, or when a robot lists an object
+/// id twice. Empty odometry leaves odometry_rmse NaN.
 TeamMetrics evaluate(const std::vector<RobotTruth>& truths, const std::vector<RobotResult>& results,
                      const std::map<LandmarkId, Eigen::Vector3d>& objects_groundtruth);
+
+/// Pose NEES of every frame of one robot (NaN where there is no covariance or it is not positive
+/// definite); empty when the result has no pose covariances. Sizes as checked by evaluate().
+std::vector<double> pose_nees_series(const RobotTruth& truth, const RobotResult& result);
 
 /// Root mean square of the translation differences, sqrt(mean ||t_est(k) - t_gt(k)||^2), without
 /// alignment. NaN for empty input. Both vectors must have the same length (asserted).
@@ -90,7 +148,9 @@ nlohmann::json to_json(const TeamMetrics& metrics);
 
 /// A plain-text table like the paper's Tables I-III: the title, a header, one row per robot plus
 /// Avg and Max, columns "traj RMSE m", "odom RMSE m", "object err m", "disagreement m", "objects";
-/// fixed 3 decimals, "-" for NaN.
+/// fixed 3 decimals, "-" for NaN. When any NEES was evaluated, a second table follows with the
+/// mean, median and fraction inside the 95 % bound of the pose, position, orientation and object
+/// NEES.
 std::string format_table(const TeamMetrics& metrics, const std::string& title);
 
 }  // namespace concord::evaluation

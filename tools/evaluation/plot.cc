@@ -10,6 +10,8 @@
 #include <opencv2/imgproc.hpp>
 #include <stdexcept>
 
+#include "concord/estimator/updater_helper.h"
+
 namespace concord::evaluation {
 namespace {
 
@@ -387,6 +389,63 @@ void write_top_view_png(const std::filesystem::path& file, const std::vector<Rob
     throw std::runtime_error("cannot write top view " + file.string() + ": " + error.what());
   }
   if (!written) throw std::runtime_error("cannot write top view " + file.string());
+}
+
+std::optional<LinePlot> pose_nees_plot(const std::vector<RobotTruth>& truths,
+                                       const std::vector<RobotResult>& results, int window,
+                                       const std::string& title) {
+  if (truths.size() != results.size()) {
+    throw std::invalid_argument("pose_nees_plot: " + std::to_string(truths.size()) +
+                                " ground truths, " + std::to_string(results.size()) + " results");
+  }
+  window = std::max(window, 1);
+  std::vector<std::vector<double>> series;
+  std::size_t frames = 0;
+  for (std::size_t robot = 0; robot < results.size(); ++robot) {
+    series.push_back(pose_nees_series(truths[robot], results[robot]));
+    frames = std::max(frames, series.back().size());
+  }
+  // 1. Per frame: the median over robots.
+  std::vector<double> median(frames, std::numeric_limits<double>::quiet_NaN());
+  for (std::size_t frame = 0; frame < frames; ++frame) {
+    std::vector<double> values;
+    for (const auto& robot : series) {
+      if (frame < robot.size() && std::isfinite(robot[frame])) values.push_back(robot[frame]);
+    }
+    if (values.empty()) continue;
+    std::sort(values.begin(), values.end());
+    const std::size_t middle = values.size() / 2;
+    median[frame] = values.size() % 2 == 1 ? values[middle]
+                                           : 0.5 * (values[middle - 1] + values[middle]);
+  }
+  // 2. Window means.
+  LineSeries nees{"pose NEES (median over robots)", {}, {}, false, false, 0};
+  for (std::size_t start = 0; start < frames; start += static_cast<std::size_t>(window)) {
+    const std::size_t end = std::min(frames, start + static_cast<std::size_t>(window));
+    double sum = 0.0;
+    int count = 0;
+    for (std::size_t frame = start; frame < end; ++frame) {
+      if (std::isnan(median[frame])) continue;
+      sum += median[frame];
+      ++count;
+    }
+    if (count == 0) continue;
+    nees.x.push_back(0.5 * static_cast<double>(start + end - 1));
+    nees.y.push_back(sum / count);
+  }
+  if (nees.x.empty()) return std::nullopt;
+  const double first = nees.x.front();
+  const double last = nees.x.back() > first ? nees.x.back() : first + 1.0;
+  const double bound = UpdaterHelper::chi2_quantile(0.95, 6);
+  LinePlot plot;
+  plot.title = title;
+  plot.x_label = "frame";
+  plot.y_label = "pose NEES (6-D)";
+  plot.y_min = 0.0;
+  plot.series.push_back(std::move(nees));
+  plot.series.push_back({"expected (6)", {first, last}, {6.0, 6.0}, true, false, 1});
+  plot.series.push_back({"95 % bound", {first, last}, {bound, bound}, true, false, 2});
+  return plot;
 }
 
 }  // namespace concord::evaluation

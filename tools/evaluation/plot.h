@@ -6,9 +6,11 @@
 #include <Eigen/Core>
 #include <filesystem>
 #include <map>
+#include <optional>
 #include <string>
 #include <vector>
 
+#include "evaluation/line_plot.h"
 #include "evaluation/metrics.h"
 
 namespace concord::evaluation {
@@ -30,5 +32,13 @@ void write_top_view_png(const std::filesystem::path& file, const std::vector<Rob
                         const std::vector<RobotResult>& results,
                         const std::map<LandmarkId, Eigen::Vector3d>& objects_groundtruth,
                         const std::string& title);
+
+/// Pose NEES over time for a NEES-over-time chart: per frame, the median over the robots that
+/// have a pose NEES at that frame, averaged over windows of `window` frames (x: the window's
+/// middle frame); plus the expected value (6) and the 95 % bound of chi2(6) as dashed lines.
+/// nullopt when no robot has pose covariances.
+std::optional<LinePlot> pose_nees_plot(const std::vector<RobotTruth>& truths,
+                                       const std::vector<RobotResult>& results, int window,
+                                       const std::string& title);
 
 }  // namespace concord::evaluation

@@ -120,6 +120,9 @@ ReplayResult run_team(const dataset::Dataset& dataset, const EstimatorOptions& e
       statistics.objects_initialized += report.objects.initialized;
       statistics.object_observations_rejected += report.objects.rejected;
       statistics.feature_tracks_used += report.features.tracks_used;
+      statistics.object_initializations_gated += report.objects.init_gated;
+      statistics.objects_reactivated += report.objects.reactivated;
+      statistics.update_failures += report.objects.update_failures + report.features.update_failures;
     }
     statistics.update_seconds += seconds_since(phase_start);
 
@@ -159,14 +162,16 @@ ReplayResult run_team(const dataset::Dataset& dataset, const EstimatorOptions& e
         ++statistics.consensus_robot_steps;
         statistics.landmarks_fused += report.landmarks_fused;
         statistics.neighbours_skipped += report.neighbours_skipped;
-        statistics.mean_shifts_limited += report.mean_shifts_limited;
+        statistics.landmarks_refused += report.landmarks_refused;
       }
       statistics.consensus_seconds += seconds_since(phase_start);
     }
 
     // 4. Record the online estimate of frame `step`.
     for (int i = 0; i < robots; ++i) {
-      if (active[i]) result.robots[i].trajectory.push_back(estimators[i].current_pose());
+      if (!active[i]) continue;
+      result.robots[i].trajectory.push_back(estimators[i].current_pose());
+      result.robots[i].pose_covariances.push_back(estimators[i].current_pose_covariance());
     }
     if (progress) progress(step + 1, steps);
   }

@@ -43,6 +43,8 @@ struct ReplayOptions {
 struct RobotOutput {
   /// Estimate of frame k right after step k, never revised later (one per frame).
   std::vector<Eigen::Isometry3d> trajectory;
+  /// Covariance of the right perturbation of each trajectory pose, taken with it.
+  std::vector<Eigen::Matrix<double, 6, 6>> pose_covariances;
   std::vector<ObjectEstimate> objects;
 };
 
@@ -53,7 +55,10 @@ struct ReplayStatistics {
   long long consensus_robot_steps = 0;  ///< (robot, round) pairs that fused at least one marginal
   long long landmarks_fused = 0;
   long long neighbours_skipped = 0;
-  long long mean_shifts_limited = 0;
+  long long landmarks_refused = 0;  ///< neighbours' landmarks refused by the chi-square test
+  long long object_initializations_gated = 0;
+  long long objects_reactivated = 0;
+  long long update_failures = 0;  ///< Kalman updates refused (objects and point features)
   long long objects_initialized = 0;
   long long object_observations_rejected = 0;
   long long feature_tracks_used = 0;

@@ -396,6 +396,7 @@ dataset::Dataset simulate(const SimulationOptions& options) {
   }
   dataset::Dataset data;
   data.name = "sim";
+  data.sensor = "sim";
   data.camera = make_camera(options);
 
   // 1. Ground truth: every robot on its own curve.

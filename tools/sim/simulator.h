@@ -7,7 +7,7 @@
 /// landmarks are spawned in each robot's view as it moves and retired when they leave it or the
 /// tracker loses them (robot-private track ids); observations are stereo projections with Gaussian
 /// noise in normalized image coordinates (K is the identity). The result is a dataset::Dataset in
-/// the shared layout (name "sim", so `concord replay` uses configs/datasets/sim.yaml).
+/// the shared layout (name and sensor "sim", so `concord replay` uses configs/sensors/sim.yaml).
 /// docs/simulator.md describes the model and every parameter.
 ///
 /// Deterministic: the same options give the same dataset bit for bit (up to the platform's libm

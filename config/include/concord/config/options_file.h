@@ -1,14 +1,15 @@
 #pragma once
 /// \file
 /// EstimatorOptions from and to YAML. The keys are exactly the field names of EstimatorOptions
-/// (window_size, object_sigma, ...), with a nested map `consensus:` holding the ConsensusOptions
-/// field names; feature_odometry_correlation is a sequence of 24 numbers (the 6x4 matrix,
-/// row-major). Example:
+/// (window_size, object_noise, ...), with a nested map `consensus:` holding the ConsensusOptions
+/// field names; object_noise and feature_noise are one number (isotropic) or a map of the
+/// StereoNoise components; feature_odometry_correlation is a sequence of 24 numbers (the 6x4
+/// matrix, row-major). Example:
 ///
 ///     window_size: 30
-///     object_sigma: 4.0
+///     object_noise: {horizontal: 20, vertical: 4, disparity: 2, vertical_disparity: 0.5}
 ///     consensus:
-///       max_mean_shift: 1.0
+///       neighbour_chi2_probability: 0.999
 
 #include <filesystem>
 #include <stdexcept>

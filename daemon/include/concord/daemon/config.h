@@ -92,7 +92,7 @@ struct OutputConfig {
 struct DaemonConfig {
   int robot_id = 0;
   std::string team = "concord";
-  /// Estimator options (a file in the format of configs/datasets/*.yaml, or inline keys).
+  /// Estimator options (a file in the format of configs/sensors/*.yaml, or inline keys).
   EstimatorOptions estimator;
   std::filesystem::path estimator_file;  ///< where they came from ("" = inline/defaults)
   SourceConfig source;

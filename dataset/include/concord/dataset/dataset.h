@@ -57,6 +57,9 @@ struct RobotData {
 struct Dataset {
   /// dataset.json "name" (or the folder name if absent).
   std::string name;
+  /// dataset.json "sensor": which sensor recorded it, naming its estimator config
+  /// (configs/sensors/<sensor>.yaml); empty when absent.
+  std::string sensor;
   /// The folder the dataset was read from (as given to read_dataset).
   std::filesystem::path root;
   /// From dataset.json "camera": K, T_cam_body -> T_cam0_body, T_cam0_cam1.

@@ -36,6 +36,25 @@ void write_objects_csv(const std::filesystem::path& file,
 /// order. Throws DatasetError on bad input (naming the file and line), including a repeated id.
 std::vector<ObjectEstimate> read_objects_csv(const std::filesystem::path& file);
 
+/// Covariance of one pose estimate: the 6x6 covariance of the right perturbation xi = [rho; phi]
+/// of T_world_body (T = T_hat exp(xi^)), at a frame.
+struct PoseCovariance {
+  int frame = 0;
+  Eigen::Matrix<double, 6, 6> covariance = Eigen::Matrix<double, 6, 6>::Zero();
+};
+
+/// The text of pose_covariance.csv: the header "frame,c00,c01,...,c05,c11,...,c55" (the 21
+/// entries of the upper triangle, row by row), then one row per entry.
+std::string format_pose_covariances_csv(const std::vector<PoseCovariance>& covariances);
+
+/// Writes format_pose_covariances_csv atomically. Throws std::runtime_error if it cannot.
+void write_pose_covariances_csv(const std::filesystem::path& file,
+                                const std::vector<PoseCovariance>& covariances);
+
+/// Reads pose_covariance.csv (the covariance filled symmetrically), in file order. Throws
+/// DatasetError on bad input, naming the file and line.
+std::vector<PoseCovariance> read_pose_covariances_csv(const std::filesystem::path& file);
+
 /// Writes `content` to a temporary file in the same folder, then renames it over `file` (atomic
 /// replace on POSIX file systems). The folder must exist. Throws std::runtime_error on failure,
 /// leaving no temporary file behind.

@@ -10,6 +10,7 @@
 /// jointly (the full joint marginal over the group), groups one after another. Archived objects
 /// (outside the joint state) are averaged one by one.
 
+#include <optional>
 #include <vector>
 
 #include "concord/estimator/options.h"
@@ -25,9 +26,14 @@ struct ConsensusReport {
   /// Neighbour marginals left out: malformed (whole marginal), or not positive definite or
   /// ill-conditioned (counted per averaged group).
   int neighbours_skipped = 0;
-  int landmarks_gated = 0;      ///< (landmark, neighbour) pairs left out by the disagreement gate
-  int mean_shifts_limited = 0;  ///< landmark steps shortened by max_mean_shift
-  double largest_mean_shift = 0.0;  ///< metres, after limiting
+  /// (landmark, neighbour) pairs left out by the chi-square test of the neighbour's marginal
+  /// against the robot's own (consensus.neighbour_chi2_probability), in total and per
+  /// neighbour (in the order the neighbours were given).
+  int landmarks_refused = 0;
+  std::vector<int> refused_per_neighbour;
+  /// Landmarks each neighbour's marginal offered that the robot holds (tested), per neighbour.
+  std::vector<int> tested_per_neighbour;
+  double largest_mean_shift = 0.0;  ///< metres, the longest step of a landmark mean
 };
 
 class Consensus {
@@ -47,6 +53,13 @@ class Consensus {
   /// Returns false (state unchanged) if the current marginal is not positive definite.
   static bool replace_marginal(State& state, const std::vector<int>& slots,
                                const Eigen::VectorXd& mean, const Eigen::MatrixXd& covariance);
+
+  /// Covariance intersection of two estimates of one object whose errors are correlated in an
+  /// unknown way: the information-weighted average w I_a + (1 - w) I_b with the weight w in
+  /// [0, 1] that minimizes the determinant of the fused covariance. Consistent whenever both
+  /// inputs are. nullopt when a covariance is not positive definite.
+  static std::optional<ObjectEstimate> covariance_intersection(const ObjectEstimate& a,
+                                                               const ObjectEstimate& b);
 
   /// Metropolis-Hastings weight of edge (i, j): 1 / (1 + max(degree_i, degree_j)). Doubly
   /// stochastic on any undirected graph; 1/n on the complete graph of n robots.

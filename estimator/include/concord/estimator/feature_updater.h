@@ -18,6 +18,7 @@ struct FeatureUpdateStats {
   int tracks_used = 0;      ///< tracks that entered the update
   int tracks_rejected = 0;  ///< triangulation, distance or chi-square failures
   int rows = 0;             ///< residual rows after null-space projection, before compression
+  int update_failures = 0;  ///< Kalman updates refused (innovation not positive definite)
 };
 
 class FeatureUpdater {
@@ -34,8 +35,9 @@ class FeatureUpdater {
  private:
   EstimatorOptions options_;
   StereoCamera camera_;
-  double noise_variance_;
-  /// S^T of eq. (25) for one observation, 4 x 6, in normalized units.
+  /// Whitens an observation's four rows (normalized units): its noise becomes the identity.
+  Eigen::Matrix4d whitening_;
+  /// S^T of eq. (25) for one observation, 4 x 6, in normalized units, whitened.
   Eigen::Matrix<double, 4, 6> correlation_transposed_;
   bool has_correlation_;
   std::map<LandmarkId, std::vector<TrackObservation>> tracks_;

@@ -34,6 +34,13 @@ Vector6d se3_log(const Eigen::Isometry3d& pose);
 /// Ad(T) = [R, [t]_x R; 0, R], so that T exp(xi^) T^-1 = exp((Ad(T) xi)^).
 Matrix6d adjoint(const Eigen::Isometry3d& pose);
 
+/// Covariance of the right perturbation xi_r (T = T_hat exp(xi_r^)) from that of the left one
+/// xi_l (T = exp(xi_l^) T_hat): xi_r = Ad(T_hat^-1) xi_l.
+Matrix6d right_from_left_covariance(const Eigen::Isometry3d& T_hat, const Matrix6d& left);
+
+/// The inverse map: xi_l = Ad(T_hat) xi_r.
+Matrix6d left_from_right_covariance(const Eigen::Isometry3d& T_hat, const Matrix6d& right);
+
 /// Makes the rotation block exactly orthonormal (guards against round-off growth after many
 /// products). Returns the nearest rotation in the Frobenius sense.
 Eigen::Isometry3d orthonormalized(const Eigen::Isometry3d& pose);

@@ -16,11 +16,13 @@ namespace concord {
 struct ObjectUpdateStats {
   int observations = 0;
   int updated = 0;      ///< observations used in the update
-  int rejected = 0;     ///< observations rejected by the gates
+  int rejected = 0;     ///< observations rejected by the chi-square gate or not projectable
   int initialized = 0;  ///< new objects added to the state
-  int init_failed = 0;  ///< initialization attempts rejected
-  int reactivated = 0;  ///< archived objects that rejoined the state
+  int init_failed = 0;  ///< initialization attempts rejected (triangulation, depth, error)
+  int init_gated = 0;   ///< initializations rejected by the chi-square test of their other rows
+  int reactivated = 0;  ///< archived objects that rejoined the state (fused back by CI)
   int archived = 0;     ///< objects that left the joint state this frame
+  int update_failures = 0;  ///< Kalman updates refused (innovation not positive definite)
 };
 
 class ObjectUpdater {
@@ -28,20 +30,24 @@ class ObjectUpdater {
   ObjectUpdater(const EstimatorOptions& options, const StereoCamera& camera);
 
   /// Processes the objects observed at the state's newest frame: 1. update with observations
-  /// of in-state objects (gated), 2. initialize objects with enough observations in the window,
-  /// 3. archive objects not observed for object_archive_after_frames.
+  /// of in-state objects (chi-square gated), 2. initialize objects with enough observations in
+  /// the window (archived ones among them rejoin: initialized afresh, then their archived
+  /// marginal fused in by covariance intersection), 3. archive objects not observed for
+  /// object_archive_after_frames.
   ObjectUpdateStats process(State& state, const std::vector<StereoObservation>& objects);
 
  private:
-  /// Returns false when the observation is rejected by the gates.
-  bool passes_gates(const State& state, const LinearizedTrack& linearized) const;
-  bool try_initialize(State& state, LandmarkId id, const std::vector<TrackObservation>& track);
+  enum class InitResult { kInitialized, kFailed, kGated };
+  InitResult try_initialize(State& state, LandmarkId id, const std::vector<TrackObservation>& track,
+                            ObjectUpdateStats& stats);
+  /// Chi-square quantile for `dof` (infinity when the gate is off).
+  double gate(int dof) const;
   void archive_stale(State& state, int frame, ObjectUpdateStats& stats) const;
 
   EstimatorOptions options_;
   StereoCamera camera_;
-  double noise_variance_;  ///< normalized units squared
-  double chi2_threshold_4dof_;
+  /// Whitens an observation's four rows (normalized units): its noise becomes the identity.
+  Eigen::Matrix4d whitening_;
   /// Observations of objects not yet in the state, within the window.
   std::map<LandmarkId, std::vector<TrackObservation>> pending_;
 };

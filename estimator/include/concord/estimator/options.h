@@ -13,17 +13,34 @@ namespace concord {
 
 /// Safeguards and parameters of the consensus step (§V-B, eq. 19-21).
 struct ConsensusOptions {
-  /// consensus.max_mean_shift: metres one consensus step may move a landmark mean; a larger
-  /// shift is scaled down to this length (the averaged covariance is kept). 0 disables the limit.
-  double max_mean_shift = 0.5;
   /// consensus.max_condition_number: a neighbour's marginal whose covariance is not positive
   /// definite or whose condition number exceeds this is skipped (its weight goes to the robot
   /// itself) and counted.
   double max_condition_number = 1e12;
-  /// consensus.disagreement_gate: a neighbour's landmark whose mean is further than this
-  /// Mahalanobis distance (under the sum of both covariances) from the robot's own is left out
-  /// of that landmark's average. 0 disables the gate.
-  double disagreement_gate = 0.0;
+  /// consensus.neighbour_chi2_probability: a neighbour's landmark whose mean disagrees with the
+  /// robot's own beyond this chi-square quantile (3 degrees of freedom) of the Mahalanobis
+  /// distance under the sum of both covariances is left out of that landmark's average (its
+  /// weight goes to the robot) and counted per neighbour. Two consistent estimates of one object
+  /// pass it with at least this probability (more when their errors are correlated, as
+  /// neighbours' are after consensus). 0 disables the test.
+  double neighbour_chi2_probability = 0.999;
+};
+
+/// Noise of a stereo observation (u_left, v_left, u_right, v_right), in image units, as four
+/// independent components: the common-mode position of the pair (horizontal, vertical) and the
+/// differences between the images (disparity u_left - u_right, and v_left - v_right, zero on
+/// ideally rectified images). Bounding-box centres, for instance, are off by tens of pixels in the
+/// same way in both images while their disparity is accurate to a pixel or two. Independent noise
+/// of sigma per coordinate is horizontal = vertical = sigma / sqrt(2) and
+/// disparity = vertical_disparity = sigma * sqrt(2) (StereoNoise::isotropic).
+struct StereoNoise {
+  double horizontal = 1.0;
+  double vertical = 1.0;
+  double disparity = 1.0;
+  double vertical_disparity = 1.0;
+
+  /// Independent noise of `sigma` on each of the four coordinates.
+  static StereoNoise isotropic(double sigma);
 };
 
 struct EstimatorOptions {
@@ -36,15 +53,21 @@ struct EstimatorOptions {
   double initial_rotation_sigma = 1e-3;
 
   /// odometry_translation_sigma / odometry_rotation_sigma: per-frame standard deviation of the
-  /// odometry right perturbation, W of eq. (23) (metres, radians).
+  /// odometry right perturbation, W of eq. (23) (metres, radians), per axis.
   double odometry_translation_sigma = 0.1;
   double odometry_rotation_sigma = 0.1;
+  /// odometry_translation_scale: factor applied to every measured translation (a calibration of
+  /// the odometry's scale, e.g. stereo VO with a slightly wrong baseline; measured on a
+  /// calibration segment by `concord calibrate`). 1 leaves the odometry as it is.
+  double odometry_translation_scale = 1.0;
 
   // --- Objects (persistent landmarks, §V-D and §V-E) ---
   /// use_objects: process object detections at all.
   bool use_objects = true;
-  /// object_sigma: standard deviation of an object detection coordinate (image units).
-  double object_sigma = 5.0;
+  /// object_noise: noise of an object detection (image units), a StereoNoise; in a config either
+  /// one number (independent noise of that sigma per coordinate) or a map with the keys
+  /// horizontal, vertical, disparity, vertical_disparity.
+  StereoNoise object_noise = StereoNoise::isotropic(5.0);
   /// object_min_observations: stereo observations in the window needed to initialize.
   int object_min_observations = 3;
   /// object_min_distance / object_max_distance: accepted depth of a new object (metres).
@@ -53,22 +76,24 @@ struct EstimatorOptions {
   /// object_init_max_reprojection_error: largest RMS reprojection error of a refined new object
   /// (image units).
   double object_init_max_reprojection_error = 2.0;
-  /// object_update_gate: largest residual component of an in-state object observation
-  /// (image units); a larger one is rejected as an outlier. 0 disables.
-  double object_update_gate = 4.0;
-  /// object_chi2_probability: chi-square gate probability on each object observation's
-  /// Mahalanobis distance (0 disables).
+  /// object_chi2_probability: chi-square gate on the Mahalanobis distance of each object
+  /// observation under its full innovation covariance, and of the rows of a new object's
+  /// initialization that do not involve the object (0 disables).
   double object_chi2_probability = 0.95;
   /// object_archive_after_frames: an object not observed for this many frames leaves the joint
-  /// state and is kept as an independent marginal (exact marginalization); it rejoins the state
-  /// if observed again. Bounds the state for a long-lived robot. 0 keeps every object forever.
+  /// state and is kept as an independent marginal (exact marginalization). Seen again, it is
+  /// initialized afresh from its new observations (with its true correlations to the poses) and
+  /// its archived marginal is fused in by covariance intersection, which is consistent whatever
+  /// the unknown correlation between the two. Bounds the state for a long-lived robot. 0 keeps
+  /// every object forever.
   int object_archive_after_frames = 0;
 
   // --- Point features (opportunistic, MSCKF update, eq. 24-28) ---
   /// use_point_features: run the MSCKF update on point-feature tracks.
   bool use_point_features = true;
-  /// feature_sigma: standard deviation of a point-feature coordinate (image units).
-  double feature_sigma = 1.0;
+  /// feature_noise: noise of a point-feature observation (image units), a StereoNoise, in a
+  /// config one number or a map as object_noise.
+  StereoNoise feature_noise = StereoNoise::isotropic(1.0);
   /// feature_min_observations: stereo observations of a track needed to use it.
   int feature_min_observations = 3;
   /// feature_max_reprojection_error: largest RMS reprojection error of a triangulated track.

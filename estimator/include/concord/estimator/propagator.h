@@ -14,11 +14,11 @@ class Propagator {
   explicit Propagator(const EstimatorOptions& options);
 
   /// Appends the pose of `frame` = newest pose * T_previous_current, drops the oldest pose
-  /// beyond the window, and propagates the covariance through the adjoint:
-  ///   eps_new = Ad(dT^-1) eps_newest + w,  w ~ N(0, W)   (eq. 23).
+  /// beyond the window, and propagates the covariance (eq. 23 in the state's left perturbation):
+  ///   eps_new = eps_newest - Ad(T_new) w,  w ~ N(0, W) the right perturbation of the odometry.
   void propagate(State& state, const Eigen::Isometry3d& T_previous_current, int frame) const;
 
-  /// W, the per-frame odometry noise covariance on [rho; phi].
+  /// W, the per-frame odometry noise covariance on [rho; phi] (right perturbation of dT).
   const Eigen::Matrix<double, 6, 6>& odometry_noise() const { return odometry_noise_; }
 
  private:

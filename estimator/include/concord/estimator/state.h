@@ -2,7 +2,16 @@
 /// \file
 /// The filter state of one robot (eq. 18): a sliding window of body poses and the positions of
 /// object landmarks, with one joint covariance over the error state
-///   [eps_0 .. eps_{c-1}, p~_0 .. p~_{m-1}],  T_world_body = T_hat * exp(eps^),  p = p_hat + p~.
+///   [eps_0 .. eps_{c-1}, p~_0 .. p~_{m-1}],  T_world_body = exp(eps^) * T_hat,  p = p_hat + p~.
+///
+/// Pose errors are left (world-frame) perturbations, not the right perturbations of eq. (20):
+/// both describe the same Gaussian to first order (eps_left = Ad(T_hat) eps_right), but with the
+/// left one a change of the whole team's world frame moves every pose error by the same constant
+/// vector, whatever the estimates. The directions the robot cannot observe (its own world frame)
+/// then stay fixed as the estimates change, and the filter does not gain information along them
+/// from linearization errors (the inconsistency of the standard EKF/MSCKF; the invariant-EKF
+/// argument of Barrau and Bonnabel). Outputs (current_pose_covariance, pose_covariance.csv,
+/// /pose) are converted to the right perturbation. See docs/estimator.md.
 /// Objects that left the joint state (archived) are kept as independent marginals.
 
 #include <Eigen/Core>
@@ -26,6 +35,10 @@ struct ObjectLandmark {
   LandmarkId id = 0;
   Eigen::Vector3d p_world = Eigen::Vector3d::Zero();
   int last_observed_frame = 0;
+  /// Where the landmark entered the state (its first estimate): the pose Jacobians of its
+  /// observations are evaluated here, so that every observation of it agrees on the unobservable
+  /// directions (first-estimate Jacobians; the residual uses p_world).
+  Eigen::Vector3d p_linearization = Eigen::Vector3d::Zero();
 };
 
 class State {

@@ -13,7 +13,8 @@ namespace concord {
 
 class StateHelper {
  public:
-  /// Applies an error-state correction: T <- T exp(dx_pose^) (eq. 21, 28), p <- p + dx_landmark.
+  /// Applies an error-state correction: T <- exp(dx_pose^) T (eq. 21, 28, with the state's left
+  /// perturbation), p <- p + dx_landmark.
   static void apply_correction(State& state, const Eigen::VectorXd& correction);
 
   /// Kalman update with residual r = H x~ + v, v ~ N(0, noise), and optional correlation
@@ -21,22 +22,24 @@ class StateHelper {
   ///   K = (P H^T + S)(H P H^T + V + H S + S^T H^T)^-1,  P <- P - K (H P + S^T)   (eq. 26-27, 66).
   /// Only the columns where H is non-zero are touched to form P H^T. Returns false (and leaves
   /// the state unchanged) when the innovation covariance is not positive definite.
-  static bool update(State& state, const Eigen::MatrixXd& H, const Eigen::VectorXd& residual,
+  [[nodiscard]] static bool update(State& state, const Eigen::MatrixXd& H, const Eigen::VectorXd& residual,
                      const Eigen::MatrixXd& noise, const Eigen::MatrixXd* correlation = nullptr);
 
-  /// Mahalanobis distance squared of a residual: r^T (H P H^T + V)^-1 r.
+  /// Mahalanobis distance squared of a residual under the innovation covariance the update
+  /// uses: r^T (H P H^T + V + H S + S^T H^T)^-1 r (S: correlation as in update, or nullptr).
+  /// Infinity when that covariance is not positive definite.
   static double mahalanobis_squared(const State& state, const Eigen::MatrixXd& H,
-                                    const Eigen::VectorXd& residual, const Eigen::MatrixXd& noise);
+                                    const Eigen::VectorXd& residual, const Eigen::MatrixXd& noise,
+                                    const Eigen::MatrixXd* correlation = nullptr);
 
   /// Appends a landmark whose linearized model after the QR split of eq. (29) is
   ///   r1 = H_state1 x~ + R1 p~ + v1,  v1 ~ N(0, noise1),
-  /// with mean p_world (already including R1^-1 r1) and cross covariances of eq. (30).
+  /// with mean p_world (already including R1^-1 r1) and cross covariances of eq. (30);
+  /// p_linearization is the point the model was linearized at (its first estimate).
   static void augment_landmark(State& state, LandmarkId id, const Eigen::Vector3d& p_world,
-                               int frame, const Eigen::MatrixXd& H_state1,
+                               const Eigen::Vector3d& p_linearization, int frame,
+                               const Eigen::MatrixXd& H_state1,
                                const Eigen::Matrix3d& R1, const Eigen::Matrix3d& noise1);
-
-  /// Appends a landmark independent of the rest of the state (an archived object rejoining).
-  static void insert_independent_landmark(State& state, const ObjectEstimate& estimate, int frame);
 
   /// Marginalizes the given landmark slots out of the joint state (drops rows and columns).
   static void remove_landmarks(State& state, const std::vector<int>& slots);

@@ -66,10 +66,12 @@ struct ObjectEstimate {
 
 /// A Gaussian marginal over a set of object landmarks: what robots exchange (§V-B).
 /// mean stacks the positions in the order of ids. The covariance is block diagonal: blocks[b] is
-/// the joint covariance of the next blocks[b].rows() / 3 landmarks (in ids order); landmarks in
-/// different blocks are independent. A robot's in-state objects form one dense block and each
-/// archived object its own 3x3 block, so a marginal costs O(in-state^2 + archived), not
-/// O(objects^2), to build, send and fuse.
+/// the joint covariance of the next blocks[b].rows() / 3 landmarks (in ids order); a marginal
+/// makes no claim about the correlation of landmarks in different blocks (a receiver averages
+/// them separately). A robot's in-state objects form one dense block and each archived object its
+/// own 3x3 block, so a marginal costs O(in-state^2 + archived), not O(objects^2), to build, send
+/// and fuse.
+
 struct Marginal {
   std::vector<LandmarkId> ids;
   Eigen::VectorXd mean;
@@ -85,7 +87,9 @@ struct Marginal {
   std::size_t size() const { return ids.size(); }
   /// Whether the shapes agree: mean of 3k finite numbers, square finite blocks whose sizes are
   /// multiples of 3 and add up to 3k (k = number of ids).
-  bool well_formed() const {
+  bool well_formed() const { return shapes_agree(ids, mean, blocks); }
+  static bool shapes_agree(const std::vector<LandmarkId>& ids, const Eigen::VectorXd& mean,
+                           const std::vector<Eigen::MatrixXd>& blocks) {
     const auto d = static_cast<Eigen::Index>(3 * ids.size());
     if (mean.size() != d || !mean.allFinite()) return false;
     Eigen::Index covered = 0;
@@ -98,6 +102,7 @@ struct Marginal {
     }
     return covered == d;
   }
+
   /// The full 3k x 3k covariance (zeros between blocks). For tests and small marginals.
   Eigen::MatrixXd dense_covariance() const {
     Eigen::MatrixXd dense = Eigen::MatrixXd::Zero(mean.size(), mean.size());

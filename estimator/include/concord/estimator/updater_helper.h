@@ -10,6 +10,7 @@
 #include <optional>
 #include <vector>
 
+#include "concord/estimator/options.h"
 #include "concord/estimator/state.h"
 #include "concord/estimator/types.h"
 
@@ -24,7 +25,8 @@ struct TrackObservation {
 /// Predicted stereo observation of a world point and its Jacobians.
 struct StereoProjection {
   Eigen::Vector4d xy = Eigen::Vector4d::Zero();  ///< normalized (x_l, y_l, x_r, y_r)
-  /// d xy / d eps, right perturbation of T_world_body, eps = [rho; phi].
+  /// d xy / d eps, left perturbation of T_world_body (T = exp(eps^) T_hat), eps = [rho; phi]:
+  /// jacobian_point * [-I, [p_world]_x] (see pose_jacobian).
   Eigen::Matrix<double, 4, 6> jacobian_pose = Eigen::Matrix<double, 4, 6>::Zero();
   /// d xy / d p_world.
   Eigen::Matrix<double, 4, 3> jacobian_point = Eigen::Matrix<double, 4, 3>::Zero();
@@ -64,12 +66,34 @@ class UpdaterHelper {
                                        const std::vector<Eigen::Vector4d>& observations,
                                        const Eigen::Vector3d& p_world);
 
+  /// The pose Jacobian of an observation for the state's left perturbation, evaluated with the
+  /// world point p_linearization in its lever-arm term: jacobian_point * [-I, [p_lin]_x].
+  /// Observations of one landmark that share p_linearization leave the robot's world frame
+  /// (a common left perturbation of every pose and the landmark) unobservable, as it is.
+  static Eigen::Matrix<double, 4, 6> pose_jacobian(const Eigen::Matrix<double, 4, 3>& jacobian_point,
+                                                   const Eigen::Vector3d& p_linearization);
+
   /// Linearizes the observations (frames must be in the window) of a point at p_world against
-  /// the state. landmark_slot >= 0 places H_point into H_state as well (in-state object).
+  /// the state. landmark_slot >= 0 places H_point into H_state as well (in-state object) and
+  /// evaluates the pose Jacobians at the landmark's p_linearization.
   static std::optional<LinearizedTrack> linearize(const State& state, const StereoCamera& camera,
                                                   const std::vector<TrackObservation>& track,
                                                   const Eigen::Vector3d& p_world,
                                                   int landmark_slot = -1);
+
+  /// Covariance of one stereo observation (u_left, v_left, u_right, v_right) in normalized
+  /// coordinates, from its noise in image units (see StereoNoise).
+  static Eigen::Matrix4d observation_covariance(const StereoNoise& noise, const StereoCamera& camera);
+
+  /// L^-1 with L L^T = covariance: left-multiplying an observation's rows by it whitens them
+  /// (unit, independent noise). covariance must be positive definite (asserted).
+  static Eigen::Matrix4d whitening(const Eigen::Matrix4d& covariance);
+
+  /// Whitens a linearized track in place: every 4-row block of H_state, H_point and the residual
+  /// is left-multiplied by `whitening` (and the rows of extra, if given, likewise). Afterwards
+  /// the noise of the rows is the identity.
+  static void whiten_inplace(LinearizedTrack& track, const Eigen::Matrix4d& whitening,
+                             Eigen::MatrixXd* extra = nullptr);
 
   /// eq. (24): left-multiplies H_state, residual (and the rows of extra, if given) by the
   /// transpose of an orthonormal basis of the left null space of H_point (rows - 3 rows remain).
