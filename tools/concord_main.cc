@@ -1,6 +1,6 @@
 /// `concord`: the team replay, evaluation and dataset tools on the command line.
 ///   concord replay --dataset DIR --out DIR [--separate] [--config FILE] [--graph G] [--loss R]
-///                  [--seed S] [--frames N] [--no-point-features]
+///                  [--seed S] [--frames N] [--no-point-features] [--set KEY=VALUE ...]
 ///   concord eval --dataset DIR --result DIR
 ///   concord slice --dataset DIR --out DIR --frames N [--robots R]
 ///   concord launch --dataset DIR --out DIR [--lockstep|--async|--separate] [--base-port P]
@@ -117,7 +117,8 @@ evaluation::TeamMetrics report(const dataset::Dataset& data,
 
 int run_replay(const fs::path& dataset_dir, const fs::path& out, bool separate,
                const std::string& config_file, const std::string& graph, double loss,
-               std::uint64_t seed, int frames, bool no_point_features) {
+               std::uint64_t seed, int frames, bool no_point_features,
+               const std::vector<std::string>& overrides) {
   dataset::ReadOptions read_options;
   if (frames > 0) read_options.max_frames = frames;
   read_options.load_features = !no_point_features;
@@ -131,6 +132,7 @@ int run_replay(const fs::path& dataset_dir, const fs::path& out, bool separate,
     config_path = *found;
   }
   if (!config_path.empty()) options = config::load_estimator_options(config_path);
+  options = config::apply_overrides(options, overrides);
   if (no_point_features) options.use_point_features = false;
   std::cerr << "concord replay: dataset " << data.name << " (" << data.robots.size()
             << " robots), config "
@@ -322,6 +324,11 @@ int main(int argc, char** argv) {
       ->check(CLI::PositiveNumber);
   replay_command->add_flag("--no-point-features", no_point_features,
                            "Ignore features.csv (object-only run)");
+  std::vector<std::string> overrides;
+  replay_command->add_option("--set", overrides,
+                             "KEY=VALUE: an estimator option over the config (repeatable), e.g. "
+                             "--set odometry_rotation_sigma=0.02 --set "
+                             "consensus.neighbour_chi2_probability=0.99");
 
   auto* eval_command = app.add_subcommand("eval", "Score a result folder against a dataset");
   std::string result_dir;
@@ -501,7 +508,7 @@ int main(int argc, char** argv) {
     }
     if (replay_command->parsed()) {
       return run_replay(dataset_dir, out_dir, separate, config_file, graph, loss, seed, frames,
-                        no_point_features);
+                        no_point_features, overrides);
     }
     if (eval_command->parsed()) return run_eval(dataset_dir, result_dir);
     if (slice_command->parsed()) return run_slice(dataset_dir, out_dir, frames, robots);

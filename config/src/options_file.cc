@@ -260,8 +260,12 @@ std::string format_value(const Correlation& values) {
 
 }  // namespace
 
-EstimatorOptions parse_estimator_options(const std::string& yaml_text,
-                                         const std::string& source_name) {
+namespace {
+
+/// Reads YAML text into `options` (keys not given keep their value), then validates; throws
+/// ConfigError naming source_name and every problem.
+void read_into(EstimatorOptions& options, const std::string& yaml_text,
+               const std::string& source_name) {
   YAML::Node root;
   try {
     root = YAML::Load(yaml_text);
@@ -270,7 +274,6 @@ EstimatorOptions parse_estimator_options(const std::string& yaml_text,
                       ": invalid YAML: " + error.msg);
   }
 
-  EstimatorOptions options;
   Loader loader;
   if (root.IsMap()) {
     loader.read_options(root, options);
@@ -283,6 +286,34 @@ EstimatorOptions parse_estimator_options(const std::string& yaml_text,
     std::string message = source_name + ": invalid estimator options:";
     for (const std::string& problem : loader.problems()) message += "\n  " + problem;
     throw ConfigError(message);
+  }
+}
+
+}  // namespace
+
+EstimatorOptions parse_estimator_options(const std::string& yaml_text,
+                                         const std::string& source_name) {
+  EstimatorOptions options;
+  read_into(options, yaml_text, source_name);
+  return options;
+}
+
+EstimatorOptions apply_overrides(EstimatorOptions options,
+                                 const std::vector<std::string>& overrides) {
+  for (const std::string& entry : overrides) {
+    const auto equals = entry.find('=');
+    if (equals == std::string::npos || equals == 0) {
+      throw ConfigError("--set " + entry + ": expected KEY=VALUE");
+    }
+    const std::string key = entry.substr(0, equals);
+    const std::string value = entry.substr(equals + 1);
+    std::string yaml;
+    if (const auto dot = key.find('.'); dot != std::string::npos) {
+      yaml = key.substr(0, dot) + ":\n  " + key.substr(dot + 1) + ": " + value + "\n";
+    } else {
+      yaml = key + ": " + value + "\n";
+    }
+    read_into(options, yaml, "--set " + entry);
   }
   return options;
 }

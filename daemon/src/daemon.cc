@@ -87,6 +87,8 @@ struct LiveState {
   std::vector<int> frames;
   std::vector<double> timestamps;
   std::vector<Eigen::Isometry3d> poses;
+  /// The online covariance of every pose (right perturbation), with its frame.
+  std::vector<dataset::PoseCovariance> pose_covariances;
   Eigen::Matrix<double, 6, 6> pose_covariance = Eigen::Matrix<double, 6, 6>::Zero();
   std::vector<ObjectEstimate> objects;
   std::uint64_t frames_rejected = 0;
@@ -337,6 +339,7 @@ bool Daemon::Impl::process(QueuedFrame& item) {
     live_.timestamps.push_back(item.timestamp);
     live_.poses.push_back(estimator_->current_pose());
     live_.pose_covariance = estimator_->current_pose_covariance();
+    live_.pose_covariances.push_back({item.input.frame, live_.pose_covariance});
     live_.objects = estimator_->objects();
     live_.objects_initialized += static_cast<std::uint64_t>(report.objects.initialized);
     live_.update_seconds += seconds_between(popped, updated);
@@ -380,15 +383,19 @@ void Daemon::Impl::estimator_loop() {
 void Daemon::Impl::write_outputs(bool final) {
   last_write_ = Clock::now();
   std::vector<Eigen::Isometry3d> poses;
+  std::vector<dataset::PoseCovariance> pose_covariances;
   std::vector<ObjectEstimate> objects;
   {
     std::lock_guard lock(live_.mutex);
     poses = live_.poses;
+    pose_covariances = live_.pose_covariances;
     objects = live_.objects;
   }
   try {
     std::filesystem::create_directories(config_.output.directory);
     dataset::write_trajectory_kitti(config_.output.directory / "trajectory.kitti", poses);
+    dataset::write_pose_covariances_csv(config_.output.directory / "pose_covariance.csv",
+                                        pose_covariances);
     dataset::write_objects_csv(config_.output.directory / "objects.csv", objects);
     if (final) {
       dataset::write_file_atomically(config_.output.directory / "stats.json",

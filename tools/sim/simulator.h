@@ -45,9 +45,9 @@ struct SimulationOptions {
 
   // --- Noise (one standard deviation) ---
   /// Odometry translation noise per axis per frame, metres (--odometry-translation-noise).
-  double odometry_translation_noise = 0.05;
+  double odometry_translation_noise = 0.015;
   /// Odometry rotation noise per axis per frame, radians (--odometry-rotation-noise).
-  double odometry_rotation_noise = 0.03;
+  double odometry_rotation_noise = 0.01;
   /// Noise of every observed coordinate (u_left, v_left, u_right, v_right), normalized image
   /// units (--pixel-noise).
   double pixel_noise = 0.01;

@@ -14,6 +14,7 @@
 #include <filesystem>
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 #include "concord/estimator/options.h"
 
@@ -41,6 +42,12 @@ EstimatorOptions parse_estimator_options(const std::string& yaml_text,
 
 /// The options as YAML text with every key, in the format the loader reads (to print at start-up
 /// or save next to results). Numbers are written in their shortest exact form, so
+/// `options` with each "KEY=VALUE" (YAML value; "consensus.KEY" and "object_noise.horizontal" style
+/// keys address nested maps) applied in turn, then validated. Throws ConfigError naming the
+/// entry and the problem.
+EstimatorOptions apply_overrides(EstimatorOptions options,
+                                 const std::vector<std::string>& overrides);
+
 /// parse_estimator_options(to_yaml(options)) gives back the same values.
 std::string to_yaml(const EstimatorOptions& options);
 
