@@ -3,6 +3,7 @@
 ///                  [--seed S] [--frames N] [--no-point-features] [--set KEY=VALUE ...]
 ///   concord eval --dataset DIR --result DIR
 ///   concord slice --dataset DIR --out DIR --frames N [--robots R]
+///   concord calibrate --dataset DIR [--robot R] [--first F] [--frames N]
 ///   concord launch --dataset DIR --out DIR [--lockstep|--async|--separate] [--base-port P]
 ///                  [--http-base-port P] [--config FILE] [--robots R] [--frames N] [--rate HZ]
 ///   concord plot --input CHART.json --out CHART.png
@@ -22,6 +23,7 @@
 #include "concord/config/options_file.h"
 #include "concord/dataset/dataset.h"
 #include "concord/dataset/result_io.h"
+#include "calibration/calibration.h"
 #include "evaluation/metrics.h"
 #include "evaluation/line_plot.h"
 #include "evaluation/plot.h"
@@ -216,6 +218,12 @@ int run_eval(const fs::path& dataset_dir, const fs::path& result_dir) {
   return 0;
 }
 
+int run_calibrate(const fs::path& dataset_dir, const calibration::CalibrationOptions& options) {
+  const dataset::Dataset data = dataset::read_dataset(dataset_dir);
+  std::cout << calibration::to_yaml(calibration::calibrate(data, options), options);
+  return 0;
+}
+
 int run_slice(const fs::path& dataset_dir, const fs::path& out, int frames, int robots) {
   const dataset::Dataset data = dataset::read_dataset(dataset_dir);
   dataset::write_dataset(
@@ -338,6 +346,23 @@ int main(int argc, char** argv) {
   eval_command->add_option("--result", result_dir, "Result folder (robot_XX/trajectory.kitti...)")
       ->required()
       ->check(CLI::ExistingDirectory);
+
+  auto* calibrate_command = app.add_subcommand(
+      "calibrate",
+      "Measure odometry and observation noise on a calibration segment (a config's noise values)");
+  calibration::CalibrationOptions calibration_options;
+  calibrate_command->add_option("--dataset", dataset_dir, "Dataset folder (with ground truth)")
+      ->required()
+      ->check(CLI::ExistingDirectory);
+  calibrate_command->add_option("--robot", calibration_options.robot, "Robot whose segment")
+      ->capture_default_str()
+      ->check(CLI::NonNegativeNumber);
+  calibrate_command->add_option("--first", calibration_options.first_frame, "First frame")
+      ->capture_default_str()
+      ->check(CLI::NonNegativeNumber);
+  calibrate_command->add_option("--frames", calibration_options.frames, "Frames in the segment")
+      ->capture_default_str()
+      ->check(CLI::Range(10, 1000000));
 
   auto* slice_command = app.add_subcommand("slice", "Cut the first frames/robots of a dataset");
   int robots = 0;
@@ -512,6 +537,7 @@ int main(int argc, char** argv) {
     }
     if (eval_command->parsed()) return run_eval(dataset_dir, result_dir);
     if (slice_command->parsed()) return run_slice(dataset_dir, out_dir, frames, robots);
+    if (calibrate_command->parsed()) return run_calibrate(dataset_dir, calibration_options);
     if (sim_command->parsed()) return run_sim(sim_options, out_dir);
   } catch (const std::exception& error) {
     std::cerr << "concord: error: " << error.what() << "\n";

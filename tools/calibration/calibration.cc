@@ -1,0 +1,208 @@
+#include "calibration/calibration.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <map>
+#include <stdexcept>
+
+#include "concord/estimator/lie.h"
+#include "concord/estimator/updater_helper.h"
+
+namespace concord::calibration {
+
+namespace {
+
+double median_of(std::vector<double> v) {
+  if (v.empty()) return 0.0;
+  const std::size_t middle = v.size() / 2;
+  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(middle), v.end());
+  return v[middle];
+}
+
+/// 1.4826 x the median absolute deviation from the median: sigma for Gaussian data, robust to
+/// outliers.
+double robust_sigma(std::vector<double> values) {
+  if (values.empty()) return 0.0;
+  const double median = median_of(values);
+  for (double& value : values) value = std::abs(value - median);
+  return 1.4826 * median_of(std::move(values));
+}
+
+/// Accumulates stereo errors (u_left, v_left, u_right, v_right), in image units, as components.
+class StereoErrors {
+ public:
+  void add(const Eigen::Vector4d& error) {
+    horizontal_.push_back(0.5 * (error(0) + error(2)));
+    vertical_.push_back(0.5 * (error(1) + error(3)));
+    disparity_.push_back(error(0) - error(2));
+    vertical_disparity_.push_back(error(1) - error(3));
+  }
+
+  StereoErrorSpread spread() const {
+    StereoErrorSpread out;
+    out.observations = static_cast<int>(horizontal_.size());
+    if (out.observations == 0) return out;
+    out.horizontal = robust_sigma(horizontal_);
+    out.vertical = robust_sigma(vertical_);
+    out.disparity = robust_sigma(disparity_);
+    out.vertical_disparity = robust_sigma(vertical_disparity_);
+    out.median = {median_of(horizontal_), median_of(vertical_), median_of(disparity_),
+                  median_of(vertical_disparity_)};
+    int outliers = 0;
+    for (std::size_t k = 0; k < horizontal_.size(); ++k) {
+      const bool outlier = std::abs(horizontal_[k]) > 3.0 * out.horizontal ||
+                           std::abs(vertical_[k]) > 3.0 * out.vertical ||
+                           std::abs(disparity_[k]) > 3.0 * out.disparity ||
+                           std::abs(vertical_disparity_[k]) > 3.0 * out.vertical_disparity;
+      outliers += outlier;
+    }
+    out.outliers = static_cast<double>(outliers) / out.observations;
+    return out;
+  }
+
+ private:
+  std::vector<double> horizontal_, vertical_, disparity_, vertical_disparity_;
+};
+
+std::string number(double value) {
+  char text[32];
+  std::snprintf(text, sizeof(text), "%.4g", value);
+  return text;
+}
+
+}  // namespace
+
+CalibrationReport calibrate(const dataset::Dataset& dataset, const CalibrationOptions& options) {
+  if (options.robot < 0 || options.robot >= static_cast<int>(dataset.robots.size())) {
+    throw std::invalid_argument("calibrate: no robot " + std::to_string(options.robot) + " in " +
+                                dataset.name);
+  }
+  const dataset::RobotData& robot = dataset.robots[options.robot];
+  const int first = options.first_frame;
+  const int end = first + options.frames;
+  if (first < 0 || options.frames < 10 || end > robot.num_frames()) {
+    throw std::invalid_argument("calibrate: frames [" + std::to_string(first) + ", " +
+                                std::to_string(end) + ") are not a segment of at least 10 of robot " +
+                                std::to_string(options.robot) + "'s " +
+                                std::to_string(robot.num_frames()) + " frames");
+  }
+  const StereoCamera& camera = dataset.camera;
+  CalibrationReport report;
+
+  // 1. Odometry: the scale that maps measured onto true translations (least squares), then the
+  //    error of each relative pose.
+  double true_dot_measured = 0.0, measured_squared = 0.0;
+  for (int k = first; k + 1 < end; ++k) {
+    const Eigen::Isometry3d truth = robot.groundtruth[k].inverse() * robot.groundtruth[k + 1];
+    true_dot_measured += truth.translation().dot(robot.odometry[k].translation());
+    measured_squared += robot.odometry[k].translation().squaredNorm();
+  }
+  report.translation_scale = measured_squared > 0.0 ? true_dot_measured / measured_squared : 1.0;
+  Eigen::Matrix<double, 6, 1> sum = Eigen::Matrix<double, 6, 1>::Zero();
+  Eigen::Matrix<double, 6, 1> squares = Eigen::Matrix<double, 6, 1>::Zero();
+  for (int k = first; k + 1 < end; ++k) {
+    const Eigen::Isometry3d truth = robot.groundtruth[k].inverse() * robot.groundtruth[k + 1];
+    Eigen::Isometry3d measured = robot.odometry[k];
+    measured.translation() *= report.translation_scale;
+    const lie::Vector6d error = lie::se3_log(truth.inverse() * measured);
+    sum += error;
+    squares += error.cwiseAbs2();
+    ++report.frames;
+  }
+  report.odometry_mean = sum / report.frames;
+  report.odometry_rms = (squares / report.frames).cwiseSqrt();
+
+  // 2. Objects against the projected ground truth.
+  StereoErrors objects;
+  for (int k = first; k < end; ++k) {
+    for (const StereoObservation& observation : robot.objects[k]) {
+      const auto truth = dataset.objects_groundtruth.find(observation.id);
+      if (truth == dataset.objects_groundtruth.end()) continue;
+      const auto projection =
+          UpdaterHelper::project(camera, robot.groundtruth[k], truth->second);
+      if (!projection) continue;
+      objects.add(observation.uv - camera.denormalize(projection->xy));
+    }
+  }
+  report.objects = objects.spread();
+
+  // 3. Point features against their tracks triangulated with the true poses; residuals of a
+  //    fitted point are smaller than the noise by sqrt((4n - 3) / 4n), undone here.
+  std::map<LandmarkId, std::vector<std::pair<int, Eigen::Vector4d>>> tracks;
+  for (int k = first; k < end; ++k) {
+    for (const StereoObservation& observation : robot.features[k]) {
+      tracks[observation.id].emplace_back(k, observation.uv);
+    }
+  }
+  StereoErrors features;
+  for (const auto& [id, track] : tracks) {
+    if (track.size() < 3) continue;
+    std::vector<Eigen::Isometry3d> poses;
+    std::vector<Eigen::Vector4d> observations;
+    for (const auto& [frame, uv] : track) {
+      poses.push_back(robot.groundtruth[frame]);
+      observations.push_back(camera.normalize(uv));
+    }
+    const auto point = UpdaterHelper::triangulate(camera, poses, observations);
+    if (!point) continue;
+    const double n = 4.0 * static_cast<double>(track.size());
+    const double deflation = std::sqrt(n / (n - 3.0));
+    for (std::size_t i = 0; i < track.size(); ++i) {
+      const auto projection = UpdaterHelper::project(camera, poses[i], *point);
+      if (!projection) continue;
+      features.add(deflation * (track[i].second - camera.denormalize(projection->xy)));
+    }
+  }
+  report.features = features.spread();
+  return report;
+}
+
+std::string to_yaml(const CalibrationReport& report, const CalibrationOptions& options) {
+  const auto& rms = report.odometry_rms;
+  const auto& mean = report.odometry_mean;
+  std::string text = "# concord calibrate: robot " + std::to_string(options.robot) + ", frames " +
+                     std::to_string(options.first_frame) + "-" +
+                     std::to_string(options.first_frame + options.frames - 1) + " (" +
+                     std::to_string(report.frames) + " odometry steps)\n";
+  text += "# Odometry error per axis after the scale correction, RMS (mean):\n#   rho";
+  for (int axis = 0; axis < 3; ++axis) {
+    text += " " + number(rms(axis)) + " (" + number(mean(axis)) + ")";
+  }
+  text += " m\n#   phi";
+  for (int axis = 3; axis < 6; ++axis) {
+    text += " " + number(rms(axis)) + " (" + number(mean(axis)) + ")";
+  }
+  text += " rad\n# Sigmas: the largest axis RMS, so that no axis is overconfident.\n";
+  text += "odometry_translation_sigma: " + number(rms.head<3>().maxCoeff()) + "\n";
+  text += "odometry_rotation_sigma: " + number(rms.tail<3>().maxCoeff()) + "\n";
+  text += "odometry_translation_scale: " + number(report.translation_scale) + "\n";
+  const auto noise = [&](const std::string& key, const StereoErrorSpread& spread) {
+    if (spread.observations == 0) {
+      text += "# " + key + ": nothing to measure on this segment\n";
+      return;
+    }
+    text += "# " + key + ": robust sigmas of " + std::to_string(spread.observations) +
+            " observations; " + number(100.0 * spread.outliers) +
+            " % lie beyond 3 sigma in some component (left to the chi-square gates); medians " +
+            number(spread.median(0)) + ", " + number(spread.median(1)) + ", " +
+            number(spread.median(2)) + ", " + number(spread.median(3)) + "\n";
+    // A component that does not vary at all (v_left = v_right on rectified tracks) gets a floor
+    // of 1 % of the largest one: the estimator needs a positive definite noise.
+    const double floor =
+        0.01 * std::max({spread.horizontal, spread.vertical, spread.disparity});
+    if (std::min({spread.horizontal, spread.vertical, spread.disparity,
+                  spread.vertical_disparity}) < floor) {
+      text += "# (components below 1 % of the largest are raised to that floor)\n";
+    }
+    text += key + ": {horizontal: " + number(std::max(spread.horizontal, floor)) +
+            ", vertical: " + number(std::max(spread.vertical, floor)) +
+            ", disparity: " + number(std::max(spread.disparity, floor)) +
+            ", vertical_disparity: " + number(std::max(spread.vertical_disparity, floor)) + "}\n";
+  };
+  noise("object_noise", report.objects);
+  noise("feature_noise", report.features);
+  return text;
+}
+
+}  // namespace concord::calibration

@@ -1,0 +1,63 @@
+#pragma once
+/// \file
+/// Sensor characterisation on a calibration segment: how far a robot's odometry and stereo
+/// observations are from the truth over a stretch of frames where ground truth is available,
+/// as the noise values of an estimator config (docs/tuning.md). The segment is the only place
+/// ground truth is used for configuration; reported runs are never tuned against their own.
+
+#include <string>
+
+#include "concord/dataset/dataset.h"
+
+namespace concord::calibration {
+
+/// What to measure: robot `robot`'s frames [first_frame, first_frame + frames).
+struct CalibrationOptions {
+  int robot = 0;
+  int first_frame = 0;
+  int frames = 200;
+};
+
+/// Robust spread of the four components of stereo observation errors (image units): the
+/// common-mode position of the pair, horizontal and vertical, and the differences between the
+/// two images (disparity u_left - u_right, and v_left - v_right). Robust sigma = 1.4826 x the
+/// median absolute deviation; `outliers` is the fraction of observations beyond 3 robust sigmas
+/// in any component.
+struct StereoErrorSpread {
+  int observations = 0;
+  double horizontal = 0.0;
+  double vertical = 0.0;
+  double disparity = 0.0;
+  double vertical_disparity = 0.0;
+  double outliers = 0.0;
+  /// Medians of the four components (a systematic offset, e.g. a disparity bias from a wrong
+  /// baseline, shows here).
+  Eigen::Vector4d median = Eigen::Vector4d::Zero();
+};
+
+struct CalibrationReport {
+  int frames = 0;  ///< odometry steps measured
+  /// Odometry error xi = log(T_true_rel^-1 T_measured_rel) per frame: mean and RMS per axis of
+  /// [rho; phi] (metres, radians), after the scale correction below.
+  Eigen::Matrix<double, 6, 1> odometry_mean = Eigen::Matrix<double, 6, 1>::Zero();
+  Eigen::Matrix<double, 6, 1> odometry_rms = Eigen::Matrix<double, 6, 1>::Zero();
+  /// Least-squares factor from measured to true translation (odometry_translation_scale).
+  double translation_scale = 1.0;
+  /// Object detections against the ground-truth objects projected with the true poses (needs
+  /// objects_gt.csv); observations = 0 when there are none.
+  StereoErrorSpread objects;
+  /// Point features against their tracks triangulated with the true poses (tracks of at least
+  /// 3 frames); observations = 0 when there are none.
+  StereoErrorSpread features;
+};
+
+/// Measures the segment. Throws std::invalid_argument when the robot or the segment is outside
+/// the dataset or shorter than 10 frames.
+CalibrationReport calibrate(const dataset::Dataset& dataset, const CalibrationOptions& options);
+
+/// The report as the estimator config keys it suggests (YAML, with comments): the odometry
+/// sigmas (the largest axis RMS, so that no axis is overconfident), the translation scale and the
+/// object and feature noise components.
+std::string to_yaml(const CalibrationReport& report, const CalibrationOptions& options);
+
+}  // namespace concord::calibration
