@@ -49,6 +49,7 @@ void for_each_field(Options& options, Visitor&& visit) {
   visit("object_min_observations", options.object_min_observations);
   visit("object_min_distance", options.object_min_distance);
   visit("object_max_distance", options.object_max_distance);
+  visit("object_max_relative_sigma", options.object_max_relative_sigma);
   visit("object_init_max_reprojection_error", options.object_init_max_reprojection_error);
   visit("object_chi2_probability", options.object_chi2_probability);
   visit("object_archive_after_frames", options.object_archive_after_frames);

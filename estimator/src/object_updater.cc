@@ -1,5 +1,6 @@
 #include "concord/estimator/object_updater.h"
 
+#include <Eigen/Eigenvalues>
 #include <Eigen/QR>
 #include <cmath>
 #include <limits>
@@ -151,7 +152,25 @@ ObjectUpdater::InitResult ObjectUpdater::try_initialize(
     }
   }
 
-  // 5. Augment (eq. 30), then update with the rows that do not involve the new object.
+  // 5. Too uncertain for a Gaussian yet (relative to its distance): wait for better views.
+  if (options_.object_max_relative_sigma > 0.0) {
+    const Eigen::MatrixXd H1 = H_state_rotated.topRows(3);
+    const std::vector<int> columns = StateHelper::nonzero_columns(H1);
+    const Eigen::Matrix3d R1_inverse = R1.inverse();
+    const Eigen::Matrix3d covariance =
+        R1_inverse *
+        (H1(Eigen::all, columns) * state.covariance(columns, columns) *
+             H1(Eigen::all, columns).transpose() +
+         Eigen::Matrix3d::Identity()) *
+        R1_inverse.transpose();
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eigen(covariance, Eigen::EigenvaluesOnly);
+    const double largest_sigma = std::sqrt(std::max(eigen.eigenvalues().maxCoeff(), 0.0));
+    if (!(largest_sigma <= options_.object_max_relative_sigma * newest->depth_left)) {
+      return InitResult::kFailed;
+    }
+  }
+
+  // 6. Augment (eq. 30), then update with the rows that do not involve the new object.
   const Eigen::Vector3d p_new = *p_world + R1.inverse() * residual_rotated.head<3>();
   StateHelper::augment_landmark(state, id, p_new, *p_world, track.back().frame,
                                 H_state_rotated.topRows(3), R1, Eigen::Matrix3d::Identity());
@@ -164,7 +183,7 @@ ObjectUpdater::InitResult ObjectUpdater::try_initialize(
     }
   }
 
-  // 6. An archived object rejoins: its old marginal and the fresh estimate are two estimates of
+  // 7. An archived object rejoins: its old marginal and the fresh estimate are two estimates of
   //    one position with unknown correlation (both rest on this robot's trajectory), fused by
   //    covariance intersection into the new landmark's marginal (Proposition 2 keeps the
   //    conditional of the rest of the state, so the poses follow).

@@ -93,6 +93,10 @@ std::vector<std::string> EstimatorOptions::validate() const {
   problems.check_distance_range("object_min_distance", object_min_distance, "object_max_distance",
                                 object_max_distance);
   problems.check_positive("object_init_max_reprojection_error", object_init_max_reprojection_error);
+  if (!(std::isfinite(object_max_relative_sigma) && object_max_relative_sigma >= 0.0)) {
+    problems.add("object_max_relative_sigma", object_max_relative_sigma,
+                 "finite and >= 0 (0 disables)");
+  }
   problems.check_probability("object_chi2_probability", object_chi2_probability);
   problems.check_at_least("object_archive_after_frames", object_archive_after_frames, 0);
 

@@ -73,6 +73,12 @@ struct EstimatorOptions {
   /// object_min_distance / object_max_distance: accepted depth of a new object (metres).
   double object_min_distance = 5.0;
   double object_max_distance = 30.0;
+  /// object_max_relative_sigma: a new object whose position uncertainty (the largest standard
+  /// deviation of its initial covariance, along the viewing ray for a stereo point) exceeds this
+  /// fraction of its distance waits for better observations: beyond it a Gaussian in x, y, z is a
+  /// poor model of a stereo point (depth error grows with the square of the depth) and the
+  /// linearized filter becomes overconfident. 0 disables.
+  double object_max_relative_sigma = 0.0;
   /// object_init_max_reprojection_error: largest RMS reprojection error of a refined new object
   /// (image units).
   double object_init_max_reprojection_error = 2.0;
