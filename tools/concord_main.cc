@@ -6,6 +6,7 @@
 ///   concord launch --dataset DIR --out DIR [--lockstep|--async|--separate] [--base-port P]
 ///                  [--http-base-port P] [--config FILE] [--robots R] [--frames N] [--rate HZ]
 ///   concord plot --input CHART.json --out CHART.png
+///   concord frontend --input DIR --out DIR [--detections FILE] [--odometry FILE] [--frames N]
 ///   concord sim --robots N --out DIR [--seed S] [--frames F] [--objects M] [--points-per-frame P]
 ///               [--odometry-translation-noise T] [--odometry-rotation-noise R] [--pixel-noise S]
 ///               ... (camera, path and object-placement parameters: concord sim --help)
@@ -21,6 +22,7 @@
 #include "concord/config/options_file.h"
 #include "concord/dataset/dataset.h"
 #include "concord/dataset/result_io.h"
+#include "concord/frontend/frontend_run.h"
 #include "evaluation/metrics.h"
 #include "evaluation/line_plot.h"
 #include "evaluation/plot.h"
@@ -194,6 +196,32 @@ int run_sim(const sim::SimulationOptions& options, const fs::path& out) {
             << out.string() << "\n";
   std::cerr << "concord sim: simulated in " << seconds(simulated - start) << " s, written in "
             << seconds(written - simulated) << " s\n";
+  return 0;
+}
+
+/// The stereo front-end over a sequence (or a team of them), written as a dataset.
+int run_frontend_command(const fs::path& input, const fs::path& out,
+                         frontend::FrontendRunOptions options) {
+  int last_percent = -1;
+  options.progress = [&](int robot, int frame, int frames) {
+    const int percent = 100 * (frame + 1) / frames;
+    if (percent / 10 != last_percent / 10 || frame + 1 == frames) {
+      std::cerr << "  robot " << robot << ": frame " << frame + 1 << "/" << frames << "\n";
+      last_percent = percent;
+    }
+  };
+  const frontend::FrontendRunSummary summary = frontend::run_frontend(input, out, options);
+  for (std::size_t robot = 0; robot < summary.robots.size(); ++robot) {
+    const frontend::SequenceSummary& s = summary.robots[robot];
+    std::cout << "concord frontend: robot " << robot << ": " << s.frames << " frames, "
+              << s.tracks_per_frame << " tracks a frame (min " << s.min_tracks
+              << "), mean track length " << s.mean_track_length << ", " << s.objects_observed
+              << " of " << s.detections << " detections observed, " << s.odometry_failures
+              << " odometry failures, " << s.total_ms.p50 << " ms a frame (p50), "
+              << s.total_ms.p99 << " ms (p99)\n";
+  }
+  std::cout << "concord frontend: wrote " << out.string() << " (statistics in "
+            << (out / "frontend.json").string() << ")\n";
   return 0;
 }
 
@@ -428,6 +456,42 @@ int main(int argc, char** argv) {
       ->check(CLI::ExistingFile);
   plot_command->add_option("--out", out_dir, "PNG file to write")->required();
 
+  auto* frontend_command = app.add_subcommand(
+      "frontend",
+      "Stereo front-end: image sequence(s) to a dataset folder (tracks, odometry, objects)");
+  frontend::FrontendRunOptions frontend_options;
+  std::string frontend_input;
+  frontend_command
+      ->add_option("--input", frontend_input,
+                   "A sequence (EuRoC or KITTI layout) or a folder of robot_NN sequences")
+      ->required()
+      ->check(CLI::ExistingDirectory);
+  frontend_command->add_option("--out", out_dir, "Output dataset folder")->required();
+  frontend_command
+      ->add_option("--detections", frontend_options.detections,
+                   "detections.csv of a single sequence (default: <sequence>/detections.csv)")
+      ->check(CLI::ExistingFile);
+  frontend_command
+      ->add_option("--odometry", frontend_options.odometry,
+                   "The robot's own odometry (KITTI poses T_body(k-1)_body(k)) instead of "
+                   "visual odometry")
+      ->check(CLI::ExistingFile);
+  frontend_command
+      ->add_option("--odometry-translation-sigma", frontend_options.odometry_translation_sigma,
+                   "Standard deviation of --odometry per axis per frame, metres")
+      ->capture_default_str();
+  frontend_command
+      ->add_option("--odometry-rotation-sigma", frontend_options.odometry_rotation_sigma,
+                   "Standard deviation of --odometry per axis per frame, radians")
+      ->capture_default_str();
+  frontend_command->add_option("--frames", frames, "Only the first N frames")
+      ->check(CLI::PositiveNumber);
+  frontend_command->add_option("--features", frontend_options.frontend.tracker.target_features,
+                               "Tracks kept per frame")
+      ->capture_default_str();
+  frontend_command->add_option("--name", frontend_options.name, "dataset.json name of the output")
+      ->capture_default_str();
+
   CLI11_PARSE(app, argc, argv);
   try {
     if (plot_command->parsed()) {
@@ -453,6 +517,10 @@ int main(int argc, char** argv) {
     if (eval_command->parsed()) return run_eval(dataset_dir, result_dir);
     if (slice_command->parsed()) return run_slice(dataset_dir, out_dir, frames, robots);
     if (sim_command->parsed()) return run_sim(sim_options, out_dir);
+    if (frontend_command->parsed()) {
+      if (frames > 0) frontend_options.max_frames = frames;
+      return run_frontend_command(frontend_input, out_dir, frontend_options);
+    }
   } catch (const std::exception& error) {
     std::cerr << "concord: error: " << error.what() << "\n";
     return 1;
