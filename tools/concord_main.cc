@@ -7,12 +7,15 @@
 ///                  [--http-base-port P] [--config FILE] [--robots R] [--frames N] [--rate HZ]
 ///   concord plot --input CHART.json --out CHART.png
 ///   concord frontend --input DIR --out DIR [--detections FILE] [--odometry FILE] [--frames N]
+///   concord frontend-eval --dataset DIR [--world FILE]
 ///   concord sim --robots N --out DIR [--seed S] [--frames F] [--objects M] [--points-per-frame P]
 ///               [--odometry-translation-noise T] [--odometry-rotation-noise R] [--pixel-noise S]
 ///               ... (camera, path and object-placement parameters: concord sim --help)
 
 #include <CLI/CLI.hpp>
 #include <chrono>
+#include <cmath>
+#include <numbers>
 #include <cstdio>
 #include <exception>
 #include <filesystem>
@@ -23,11 +26,13 @@
 #include "concord/dataset/dataset.h"
 #include "concord/dataset/result_io.h"
 #include "concord/frontend/frontend_run.h"
+#include "evaluation/frontend_metrics.h"
 #include "evaluation/metrics.h"
 #include "evaluation/line_plot.h"
 #include "evaluation/plot.h"
 #include "launch/launch.h"
 #include "replay/team_replay.h"
+#include "sim/render.h"
 #include "sim/simulator.h"
 
 namespace fs = std::filesystem;
@@ -170,18 +175,49 @@ int run_slice(const fs::path& dataset_dir, const fs::path& out, int frames, int 
   return 0;
 }
 
-int run_sim(const sim::SimulationOptions& options, const fs::path& out) {
-  if (const auto problems = options.validate(); !problems.empty()) {
+int run_sim(sim::SimulationOptions options, const fs::path& out,
+            const std::optional<sim::RenderOptions>& render) {
+  if (render) {
+    // The rendered camera's vertical field of view follows from the image's aspect ratio.
+    const double half_width = std::tan(0.5 * options.horizontal_fov_degrees * std::numbers::pi / 180.0);
+    options.vertical_fov_degrees =
+        2.0 * std::atan(half_width * render->height / render->width) * 180.0 / std::numbers::pi;
+  }
+  auto problems = options.validate();
+  if (render) {
+    for (const auto& problem : render->validate()) problems.push_back(problem);
+  }
+  if (!problems.empty()) {
     std::cerr << "concord sim: invalid parameters:\n";
     for (const auto& problem : problems) std::cerr << "  " << problem << "\n";
     return 1;
   }
   using Clock = std::chrono::steady_clock;
   const auto start = Clock::now();
-  const dataset::Dataset data = sim::simulate(options);
+  dataset::Dataset data = sim::simulate(options);
+  std::optional<sim::TexturedWorld> world;
+  if (render) {
+    std::vector<LandmarkId> removed;
+    world.emplace(sim::build_world(data, *render, options.seed, removed));
+    sim::remove_objects(data, removed);
+    std::cerr << "concord sim: rendered world of " << world->quads().size() << " textured quads ("
+              << world->cubes().size() << " object cubes; " << removed.size()
+              << " objects dropped because a path passes through them)\n";
+  }
   const auto simulated = Clock::now();
   dataset::write_dataset(data, out);
   dataset::write_file_atomically(out / "simulation.json", sim::to_json(options));
+  if (render) {
+    const StereoCamera camera =
+        sim::render_camera(data.camera, options.horizontal_fov_degrees, *render);
+    sim::write_rendered_sequences(
+        data, *world, camera, *render, options.min_depth, options.max_depth, options.seed, out,
+        [](long long done, long long total) {
+          if (done % 100 == 0 || done == total) {
+            std::cerr << "  rendered " << done << "/" << total << " frames\n";
+          }
+        });
+  }
   const auto written = Clock::now();
   const auto seconds = [](Clock::duration duration) {
     return std::chrono::duration<double>(duration).count();
@@ -222,6 +258,67 @@ int run_frontend_command(const fs::path& input, const fs::path& out,
   }
   std::cout << "concord frontend: wrote " << out.string() << " (statistics in "
             << (out / "frontend.json").string() << ")\n";
+  return 0;
+}
+
+/// Accuracy of a front-end's dataset against its ground truth (and, for rendered sequences, the
+/// world's geometry): prints one line per robot and writes frontend_eval.json next to it.
+int run_frontend_eval(const fs::path& dataset_dir, const fs::path& world_file) {
+  const dataset::Dataset data = dataset::read_dataset(dataset_dir);
+  std::optional<sim::TexturedWorld> world;
+  if (!world_file.empty()) world.emplace(sim::read_world_geometry(world_file));
+  const auto statistics_json = [](const evaluation::ErrorStatistics& s) {
+    return nlohmann::json{{"count", s.count}, {"median", s.median}, {"p90", s.p90},
+                          {"mean", s.mean}, {"max", s.max}};
+  };
+  nlohmann::json robots = nlohmann::json::array();
+  for (const dataset::RobotData& robot : data.robots) {
+    const fs::path folder = dataset_dir / dataset::robot_folder_name(robot.index);
+    std::vector<Eigen::Matrix<double, 6, 6>> covariances;
+    if (fs::exists(folder / "odometry_covariance.csv")) {
+      covariances = frontend::read_odometry_covariances(folder / "odometry_covariance.csv");
+    }
+    const auto odometry = evaluation::odometry_accuracy(robot.groundtruth, robot.odometry, covariances);
+    const auto objects = evaluation::object_observation_accuracy(data.camera, robot.groundtruth,
+                                                                 robot.objects, data.objects_groundtruth);
+    nlohmann::json entry = {
+        {"robot", robot.index},
+        {"odometry",
+         {{"path_length", odometry.path_length},
+          {"final_error", odometry.final_error},
+          {"final_error_percent", odometry.final_error_percent},
+          {"max_error", odometry.max_error},
+          {"rmse", odometry.rmse},
+          {"translation_error_rms", odometry.translation_error_rms},
+          {"rotation_error_rms", odometry.rotation_error_rms},
+          {"nees_mean", odometry.nees_mean}}},
+        {"objects",
+         {{"centre_px", statistics_json(objects.centre)},
+          {"disparity_px", statistics_json(objects.disparity)},
+          {"relative_depth", statistics_json(objects.relative_depth)}}}};
+    std::cout << "robot " << robot.index << ": odometry over " << odometry.path_length
+              << " m: final error " << odometry.final_error << " m (" << odometry.final_error_percent
+              << " %), RMSE " << odometry.rmse << " m, per motion " << odometry.translation_error_rms
+              << " m / " << odometry.rotation_error_rms << " rad RMS, NEES " << odometry.nees_mean
+              << "; objects: centre " << objects.centre.median << " px, disparity "
+              << objects.disparity.median << " px (medians)";
+    if (world) {
+      const auto tracks =
+          evaluation::track_accuracy(*world, data.camera, robot.groundtruth, robot.features);
+      entry["tracks"] = {{"tracks", tracks.tracks},
+                         {"unanchored", tracks.unanchored},
+                         {"left_px", statistics_json(tracks.left)},
+                         {"right_px", statistics_json(tracks.right)},
+                         {"all_px", statistics_json(tracks.all)}};
+      std::cout << "; tracks: " << tracks.all.median << " px median, " << tracks.all.p90
+                << " px p90 reprojection error";
+    }
+    std::cout << "\n";
+    robots.push_back(std::move(entry));
+  }
+  dataset::write_file_atomically(dataset_dir / "frontend_eval.json",
+                                 nlohmann::json{{"robots", robots}}.dump(2) + "\n");
+  std::cout << "frontend-eval: " << (dataset_dir / "frontend_eval.json").string() << "\n";
   return 0;
 }
 
@@ -413,6 +510,34 @@ int main(int argc, char** argv) {
                    "Largest depth of an object in view of the pose it is placed around, metres")
       ->capture_default_str();
 
+  bool render_images = false;
+  sim::RenderOptions render_options;
+  render_options.textures = CONCORD_TEXTURE_DIR;
+  sim_command->add_flag("--render", render_images,
+                        "Also render stereo images of a textured world (KITTI layout per robot, "
+                        "with detections.csv) for the front-end");
+  sim_command->add_option("--render-width", render_options.width, "Rendered image width, pixels")
+      ->capture_default_str();
+  sim_command->add_option("--render-height", render_options.height, "Rendered image height, pixels")
+      ->capture_default_str();
+  sim_command
+      ->add_option("--render-noise", render_options.image_noise,
+                   "Pixel noise of the rendered images, grey levels (one sigma)")
+      ->capture_default_str();
+  sim_command
+      ->add_option("--render-object-size", render_options.object_size,
+                   "Edge of the cube drawn for each object, metres")
+      ->capture_default_str();
+  sim_command
+      ->add_option("--render-pillars", render_options.pillar_density,
+                   "Textured pillars per 100 square metres")
+      ->capture_default_str();
+  sim_command
+      ->add_option("--render-textures", render_options.textures,
+                   "Folder of PNG photographs used as textures")
+      ->check(CLI::ExistingDirectory)
+      ->capture_default_str();
+
   auto* launch_command = app.add_subcommand(
       "launch", "Run one concordd per robot of a dataset on loopback and score the outputs");
   launch::LaunchOptions launch_options;
@@ -492,6 +617,16 @@ int main(int argc, char** argv) {
   frontend_command->add_option("--name", frontend_options.name, "dataset.json name of the output")
       ->capture_default_str();
 
+  auto* frontend_eval_command = app.add_subcommand(
+      "frontend-eval", "Accuracy of a front-end's dataset (odometry, tracks, objects) against truth");
+  std::string world_file;
+  frontend_eval_command->add_option("--dataset", dataset_dir, "Dataset written by concord frontend")
+      ->required()
+      ->check(CLI::ExistingDirectory);
+  frontend_eval_command
+      ->add_option("--world", world_file, "world.csv of rendered sequences (concord sim --render)")
+      ->check(CLI::ExistingFile);
+
   CLI11_PARSE(app, argc, argv);
   try {
     if (plot_command->parsed()) {
@@ -516,7 +651,12 @@ int main(int argc, char** argv) {
     }
     if (eval_command->parsed()) return run_eval(dataset_dir, result_dir);
     if (slice_command->parsed()) return run_slice(dataset_dir, out_dir, frames, robots);
-    if (sim_command->parsed()) return run_sim(sim_options, out_dir);
+    if (sim_command->parsed()) {
+      return run_sim(sim_options, out_dir,
+                     render_images ? std::optional<sim::RenderOptions>(render_options)
+                                   : std::nullopt);
+    }
+    if (frontend_eval_command->parsed()) return run_frontend_eval(dataset_dir, world_file);
     if (frontend_command->parsed()) {
       if (frames > 0) frontend_options.max_frames = frames;
       return run_frontend_command(frontend_input, out_dir, frontend_options);

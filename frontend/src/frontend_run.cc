@@ -8,6 +8,7 @@
 #include "concord/dataset/dataset.h"
 #include "concord/dataset/result_io.h"
 #include "concord/frontend/frontend.h"
+#include "text_lines.h"
 
 namespace concord::frontend {
 
@@ -264,6 +265,31 @@ RobotRun run_sequence(const fs::path& folder, int robot, bool single,
 }
 
 }  // namespace
+
+std::vector<Eigen::Matrix<double, 6, 6>> read_odometry_covariances(const fs::path& file) {
+  text::LineReader reader(file);
+  std::string_view line;
+  if (!reader.next_line(line) || !line.starts_with("frame,valid,inliers")) {
+    reader.fail("expected the header 'frame,valid,inliers,c00,...'");
+  }
+  std::vector<Eigen::Matrix<double, 6, 6>> covariances;
+  while (reader.next_line(line)) {
+    const auto fields = text::split(line, ',');
+    if (fields.size() != 24) {
+      reader.fail("expected 24 fields (frame, valid, inliers, 21 covariance entries)");
+    }
+    Eigen::Matrix<double, 6, 6> covariance;
+    std::size_t field = 3;
+    for (int row = 0; row < 6; ++row) {
+      for (int column = row; column < 6; ++column) {
+        covariance(row, column) = covariance(column, row) =
+            reader.number(fields[field++], "covariance entry");
+      }
+    }
+    covariances.push_back(covariance);
+  }
+  return covariances;
+}
 
 std::vector<fs::path> list_sequences(const fs::path& input) {
   if (!fs::is_directory(input)) throw FrontendError(input.string() + ": input folder not found");

@@ -19,6 +19,7 @@
 /// robot_NN sequence folders (one robot each). A sequence's detections are `detections.csv` in its
 /// folder unless given. OpenCV-free.
 
+#include <Eigen/Core>
 #include <filesystem>
 #include <functional>
 #include <optional>
@@ -92,6 +93,10 @@ struct FrontendRunSummary {
 FrontendRunSummary run_frontend(const std::filesystem::path& input,
                                 const std::filesystem::path& out,
                                 const FrontendRunOptions& options);
+
+/// The covariances of an odometry_covariance.csv (one per motion, in file order). Throws
+/// FrontendError naming the file and line on bad input.
+std::vector<Eigen::Matrix<double, 6, 6>> read_odometry_covariances(const std::filesystem::path& file);
 
 /// The sequence folders of an input: the input itself if it is a sequence, else its robot_NN
 /// sub-folders in order. Throws FrontendError if there are none.
