@@ -25,6 +25,8 @@
 #include "concord/config/options_file.h"
 #include "concord/dataset/dataset.h"
 #include "concord/dataset/result_io.h"
+#include "concord/frontend/frontend.h"
+#include "concord/frontend/frontend_options_file.h"
 #include "concord/frontend/frontend_run.h"
 #include "evaluation/frontend_metrics.h"
 #include "evaluation/metrics.h"
@@ -254,7 +256,8 @@ int run_frontend_command(const fs::path& input, const fs::path& out,
               << "), mean track length " << s.mean_track_length << ", " << s.objects_observed
               << " of " << s.detections << " detections observed, " << s.odometry_failures
               << " odometry failures, " << s.total_ms.p50 << " ms a frame (p50), "
-              << s.total_ms.p99 << " ms (p99)\n";
+              << s.total_ms.p99 << " ms (p99), CPU " << s.total_cpu_ms.p50 << " ms (p50), "
+              << s.total_cpu_ms.p99 << " ms (p99)\n";
   }
   std::cout << "concord frontend: wrote " << out.string() << " (statistics in "
             << (out / "frontend.json").string() << ")\n";
@@ -616,6 +619,16 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   frontend_command->add_option("--name", frontend_options.name, "dataset.json name of the output")
       ->capture_default_str();
+  std::string frontend_config;
+  frontend_command
+      ->add_option("--config", frontend_config,
+                   "Front-end options (YAML: tracker:, odometry:, objects:; docs/frontend.md)")
+      ->check(CLI::ExistingFile);
+  int frontend_threads = 0;
+  frontend_command
+      ->add_option("--threads", frontend_threads,
+                   "Threads OpenCV may use (1: one core; default: OpenCV's choice)")
+      ->check(CLI::NonNegativeNumber);
 
   auto* frontend_eval_command = app.add_subcommand(
       "frontend-eval", "Accuracy of a front-end's dataset (odometry, tracks, objects) against truth");
@@ -659,6 +672,15 @@ int main(int argc, char** argv) {
     if (frontend_eval_command->parsed()) return run_frontend_eval(dataset_dir, world_file);
     if (frontend_command->parsed()) {
       if (frames > 0) frontend_options.max_frames = frames;
+      if (frontend_threads > 0) frontend::set_opencv_threads(frontend_threads);
+      if (!frontend_config.empty()) {
+        const int features = frontend_options.frontend.tracker.target_features;
+        frontend_options.frontend = frontend::load_frontend_options(frontend_config);
+        if (frontend_command->count("--features") > 0) {
+          frontend_options.frontend.tracker.target_features = features;
+        }
+      }
+      std::cerr << "concord frontend: options\n" << frontend::to_yaml(frontend_options.frontend);
       return run_frontend_command(frontend_input, out_dir, frontend_options);
     }
   } catch (const std::exception& error) {

@@ -8,6 +8,8 @@
 #include "concord/dataset/dataset.h"
 #include "concord/dataset/result_io.h"
 #include "concord/frontend/frontend.h"
+#include "concord/frontend/track_statistics.h"
+#include "options_fields.h"
 #include "text_lines.h"
 
 namespace concord::frontend {
@@ -76,48 +78,11 @@ nlohmann::ordered_json percentiles_json(const Percentiles& p) {
 }
 
 nlohmann::ordered_json options_json(const FrontendOptions& options) {
-  const TrackerOptions& t = options.tracker;
-  const OdometryOptions& o = options.odometry;
-  const ObjectOptions& b = options.objects;
-  return {
-      {"tracker",
-       {{"target_features", t.target_features},
-        {"grid_columns", t.grid_columns},
-        {"grid_rows", t.grid_rows},
-        {"fast_threshold", t.fast_threshold},
-        {"min_feature_distance", t.min_feature_distance},
-        {"border", t.border},
-        {"klt_window", t.klt_window},
-        {"temporal_pyramid_levels", t.temporal_pyramid_levels},
-        {"stereo_pyramid_levels", t.stereo_pyramid_levels},
-        {"klt_iterations", t.klt_iterations},
-        {"klt_epsilon", t.klt_epsilon},
-        {"epipolar_tolerance", t.epipolar_tolerance},
-        {"min_disparity", t.min_disparity},
-        {"max_disparity", t.max_disparity},
-        {"circular_tolerance", t.circular_tolerance},
-        {"ransac_threshold", t.ransac_threshold},
-        {"ransac_confidence", t.ransac_confidence},
-        {"ransac_min_parallax", t.ransac_min_parallax}}},
-      {"odometry",
-       {{"pixel_sigma", o.pixel_sigma},
-        {"ransac_threshold", o.ransac_threshold},
-        {"ransac_iterations", o.ransac_iterations},
-        {"ransac_confidence", o.ransac_confidence},
-        {"min_inliers", o.min_inliers},
-        {"min_disparity", o.min_disparity},
-        {"refine_iterations", o.refine_iterations},
-        {"refine_chi2_gate", o.refine_chi2_gate},
-        {"failure_translation_sigma", o.failure_translation_sigma},
-        {"failure_rotation_sigma", o.failure_rotation_sigma}}},
-      {"objects",
-       {{"central_fraction", b.central_fraction},
-        {"min_region_size", b.min_region_size},
-        {"min_match_score", b.min_match_score},
-        {"max_disparity", b.max_disparity},
-        {"centre_depth_fraction", b.centre_depth_fraction},
-        {"border", b.border}}},
-  };
+  nlohmann::ordered_json document;
+  visit_option_fields(options, [&](const char* section, const char* key, const auto& field) {
+    document[section][key] = field;
+  });
+  return document;
 }
 
 nlohmann::ordered_json summary_json(const SequenceSummary& s) {
@@ -135,10 +100,12 @@ nlohmann::ordered_json summary_json(const SequenceSummary& s) {
           {"odometry_translation_sigma", s.odometry_translation_sigma},
           {"odometry_rotation_sigma", s.odometry_rotation_sigma},
           {"feature_pixel_sigma", s.feature_pixel_sigma},
+          {"feature_track_sigma", s.feature_track_sigma},
           {"detections", s.detections},
           {"objects_observed", s.objects_observed},
           {"milliseconds_per_frame",
            {{"total", percentiles_json(s.total_ms)},
+            {"total_cpu", percentiles_json(s.total_cpu_ms)},
             {"load", percentiles_json(s.load_ms)},
             {"rectify", percentiles_json(s.rectify_ms)},
             {"track", percentiles_json(s.track_ms)},
@@ -194,7 +161,7 @@ RobotRun run_sequence(const fs::path& folder, int robot, bool single,
   run.summary.sequence = folder.string();
   run.summary.frames = frames;
   run.summary.min_tracks = std::numeric_limits<int>::max();
-  std::vector<double> total, load, rectify, track, odometry_ms, objects, translation_sigmas,
+  std::vector<double> total, total_cpu, load, rectify, track, odometry_ms, objects, translation_sigmas,
       rotation_sigmas, row_sigmas;
   double track_sum = 0.0, length_sum = 0.0, circular = 0.0, epipolar = 0.0, ransac = 0.0,
          outliers = 0.0;
@@ -226,6 +193,7 @@ RobotRun run_sequence(const fs::path& folder, int robot, bool single,
       run.motions.push_back(frame.motion);
     }
     total.push_back(frame.timings.total);
+    total_cpu.push_back(frame.timings.total_cpu);
     load.push_back(frame.timings.load);
     rectify.push_back(frame.timings.rectify);
     track.push_back(frame.timings.track);
@@ -255,7 +223,9 @@ RobotRun run_sequence(const fs::path& folder, int robot, bool single,
   s.odometry_translation_sigma = median_of(translation_sigmas);
   s.odometry_rotation_sigma = median_of(rotation_sigmas);
   s.feature_pixel_sigma = median_of(row_sigmas);
+  s.feature_track_sigma = track_consistency(run.camera, run.data.odometry, run.data.features).sigma;
   s.total_ms = percentiles_of(total);
+  s.total_cpu_ms = percentiles_of(total_cpu);
   s.load_ms = percentiles_of(load);
   s.rectify_ms = percentiles_of(rectify);
   s.track_ms = percentiles_of(track);

@@ -39,8 +39,8 @@ double robust_sigma_of_differences(std::vector<double> differences) {
 
 class Klt {
  public:
-  explicit Klt(const TrackerOptions& options)
-      : window_(options.klt_window, options.klt_window),
+  Klt(const TrackerOptions& options, int window)
+      : window_(window, window),
         criteria_(cv::TermCriteria::COUNT | cv::TermCriteria::EPS, options.klt_iterations,
                   options.klt_epsilon) {}
 
@@ -134,6 +134,8 @@ std::vector<std::string> TrackerOptions::validate() const {
   require(min_feature_distance >= 1.0, "min_feature_distance", min_feature_distance, ">= 1");
   require(border >= 0, "border", border, ">= 0");
   require(klt_window >= 5 && klt_window % 2 == 1, "klt_window", klt_window, "odd and >= 5");
+  require(stereo_klt_window >= 5 && stereo_klt_window % 2 == 1, "stereo_klt_window",
+          stereo_klt_window, "odd and >= 5");
   require(temporal_pyramid_levels >= 0 && temporal_pyramid_levels <= 8, "temporal_pyramid_levels",
           temporal_pyramid_levels, "in [0, 8]");
   require(stereo_pyramid_levels >= 0 && stereo_pyramid_levels <= 8, "stereo_pyramid_levels",
@@ -187,7 +189,8 @@ TrackedFrame StereoTracker::track(const cv::Mat& left, const cv::Mat& right) {
       right.type() != CV_8UC1) {
     throw FrontendError("StereoTracker::track: expects two 8-bit grey images of one size");
   }
-  const cv::Size window(options_.klt_window, options_.klt_window);
+  const int side = std::max(options_.klt_window, options_.stereo_klt_window);
+  const cv::Size window(side, side);
   const int levels = std::max(options_.temporal_pyramid_levels, options_.stereo_pyramid_levels);
   std::vector<cv::Mat> left_pyramid, right_pyramid;
   cv::buildOpticalFlowPyramid(left, left_pyramid, window, levels, true);
@@ -219,14 +222,15 @@ TrackedFrame StereoTracker::track(const cv::Mat& left, const cv::Mat& right) {
 void StereoTracker::continue_tracks(const std::vector<cv::Mat>& left_pyramid,
                                     const std::vector<cv::Mat>& right_pyramid,
                                     const cv::Size& size, TrackedFrame& out) {
-  const Klt klt(options_);
+  const Klt temporal(options_, options_.klt_window);
+  const Klt stereo(options_, options_.stereo_klt_window);
   const std::size_t count = tracks_.size();
   std::vector<unsigned char> keep(count, 1), status;
   std::vector<double> row_differences;
 
   // 1. Temporal KLT, left k-1 -> left k.
   std::vector<cv::Point2f> left_now = tracks_.left;
-  klt.track(previous_left_pyramid_, left_pyramid, tracks_.left, left_now,
+  temporal.track(previous_left_pyramid_, left_pyramid, tracks_.left, left_now,
             options_.temporal_pyramid_levels, status);
   if (hook_) hook_(MatchStage::kTemporal, left_now);
   for (std::size_t index = 0; index < count; ++index) {
@@ -241,7 +245,7 @@ void StereoTracker::continue_tracks(const std::vector<cv::Mat>& left_pyramid,
   for (std::size_t index = 0; index < count; ++index) {
     right_now[index] = left_now[index] - (tracks_.left[index] - tracks_.right[index]);
   }
-  klt.track(left_pyramid, right_pyramid, left_now, right_now, options_.stereo_pyramid_levels,
+  stereo.track(left_pyramid, right_pyramid, left_now, right_now, options_.stereo_pyramid_levels,
             status);
   if (hook_) hook_(MatchStage::kStereo, right_now);
   for (std::size_t index = 0; index < count; ++index) {
@@ -253,7 +257,7 @@ void StereoTracker::continue_tracks(const std::vector<cv::Mat>& left_pyramid,
 
   // 3. Circular matching: right k -> right k-1 must land on the track's right position at k-1.
   std::vector<cv::Point2f> right_back = tracks_.right;
-  klt.track(right_pyramid, previous_right_pyramid_, right_now, right_back,
+  temporal.track(right_pyramid, previous_right_pyramid_, right_now, right_back,
             options_.temporal_pyramid_levels, status);
   for (std::size_t index = 0; index < count; ++index) {
     if (!keep[index]) continue;
@@ -376,7 +380,7 @@ void StereoTracker::add_features(const cv::Mat& left, const std::vector<cv::Mat>
 
   // Stereo match left -> right: a coarse search along the row at half resolution, refined by
   // KLT; then back right -> left, then the row and disparity checks.
-  const Klt klt(options_);
+  const Klt klt(options_, options_.stereo_klt_window);
   const int search_level = std::min(1, options_.stereo_pyramid_levels);
   const float search_scale = search_level == 1 ? 0.5f : 1.0f;
   std::vector<cv::Point2f> left_points(candidates.size()), right_points(candidates.size());

@@ -22,11 +22,14 @@ struct TrackerOptions {
   double min_feature_distance = 8.0;
   /// Features closer than this to the image border are dropped, pixels.
   int border = 8;
-  /// Pyramidal KLT: window side (pixels, odd), pyramid levels above the image for temporal
-  /// tracking and for the stereo (left to right) tracking of continued tracks, which starts from
-  /// the track's previous disparity; iterations and convergence threshold. New features start
-  /// from a coarse search along the row (half resolution) and are refined on one level.
-  int klt_window = 21;
+  /// Pyramidal KLT: window side (pixels, odd) for temporal tracking (a small window follows a
+  /// surface with less bias as its appearance changes) and for stereo matching (left to right,
+  /// where more texture matters more), pyramid levels above the image for temporal tracking and
+  /// for the stereo tracking of continued tracks, which starts from the track's previous
+  /// disparity; iterations and convergence threshold. New features start from a coarse search
+  /// along the row (half resolution) and are refined on one level.
+  int klt_window = 11;
+  int stereo_klt_window = 21;
   int temporal_pyramid_levels = 3;
   int stereo_pyramid_levels = 2;
   int klt_iterations = 30;

@@ -76,11 +76,14 @@ struct SequenceSummary {
   double odometry_rotation_sigma = 0.0;
   /// Median over frames of the tracker's stereo-row noise estimate, pixels.
   double feature_pixel_sigma = 0.0;
+  /// Noise of a track coordinate from the tracks' own consistency under the odometry
+  /// (track_consistency), pixels: the value the estimator's feature_sigma should take.
+  double feature_track_sigma = 0.0;
   /// Detections and the observations made from them.
   long long detections = 0;
   long long objects_observed = 0;
-  /// Per-frame milliseconds: total and each stage.
-  Percentiles total_ms, load_ms, rectify_ms, track_ms, odometry_ms, objects_ms;
+  /// Per-frame milliseconds: total (wall and the thread's CPU time) and each stage (wall).
+  Percentiles total_ms, total_cpu_ms, load_ms, rectify_ms, track_ms, odometry_ms, objects_ms;
 };
 
 struct FrontendRunSummary {
