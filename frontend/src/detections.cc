@@ -20,7 +20,7 @@ void append_number(std::string& out, double value) {
 }  // namespace
 
 std::vector<std::vector<Detection>> read_detections(const std::filesystem::path& file,
-                                                    int num_frames) {
+                                                    int num_frames, bool later_frames_allowed) {
   text::LineReader reader(file);
   std::string_view line;
   if (!reader.next_line(line)) text::fail_in_file(file, "empty file, expected the header");
@@ -43,6 +43,7 @@ std::vector<std::vector<Detection>> read_detections(const std::filesystem::path&
     }
     Detection detection;
     const std::int64_t frame = reader.integer(fields[0], "frame");
+    if (frame >= num_frames && frame >= 0 && later_frames_allowed) continue;
     if (frame < 0 || frame >= num_frames) {
       reader.fail("frame " + std::to_string(frame) + " is outside [0, " +
                   std::to_string(num_frames - 1) + "] (the sequence has " +

@@ -137,7 +137,7 @@ RobotRun run_sequence(const fs::path& folder, int robot, bool single,
   const fs::path detections_file =
       single && !options.detections.empty() ? options.detections : folder / "detections.csv";
   if (fs::exists(detections_file) || (single && !options.detections.empty())) {
-    detections = read_detections(detections_file, frames);
+    detections = read_detections(detections_file, frames, options.max_frames.has_value());
   }
   std::unique_ptr<OdometrySource> odometry;
   if (single && !options.odometry.empty()) {
