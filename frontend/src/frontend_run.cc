@@ -5,6 +5,7 @@
 #include <cmath>
 #include <nlohmann/json.hpp>
 
+#include "concord/config/options_file.h"
 #include "concord/dataset/dataset.h"
 #include "concord/dataset/result_io.h"
 #include "concord/frontend/frontend.h"
@@ -106,6 +107,7 @@ nlohmann::ordered_json summary_json(const SequenceSummary& s) {
           {"milliseconds_per_frame",
            {{"total", percentiles_json(s.total_ms)},
             {"total_cpu", percentiles_json(s.total_cpu_ms)},
+            {"processing_cpu", percentiles_json(s.processing_cpu_ms)},
             {"load", percentiles_json(s.load_ms)},
             {"rectify", percentiles_json(s.rectify_ms)},
             {"track", percentiles_json(s.track_ms)},
@@ -161,7 +163,7 @@ RobotRun run_sequence(const fs::path& folder, int robot, bool single,
   run.summary.sequence = folder.string();
   run.summary.frames = frames;
   run.summary.min_tracks = std::numeric_limits<int>::max();
-  std::vector<double> total, total_cpu, load, rectify, track, odometry_ms, objects, translation_sigmas,
+  std::vector<double> total, total_cpu, processing_cpu, load, rectify, track, odometry_ms, objects, translation_sigmas,
       rotation_sigmas, row_sigmas;
   double track_sum = 0.0, length_sum = 0.0, circular = 0.0, epipolar = 0.0, ransac = 0.0,
          outliers = 0.0;
@@ -194,6 +196,7 @@ RobotRun run_sequence(const fs::path& folder, int robot, bool single,
     }
     total.push_back(frame.timings.total);
     total_cpu.push_back(frame.timings.total_cpu);
+    processing_cpu.push_back(frame.timings.processing_cpu);
     load.push_back(frame.timings.load);
     rectify.push_back(frame.timings.rectify);
     track.push_back(frame.timings.track);
@@ -226,6 +229,7 @@ RobotRun run_sequence(const fs::path& folder, int robot, bool single,
   s.feature_track_sigma = track_consistency(run.camera, run.data.odometry, run.data.features).sigma;
   s.total_ms = percentiles_of(total);
   s.total_cpu_ms = percentiles_of(total_cpu);
+  s.processing_cpu_ms = percentiles_of(processing_cpu);
   s.load_ms = percentiles_of(load);
   s.rectify_ms = percentiles_of(rectify);
   s.track_ms = percentiles_of(track);
@@ -235,6 +239,34 @@ RobotRun run_sequence(const fs::path& folder, int robot, bool single,
 }
 
 }  // namespace
+
+EstimatorOptions suggested_estimator_options(const FrontendRunSummary& summary,
+                                             const StereoCamera& camera,
+                                             const FrontendOptions& options) {
+  std::vector<double> translation, rotation, feature;
+  for (const SequenceSummary& robot : summary.robots) {
+    if (robot.odometry_translation_sigma > 0.0) translation.push_back(robot.odometry_translation_sigma);
+    if (robot.odometry_rotation_sigma > 0.0) rotation.push_back(robot.odometry_rotation_sigma);
+    if (robot.feature_track_sigma > 0.0) feature.push_back(robot.feature_track_sigma);
+  }
+  EstimatorOptions estimator;
+  // A floor keeps a perfectly static or texture-poor sequence from claiming zero noise.
+  estimator.odometry_translation_sigma = std::max(median_of(translation), 1e-4);
+  estimator.odometry_rotation_sigma = std::max(median_of(rotation), 1e-5);
+  estimator.feature_sigma = std::max(median_of(feature), 0.05);
+  estimator.feature_max_reprojection_error = 4.0 * estimator.feature_sigma;
+  estimator.object_sigma = options.objects.detection_sigma;
+  estimator.object_init_max_reprojection_error = 3.0 * estimator.object_sigma;
+  estimator.object_update_gate = 5.0 * estimator.object_sigma;
+  const double focal_baseline = camera.K(0, 0) * camera.baseline();
+  estimator.feature_min_distance = 0.2;
+  estimator.feature_max_distance = focal_baseline / 1.0;
+  estimator.object_min_distance = 0.5;
+  estimator.object_max_distance = focal_baseline / 5.0;
+  estimator.object_archive_after_frames = 10;
+  estimator.consensus.max_mean_shift = 0.0;
+  return estimator;
+}
 
 std::vector<Eigen::Matrix<double, 6, 6>> read_odometry_covariances(const fs::path& file) {
   text::LineReader reader(file);
@@ -322,6 +354,14 @@ FrontendRunSummary run_frontend(const fs::path& input, const fs::path& out,
         out / dataset::robot_folder_name(static_cast<int>(robot)) / "odometry_covariance.csv",
         format_covariances(motions[robot]));
   }
+  std::string estimator_yaml =
+      "# Estimator options for this dataset, written by `concord frontend`: the noise values are\n"
+      "# the front-end's own (odometry: median reported standard deviation; features: the tracks'\n"
+      "# consistency; objects: the detector's stated accuracy, objects.detection_sigma), the depth\n"
+      "# limits follow from fx * baseline. See docs/frontend.md.\n";
+  estimator_yaml += config::to_yaml(suggested_estimator_options(summary, data.camera, options.frontend));
+  dataset::write_file_atomically(out / "estimator.yaml", estimator_yaml);
+
   nlohmann::ordered_json document;
   document["input"] = input.string();
   document["odometry"] = options.odometry.empty() ? "stereo visual odometry" : options.odometry.string();

@@ -21,6 +21,7 @@ std::vector<std::string> ObjectOptions::validate() const {
   require(max_disparity > 0.0, "max_disparity", max_disparity, "> 0");
   require(centre_depth_fraction >= 0.0, "centre_depth_fraction", centre_depth_fraction, ">= 0");
   require(border >= 0, "border", border, ">= 0");
+  require(detection_sigma > 0.0, "detection_sigma", detection_sigma, "> 0");
   return problems;
 }
 

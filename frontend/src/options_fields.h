@@ -48,6 +48,7 @@ void visit_option_fields(Options& options, Visitor&& visit) {
   visit("objects", "max_disparity", b.max_disparity);
   visit("objects", "centre_depth_fraction", b.centre_depth_fraction);
   visit("objects", "border", b.border);
+  visit("objects", "detection_sigma", b.detection_sigma);
 }
 
 }  // namespace concord::frontend

@@ -100,6 +100,10 @@ struct ObjectOptions {
   /// Boxes closer than this to the image border (pixels) are skipped (truncated boxes do not
   /// centre on the object).
   int border = 2;
+  /// The detector's box-centre accuracy, pixels (one sigma): a property of the robot's detector,
+  /// which the front-end cannot measure; it becomes object_sigma in the suggested estimator
+  /// config (estimator.yaml).
+  double detection_sigma = 2.0;
 
   std::vector<std::string> validate() const;
 };

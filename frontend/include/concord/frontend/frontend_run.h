@@ -7,6 +7,8 @@
 ///     OUT/dataset.json          the rectified camera (K in pixels, T_cam_body, T_cam0_cam1)
 ///     OUT/objects_gt.csv        copied from the input folder when it has one
 ///     OUT/frontend.json         options, per-robot statistics, timings, noise estimates
+///     OUT/estimator.yaml        an estimator config whose noise values are the front-end's own
+///                               (suggested_estimator_options); `concord replay` uses it
 ///     OUT/robot_NN/groundtruth.kitti    the sequence's ground truth, or (without one) the
 ///                                       odometry integrated from the identity (a dead reckoning)
 ///     OUT/robot_NN/odometry.kitti       T_body(k-1)_body(k) from the visual (or given) odometry
@@ -26,6 +28,8 @@
 #include <string>
 #include <vector>
 
+#include "concord/estimator/options.h"
+#include "concord/estimator/types.h"
 #include "concord/frontend/frontend_options.h"
 
 namespace concord::frontend {
@@ -82,8 +86,10 @@ struct SequenceSummary {
   /// Detections and the observations made from them.
   long long detections = 0;
   long long objects_observed = 0;
-  /// Per-frame milliseconds: total (wall and the thread's CPU time) and each stage (wall).
-  Percentiles total_ms, total_cpu_ms, load_ms, rectify_ms, track_ms, odometry_ms, objects_ms;
+  /// Per-frame milliseconds: total (wall, and the thread's CPU time with and without loading the
+  /// images) and each stage (wall).
+  Percentiles total_ms, total_cpu_ms, processing_cpu_ms, load_ms, rectify_ms, track_ms, odometry_ms,
+      objects_ms;
 };
 
 struct FrontendRunSummary {
@@ -96,6 +102,15 @@ struct FrontendRunSummary {
 FrontendRunSummary run_frontend(const std::filesystem::path& input,
                                 const std::filesystem::path& out,
                                 const FrontendRunOptions& options);
+
+/// Estimator options for a front-end's dataset, noise values from the front-end and the sensor
+/// (docs/frontend.md): odometry sigmas = the median over robots of the odometry's reported
+/// standard deviations, feature_sigma = the median of the tracks' consistency estimate,
+/// object_sigma = ObjectOptions::detection_sigma, gates at 3 and 5 sigma as in the checked-in
+/// configs, depth limits from fx * baseline (features out to 1 pixel of disparity, objects to 5).
+EstimatorOptions suggested_estimator_options(const FrontendRunSummary& summary,
+                                             const StereoCamera& camera,
+                                             const FrontendOptions& options);
 
 /// The covariances of an odometry_covariance.csv (one per motion, in file order). Throws
 /// FrontendError naming the file and line on bad input.
