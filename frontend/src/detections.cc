@@ -60,8 +60,8 @@ std::vector<std::vector<Detection>> read_detections(const std::filesystem::path&
       reader.fail("empty box: x_min < x_max and y_min < y_max are required");
     }
     if (!seen.emplace(detection.frame, detection.track_id).second) {
-      reader.fail("track_id " + std::to_string(detection.track_id) + " is detected twice in frame " +
-                  std::to_string(detection.frame));
+      reader.fail("track_id " + std::to_string(detection.track_id) +
+                  " is detected twice in frame " + std::to_string(detection.frame));
     }
     per_frame[detection.frame].push_back(std::move(detection));
   }
@@ -74,7 +74,8 @@ std::string format_detections(const std::vector<std::vector<Detection>>& per_fra
     for (const Detection& detection : detections) {
       out += std::to_string(detection.frame) + "," + std::to_string(detection.track_id) + "," +
              detection.class_name;
-      for (const double value : {detection.x_min, detection.y_min, detection.x_max, detection.y_max}) {
+      for (const double value :
+           {detection.x_min, detection.y_min, detection.x_max, detection.y_max}) {
         out += ',';
         append_number(out, value);
       }

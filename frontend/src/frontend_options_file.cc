@@ -27,7 +27,8 @@ std::string number_text(double value) {
 
 }  // namespace
 
-FrontendOptions parse_frontend_options(const std::string& yaml_text, const std::string& source_name) {
+FrontendOptions parse_frontend_options(const std::string& yaml_text,
+                                       const std::string& source_name) {
   YAML::Node root;
   try {
     root = YAML::Load(yaml_text);
@@ -65,7 +66,8 @@ FrontendOptions parse_frontend_options(const std::string& yaml_text, const std::
       continue;
     }
     if (!section.second.IsMap()) {
-      if (!section.second.IsNull()) problems.push_back(line_of(section.second) + name + ": expected a map");
+      if (!section.second.IsNull())
+        problems.push_back(line_of(section.second) + name + ": expected a map");
       continue;
     }
     for (const auto& entry : section.second) {

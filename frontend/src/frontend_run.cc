@@ -163,8 +163,8 @@ RobotRun run_sequence(const fs::path& folder, int robot, bool single,
   run.summary.sequence = folder.string();
   run.summary.frames = frames;
   run.summary.min_tracks = std::numeric_limits<int>::max();
-  std::vector<double> total, total_cpu, processing_cpu, load, rectify, track, odometry_ms, objects, translation_sigmas,
-      rotation_sigmas, row_sigmas;
+  std::vector<double> total, total_cpu, processing_cpu, load, rectify, track, odometry_ms, objects,
+      translation_sigmas, rotation_sigmas, row_sigmas;
   double track_sum = 0.0, length_sum = 0.0, circular = 0.0, epipolar = 0.0, ransac = 0.0,
          outliers = 0.0;
   LandmarkId largest_id = -1;
@@ -188,7 +188,8 @@ RobotRun run_sequence(const fs::path& folder, int robot, bool single,
       if (!frame.motion.valid) {
         ++run.summary.odometry_failures;
       } else {
-        translation_sigmas.push_back(std::sqrt(frame.motion.covariance.diagonal().head<3>().mean()));
+        translation_sigmas.push_back(
+            std::sqrt(frame.motion.covariance.diagonal().head<3>().mean()));
         rotation_sigmas.push_back(std::sqrt(frame.motion.covariance.diagonal().tail<3>().mean()));
       }
       run.data.odometry.push_back(*frame.input.T_previous_current);
@@ -245,7 +246,8 @@ EstimatorOptions suggested_estimator_options(const FrontendRunSummary& summary,
                                              const FrontendOptions& options) {
   std::vector<double> translation, rotation, feature;
   for (const SequenceSummary& robot : summary.robots) {
-    if (robot.odometry_translation_sigma > 0.0) translation.push_back(robot.odometry_translation_sigma);
+    if (robot.odometry_translation_sigma > 0.0)
+      translation.push_back(robot.odometry_translation_sigma);
     if (robot.odometry_rotation_sigma > 0.0) rotation.push_back(robot.odometry_rotation_sigma);
     if (robot.feature_track_sigma > 0.0) feature.push_back(robot.feature_track_sigma);
   }
@@ -357,17 +359,21 @@ FrontendRunSummary run_frontend(const fs::path& input, const fs::path& out,
   std::string estimator_yaml =
       "# Estimator options for this dataset, written by `concord frontend`: the noise values are\n"
       "# the front-end's own (odometry: median reported standard deviation; features: the tracks'\n"
-      "# consistency; objects: the detector's stated accuracy, objects.detection_sigma), the depth\n"
+      "# consistency; objects: the detector's stated accuracy, objects.detection_sigma), the "
+      "depth\n"
       "# limits follow from fx * baseline. See docs/frontend.md.\n";
-  estimator_yaml += config::to_yaml(suggested_estimator_options(summary, data.camera, options.frontend));
+  estimator_yaml +=
+      config::to_yaml(suggested_estimator_options(summary, data.camera, options.frontend));
   dataset::write_file_atomically(out / "estimator.yaml", estimator_yaml);
 
   nlohmann::ordered_json document;
   document["input"] = input.string();
-  document["odometry"] = options.odometry.empty() ? "stereo visual odometry" : options.odometry.string();
+  document["odometry"] =
+      options.odometry.empty() ? "stereo visual odometry" : options.odometry.string();
   document["options"] = options_json(options.frontend);
   document["robots"] = nlohmann::ordered_json::array();
-  for (const SequenceSummary& robot : summary.robots) document["robots"].push_back(summary_json(robot));
+  for (const SequenceSummary& robot : summary.robots)
+    document["robots"].push_back(summary_json(robot));
   dataset::write_file_atomically(out / "frontend.json", document.dump(2) + "\n");
   return summary;
 }

@@ -36,7 +36,8 @@ ObjectMeasurement observe_object(const Detection& box, const cv::Mat& left, cons
   }
   // 1. The central region of the box in the left image.
   const double centre_x = box.centre_x(), centre_y = box.centre_y();
-  const int width = static_cast<int>(std::round((box.x_max - box.x_min) * options.central_fraction));
+  const int width =
+      static_cast<int>(std::round((box.x_max - box.x_min) * options.central_fraction));
   const int height =
       static_cast<int>(std::round((box.y_max - box.y_min) * options.central_fraction));
   if (width < options.min_region_size || height < options.min_region_size) {
@@ -82,7 +83,8 @@ ObjectMeasurement observe_object(const Detection& box, const cv::Mat& left, cons
   result.centre_disparity = focal_baseline / centre_depth;
   StereoObservation observation;
   observation.id = box.track_id;
-  observation.uv = Eigen::Vector4d(centre_x, centre_y, centre_x - result.centre_disparity, centre_y);
+  observation.uv =
+      Eigen::Vector4d(centre_x, centre_y, centre_x - result.centre_disparity, centre_y);
   result.observation = observation;
   return result;
 }

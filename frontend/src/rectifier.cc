@@ -10,7 +10,8 @@ namespace {
 cv::Mat to_cv(const Eigen::MatrixXd& matrix) {
   cv::Mat out(static_cast<int>(matrix.rows()), static_cast<int>(matrix.cols()), CV_64F);
   for (int row = 0; row < out.rows; ++row) {
-    for (int column = 0; column < out.cols; ++column) out.at<double>(row, column) = matrix(row, column);
+    for (int column = 0; column < out.cols; ++column)
+      out.at<double>(row, column) = matrix(row, column);
   }
   return out;
 }
@@ -66,9 +67,9 @@ StereoRectifier::StereoRectifier(const StereoRig& rig) {
   cv::Mat right_rotation, right_projection, disparity_to_depth;
   // alpha = 0: the rectified images show only valid pixels (no black borders to track).
   cv::stereoRectify(left_K_, left_distortion_, right_K, right_distortion, size_,
-                    to_cv(T_cam1_cam0.rotation()), to_cv(T_cam1_cam0.translation()),
-                    left_rotation_, right_rotation, left_projection_, right_projection,
-                    disparity_to_depth, cv::CALIB_ZERO_DISPARITY, 0.0, size_);
+                    to_cv(T_cam1_cam0.rotation()), to_cv(T_cam1_cam0.translation()), left_rotation_,
+                    right_rotation, left_projection_, right_projection, disparity_to_depth,
+                    cv::CALIB_ZERO_DISPARITY, 0.0, size_);
   const double fx = left_projection_.at<double>(0, 0);
   const double baseline = -right_projection.at<double>(0, 3) / right_projection.at<double>(0, 0);
   if (!(fx > 0.0 && std::isfinite(baseline) && baseline > 1e-3)) {

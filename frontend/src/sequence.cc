@@ -83,7 +83,8 @@ Eigen::Isometry3d yaml_transform(const YAML::Node& node, const std::string& key,
     fail_in_file(file, key + ": last row must be [0, 0, 0, 1]");
   }
   const Eigen::Matrix3d rotation = matrix.topLeftCorner<3, 3>();
-  if ((rotation.transpose() * rotation - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff() > 1e-3 ||
+  if ((rotation.transpose() * rotation - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff() >
+          1e-3 ||
       rotation.determinant() < 0.0) {
     fail_in_file(file, key + ": rotation block is not a rotation");
   }
@@ -105,8 +106,8 @@ CameraIntrinsics read_euroc_camera(const fs::path& file, Eigen::Isometry3d& T_bo
   if (!model) fail_in_file(file, "missing key 'distortion_model'");
   const std::string model_name = model.as<std::string>("");
   if (model_name != "radial-tangential" && model_name != "radtan") {
-    fail_in_file(file, "distortion_model: only 'radial-tangential' is supported, got '" +
-                           model_name + "'");
+    fail_in_file(
+        file, "distortion_model: only 'radial-tangential' is supported, got '" + model_name + "'");
   }
   CameraIntrinsics camera;
   const std::vector<double> intrinsics = yaml_numbers(root, "intrinsics", 4, file);
@@ -171,7 +172,8 @@ std::vector<Eigen::Isometry3d> read_euroc_groundtruth(const fs::path& file,
       reader.fail("expected at least 8 fields (timestamp, p_x, p_y, p_z, q_w, q_x, q_y, q_z)");
     }
     const std::int64_t time = reader.integer(fields[0], "timestamp");
-    if (!sample_times.empty() && time <= sample_times.back()) reader.fail("time stamps must increase");
+    if (!sample_times.empty() && time <= sample_times.back())
+      reader.fail("time stamps must increase");
     sample_times.push_back(time);
     positions.emplace_back(reader.number(fields[1], "p_x"), reader.number(fields[2], "p_y"),
                            reader.number(fields[3], "p_z"));
@@ -325,10 +327,11 @@ std::vector<std::string> StereoRig::problems() const {
     problems.push_back("the stereo baseline is " + to_text(baseline.norm()) +
                        " m; it must be at least 1 mm.");
   } else if (std::abs(baseline.x()) < 0.7 * baseline.norm()) {
-    problems.push_back("the right camera must be beside the left one (baseline mostly along the "
-                       "left camera's x axis); the baseline is (" +
-                       to_text(baseline.x()) + ", " + to_text(baseline.y()) + ", " +
-                       to_text(baseline.z()) + ") m.");
+    problems.push_back(
+        "the right camera must be beside the left one (baseline mostly along the "
+        "left camera's x axis); the baseline is (" +
+        to_text(baseline.x()) + ", " + to_text(baseline.y()) + ", " + to_text(baseline.z()) +
+        ") m.");
   }
   const Eigen::AngleAxisd relative_rotation(T_cam0_cam1.rotation());
   if (std::abs(relative_rotation.angle()) > 0.35) {
@@ -471,8 +474,7 @@ StereoSequence read_kitti_sequence(const fs::path& folder, const SequenceReadOpt
 }
 
 bool is_stereo_sequence(const fs::path& folder) {
-  return fs::is_regular_file(folder / "calib.txt") ||
-         fs::is_directory(euroc_mav0(folder) / "cam0");
+  return fs::is_regular_file(folder / "calib.txt") || fs::is_directory(euroc_mav0(folder) / "cam0");
 }
 
 StereoSequence read_stereo_sequence(const fs::path& folder, const SequenceReadOptions& options) {

@@ -55,7 +55,7 @@ struct Rig {
     const double x = baseline * (uv(0) - cx) / disparity;
     const double y = baseline * fx * (uv(1) - cy) / (fy * disparity);
     Eigen::Matrix3d J;  // d(x, y, z) / d(u_left, v_left, u_right)
-    J << baseline / disparity - x / disparity, 0.0, x / disparity,  //
+    J << baseline / disparity - x / disparity, 0.0, x / disparity,        //
         -y / disparity, baseline * fx / (fy * disparity), y / disparity,  //
         -z / disparity, 0.0, z / disparity;
     return sigma * sigma * J * J.transpose();
@@ -185,8 +185,8 @@ MotionEstimate StereoVisualOdometry::estimate(int, std::span<const StereoObserva
   const auto fail = [&] {
     estimate.valid = false;
     estimate.T_previous_current = last_motion_;
-    estimate.covariance = diagonal_covariance(options_.failure_translation_sigma,
-                                              options_.failure_rotation_sigma);
+    estimate.covariance =
+        diagonal_covariance(options_.failure_translation_sigma, options_.failure_rotation_sigma);
     return estimate;
   };
 
@@ -239,19 +239,20 @@ MotionEstimate StereoVisualOdometry::estimate(int, std::span<const StereoObserva
   // 3. Weighted Gauss-Newton on the RANSAC inliers, then on every point inside the gate.
   std::vector<unsigned char> use(correspondences.size(), 0);
   for (const int index : ransac_inliers) use[index] = 1;
-  Refinement refined = refine(rig, correspondences, use, T, options_.refine_iterations,
-                              options_.pixel_sigma);
+  Refinement refined =
+      refine(rig, correspondences, use, T, options_.refine_iterations, options_.pixel_sigma);
   for (std::size_t index = 0; index < correspondences.size(); ++index) {
-    use[index] = residual_chi2(rig, correspondences[index], refined.T_previous_current,
-                               options_.pixel_sigma, nullptr, nullptr, nullptr) <=
-                 options_.refine_chi2_gate;
+    use[index] =
+        residual_chi2(rig, correspondences[index], refined.T_previous_current, options_.pixel_sigma,
+                      nullptr, nullptr, nullptr) <= options_.refine_chi2_gate;
   }
   refined = refine(rig, correspondences, use, refined.T_previous_current,
                    options_.refine_iterations, options_.pixel_sigma);
   for (std::size_t index = 0; index < correspondences.size(); ++index) {
     const double chi2 = residual_chi2(rig, correspondences[index], refined.T_previous_current,
                                       options_.pixel_sigma, nullptr, nullptr, nullptr);
-    if (!(chi2 <= options_.refine_chi2_gate)) estimate.outliers.push_back(correspondences[index].id);
+    if (!(chi2 <= options_.refine_chi2_gate))
+      estimate.outliers.push_back(correspondences[index].id);
   }
   estimate.inliers = refined.used;
   if (estimate.inliers < options_.min_inliers) return fail();
@@ -292,8 +293,8 @@ FileOdometry FileOdometry::read(const std::filesystem::path& file, double transl
 MotionEstimate FileOdometry::estimate(int frame, std::span<const StereoObservation>,
                                       std::span<const StereoObservation>) {
   if (frame < 1 || frame > size()) {
-    throw FrontendError("odometry file: no motion for frame " + std::to_string(frame) + " (it has " +
-                        std::to_string(size()) + " motions, for frames 1 to " +
+    throw FrontendError("odometry file: no motion for frame " + std::to_string(frame) +
+                        " (it has " + std::to_string(size()) + " motions, for frames 1 to " +
                         std::to_string(size()) + ")");
   }
   MotionEstimate estimate;

@@ -2,13 +2,14 @@
 
 #include <algorithm>
 #include <array>
-#include <limits>
-#include <optional>
+#include <numeric>
 #include <cmath>
+#include <limits>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/features2d.hpp>
 #include <opencv2/imgproc.hpp>
 #include <opencv2/video/tracking.hpp>
+#include <optional>
 #include <unordered_set>
 
 #include "concord/frontend/sequence.h"
@@ -192,9 +193,13 @@ TrackedFrame StereoTracker::track(const cv::Mat& left, const cv::Mat& right) {
   const int side = std::max(options_.klt_window, options_.stereo_klt_window);
   const cv::Size window(side, side);
   const int levels = std::max(options_.temporal_pyramid_levels, options_.stereo_pyramid_levels);
-  std::vector<cv::Mat> left_pyramid, right_pyramid;
-  cv::buildOpticalFlowPyramid(left, left_pyramid, window, levels, true);
-  cv::buildOpticalFlowPyramid(right, right_pyramid, window, levels, true);
+  // The pyramids are built into the buffers of the frame before last (no allocation per frame).
+  std::vector<cv::Mat>& left_pyramid = spare_left_pyramid_;
+  std::vector<cv::Mat>& right_pyramid = spare_right_pyramid_;
+  cv::buildOpticalFlowPyramid(left, left_pyramid, window, levels, true, cv::BORDER_REFLECT_101,
+                              cv::BORDER_CONSTANT, false);
+  cv::buildOpticalFlowPyramid(right, right_pyramid, window, levels, true, cv::BORDER_REFLECT_101,
+                              cv::BORDER_CONSTANT, false);
 
   TrackedFrame out;
   out.frame = frame_;
@@ -213,15 +218,15 @@ TrackedFrame StereoTracker::track(const cv::Mat& left, const cv::Mat& right) {
     out.observations.push_back(observation);
   }
   out.track_lengths = tracks_.lengths;
-  previous_left_pyramid_ = std::move(left_pyramid);
-  previous_right_pyramid_ = std::move(right_pyramid);
+  std::swap(previous_left_pyramid_, spare_left_pyramid_);
+  std::swap(previous_right_pyramid_, spare_right_pyramid_);
   ++frame_;
   return out;
 }
 
 void StereoTracker::continue_tracks(const std::vector<cv::Mat>& left_pyramid,
-                                    const std::vector<cv::Mat>& right_pyramid,
-                                    const cv::Size& size, TrackedFrame& out) {
+                                    const std::vector<cv::Mat>& right_pyramid, const cv::Size& size,
+                                    TrackedFrame& out) {
   const Klt temporal(options_, options_.klt_window);
   const Klt stereo(options_, options_.stereo_klt_window);
   const std::size_t count = tracks_.size();
@@ -231,7 +236,7 @@ void StereoTracker::continue_tracks(const std::vector<cv::Mat>& left_pyramid,
   // 1. Temporal KLT, left k-1 -> left k.
   std::vector<cv::Point2f> left_now = tracks_.left;
   temporal.track(previous_left_pyramid_, left_pyramid, tracks_.left, left_now,
-            options_.temporal_pyramid_levels, status);
+                 options_.temporal_pyramid_levels, status);
   if (hook_) hook_(MatchStage::kTemporal, left_now);
   for (std::size_t index = 0; index < count; ++index) {
     if (!status[index] || !inside(left_now[index], size)) {
@@ -246,7 +251,7 @@ void StereoTracker::continue_tracks(const std::vector<cv::Mat>& left_pyramid,
     right_now[index] = left_now[index] - (tracks_.left[index] - tracks_.right[index]);
   }
   stereo.track(left_pyramid, right_pyramid, left_now, right_now, options_.stereo_pyramid_levels,
-            status);
+               status);
   if (hook_) hook_(MatchStage::kStereo, right_now);
   for (std::size_t index = 0; index < count; ++index) {
     if (keep[index] && (!status[index] || !inside(right_now[index], size))) {
@@ -258,7 +263,7 @@ void StereoTracker::continue_tracks(const std::vector<cv::Mat>& left_pyramid,
   // 3. Circular matching: right k -> right k-1 must land on the track's right position at k-1.
   std::vector<cv::Point2f> right_back = tracks_.right;
   temporal.track(right_pyramid, previous_right_pyramid_, right_now, right_back,
-            options_.temporal_pyramid_levels, status);
+                 options_.temporal_pyramid_levels, status);
   for (std::size_t index = 0; index < count; ++index) {
     if (!keep[index]) continue;
     if (!status[index] ||
@@ -331,50 +336,57 @@ void StereoTracker::add_features(const cv::Mat& left, const std::vector<cv::Mat>
   };
 
   // Occupancy: tracked features block a disc of min_feature_distance around them.
-  cv::Mat free_mask(size, CV_8UC1, cv::Scalar(255));
+  free_mask_.create(size, CV_8UC1);
+  free_mask_.setTo(cv::Scalar(255));
   std::vector<int> in_cell(cells, 0);
   const int radius = static_cast<int>(std::ceil(options_.min_feature_distance));
   for (const cv::Point2f& point : tracks_.left) {
-    cv::circle(free_mask, point, radius, cv::Scalar(0), cv::FILLED);
+    cv::circle(free_mask_, point, radius, cv::Scalar(0), cv::FILLED);
     ++in_cell[cell_of(point)];
   }
 
-  // FAST on each cell, strongest first, up to twice the cell's share of the target (corners on
-  // weak texture often fail the stereo checks below, and textureless cells leave their share to
-  // others).
+  // FAST on the cells, emptiest first, strongest corners first, up to twice a cell's share of the
+  // target (corners on weak texture often fail the stereo checks below, and textureless cells
+  // leave their share to others); three times the missing tracks (at least 30) are matched.
   struct Candidate {
     cv::Point2f point;
     int cell = 0;
     /// Features the cell would hold with this one: emptier cells are served first.
     int rank = 0;
   };
+  const std::size_t matched = static_cast<std::size_t>(std::max(3 * missing, 30));
+  std::vector<int> cell_order(cells);
+  std::iota(cell_order.begin(), cell_order.end(), 0);
+  std::stable_sort(cell_order.begin(), cell_order.end(),
+                   [&](int a, int b) { return in_cell[a] < in_cell[b]; });
   std::vector<Candidate> candidates;
   const int cell_width = (size.width + columns - 1) / columns;
   const int cell_height = (size.height + rows - 1) / rows;
   std::vector<cv::KeyPoint> keypoints;
-  for (int row = 0; row < rows; ++row) {
-    for (int column = 0; column < columns; ++column) {
-      const int cell = row * columns + column;
-      const int wanted = 2 * per_cell - in_cell[cell];
-      if (wanted <= 0) continue;
-      const cv::Rect rect = cv::Rect(column * cell_width, row * cell_height, cell_width,
-                                     cell_height) & cv::Rect(0, 0, size.width, size.height);
-      keypoints.clear();
-      cv::FAST(left(rect), keypoints, options_.fast_threshold, true);
-      std::sort(keypoints.begin(), keypoints.end(),
-                [](const cv::KeyPoint& a, const cv::KeyPoint& b) { return a.response > b.response; });
-      int rank = in_cell[cell];  // emptier cells first
-      for (const cv::KeyPoint& keypoint : keypoints) {
-        if (rank >= 2 * per_cell) break;
-        const cv::Point2f point(keypoint.pt.x + static_cast<float>(rect.x),
-                                keypoint.pt.y + static_cast<float>(rect.y));
-        if (!inside(point, size)) continue;
-        if (!free_mask.at<unsigned char>(cvRound(point.y), cvRound(point.x))) continue;
-        cv::circle(free_mask, point, radius, cv::Scalar(0), cv::FILLED);
-        candidates.push_back({point, cell, rank++});
-      }
+  for (const int cell : cell_order) {
+    if (candidates.size() >= matched || in_cell[cell] >= 2 * per_cell) break;
+    const int row = cell / columns, column = cell % columns;
+    const cv::Rect rect = cv::Rect(column * cell_width, row * cell_height, cell_width,
+                                   cell_height) &
+                          cv::Rect(0, 0, size.width, size.height);
+    keypoints.clear();
+    cv::FAST(left(rect), keypoints, options_.fast_threshold, true);
+    std::sort(keypoints.begin(), keypoints.end(),
+              [](const cv::KeyPoint& a, const cv::KeyPoint& b) { return a.response > b.response; });
+    int rank = in_cell[cell];
+    for (const cv::KeyPoint& keypoint : keypoints) {
+      if (rank >= 2 * per_cell) break;
+      const cv::Point2f point(keypoint.pt.x + static_cast<float>(rect.x),
+                              keypoint.pt.y + static_cast<float>(rect.y));
+      if (!inside(point, size)) continue;
+      if (!free_mask_.at<unsigned char>(cvRound(point.y), cvRound(point.x))) continue;
+      cv::circle(free_mask_, point, radius, cv::Scalar(0), cv::FILLED);
+      candidates.push_back({point, cell, rank++});
     }
   }
+  std::stable_sort(candidates.begin(), candidates.end(),
+                   [](const Candidate& a, const Candidate& b) { return a.rank < b.rank; });
+  if (candidates.size() > matched) candidates.resize(matched);
   out.counts.detected = static_cast<int>(candidates.size());
   if (candidates.empty()) return;
 

@@ -48,7 +48,8 @@ inline std::vector<std::string_view> split(std::string_view line, char separator
   std::size_t start = 0;
   while (true) {
     const auto next = line.find(separator, start);
-    fields.push_back(trimmed(line.substr(start, next == std::string_view::npos ? next : next - start)));
+    fields.push_back(
+        trimmed(line.substr(start, next == std::string_view::npos ? next : next - start)));
     if (next == std::string_view::npos) return fields;
     start = next + 1;
   }

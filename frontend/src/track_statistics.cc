@@ -89,7 +89,8 @@ TrackConsistency track_consistency(const StereoCamera& camera,
       }
       Eigen::Matrix<double, 4, 3> H;
       const Eigen::Vector4d r = observation.uv - project(camera, p, H);
-      for (int coordinate = 0; coordinate < 4; ++coordinate) residuals.push_back(std::abs(r(coordinate)));
+      for (int coordinate = 0; coordinate < 4; ++coordinate)
+        residuals.push_back(std::abs(r(coordinate)));
     }
     if (!usable) continue;
     ++result.tracks;
@@ -100,8 +101,8 @@ TrackConsistency track_consistency(const StereoCamera& camera,
   if (magnitudes.empty() || result.residuals <= parameters) return result;
   const auto middle = magnitudes.begin() + static_cast<std::ptrdiff_t>(magnitudes.size() / 2);
   std::nth_element(magnitudes.begin(), middle, magnitudes.end());
-  const double correction =
-      std::sqrt(static_cast<double>(result.residuals) / static_cast<double>(result.residuals - parameters));
+  const double correction = std::sqrt(static_cast<double>(result.residuals) /
+                                      static_cast<double>(result.residuals - parameters));
   result.sigma = 1.4826 * *middle * correction;
   return result;
 }

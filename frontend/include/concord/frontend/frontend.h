@@ -22,11 +22,11 @@ namespace concord::frontend {
 
 /// Wall time of one frame's stages, milliseconds.
 struct FrameTimings {
-  double load = 0.0;       ///< reading and decoding both images
-  double rectify = 0.0;    ///< undistortion and rectification
-  double track = 0.0;      ///< StereoTracker
-  double odometry = 0.0;   ///< motion estimate
-  double objects = 0.0;    ///< detections to observations
+  double load = 0.0;      ///< reading and decoding both images
+  double rectify = 0.0;   ///< undistortion and rectification
+  double track = 0.0;     ///< StereoTracker
+  double odometry = 0.0;  ///< motion estimate
+  double objects = 0.0;   ///< detections to observations
   double total = 0.0;
   /// CPU time of the processing thread over the whole frame, and without loading the images
   /// (what a robot whose camera driver delivers decoded images spends): independent of other load

@@ -19,7 +19,8 @@
 namespace concord::frontend {
 
 /// Throws FrontendError listing every problem, each naming the key (and line).
-FrontendOptions parse_frontend_options(const std::string& yaml_text, const std::string& source_name);
+FrontendOptions parse_frontend_options(const std::string& yaml_text,
+                                       const std::string& source_name);
 
 /// Reads a file; FrontendError if it cannot be read or is invalid.
 FrontendOptions load_frontend_options(const std::filesystem::path& file);

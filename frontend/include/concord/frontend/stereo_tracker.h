@@ -92,6 +92,9 @@ class StereoTracker {
   Tracks tracks_;
   std::vector<cv::Mat> previous_left_pyramid_;
   std::vector<cv::Mat> previous_right_pyramid_;
+  std::vector<cv::Mat> spare_left_pyramid_;
+  std::vector<cv::Mat> spare_right_pyramid_;
+  cv::Mat free_mask_;
   LandmarkId next_id_ = 0;
   int frame_ = 0;
 };
