@@ -43,7 +43,9 @@ TEST(DaemonImageSource, TheDaemonRunsTheFrontEndIntoTheEstimator) {
           "}\n"
           "consensus: {mode: off}\n"
           "http: {enabled: false}\n"
-          "output: {directory: " + out.string() + ", write_interval_ms: 0}\n"
+          "output: {directory: " +
+          out.string() +
+          ", write_interval_ms: 0}\n"
           "estimator: {odometry_translation_sigma: 0.01, odometry_rotation_sigma: 0.002, "
           "feature_sigma: 0.5, object_sigma: 2.0, object_update_gate: 10.0, "
           "object_init_max_reprojection_error: 6.0, object_min_distance: 1.0}\n",
@@ -67,8 +69,8 @@ TEST(DaemonImageSource, AnUnreadableSequenceStopsTheDaemonWithStatusTwo) {
   const fs::path out = testing::fresh_folder("daemon_images_missing");
   const DaemonConfig config = parse_daemon_config(
       "source: {kind: images, images: " + (out / "nothing").string() +
-          "}\nconsensus: {mode: off}\nhttp: {enabled: false}\noutput: {directory: " +
-          out.string() + "}\n",
+          "}\nconsensus: {mode: off}\nhttp: {enabled: false}\noutput: {directory: " + out.string() +
+          "}\n",
       "robot.yaml", "/");
   Daemon daemon(config);
   EXPECT_EQ(daemon.run(), 2);

@@ -132,43 +132,43 @@ TEST(FrontendSequence, KittiErrorsNameTheFile) {
   {
     const fs::path folder = make_kitti_sequence("kitti_missing_image", 3);
     fs::remove(folder / "image_1" / "000001.png");
-    EXPECT_THAT(error_of([&] { read_stereo_sequence(folder); }),
+    EXPECT_THAT(error_of([&] { (void)read_stereo_sequence(folder); }),
                 AllOf(HasSubstr("image_1/000001.png"), HasSubstr("image not found")));
   }
   {
     const fs::path folder = make_kitti_sequence("kitti_times", 3);
     write_text(folder / "times.txt", "0\n0.1\n");
-    EXPECT_THAT(error_of([&] { read_stereo_sequence(folder); }),
+    EXPECT_THAT(error_of([&] { (void)read_stereo_sequence(folder); }),
                 AllOf(HasSubstr("times.txt"), HasSubstr("has 2 times but"), HasSubstr("3 images")));
     write_text(folder / "times.txt", "0\n0.1\n0.1\n");
-    EXPECT_THAT(error_of([&] { read_stereo_sequence(folder); }),
+    EXPECT_THAT(error_of([&] { (void)read_stereo_sequence(folder); }),
                 AllOf(HasSubstr("times.txt:3"), HasSubstr("must increase")));
   }
   {
     const fs::path folder = make_kitti_sequence("kitti_calibration", 2);
     write_text(folder / "calib.txt", "P0: 50 0 32 0 0 50 24 0 0 0 1 0\n");
-    EXPECT_THAT(error_of([&] { read_stereo_sequence(folder); }),
+    EXPECT_THAT(error_of([&] { (void)read_stereo_sequence(folder); }),
                 AllOf(HasSubstr("calib.txt"), HasSubstr("missing P1")));
     write_text(folder / "calib.txt",
                "P0: 50 0 32 0 0 50 24 0 0 0 1 0\nP1: 50 0 32 -25 0 50 24 zero 0 0 1 0\n");
-    EXPECT_THAT(error_of([&] { read_stereo_sequence(folder); }),
+    EXPECT_THAT(error_of([&] { (void)read_stereo_sequence(folder); }),
                 AllOf(HasSubstr("calib.txt:2"), HasSubstr("'zero' is not a finite number")));
     write_text(folder / "calib.txt",
                "P0: 50 0 32 0 0 50 24 0 0 0 1 0\nP1: 50 0 32 0 0 50 24 0 0 0 1 0\n");
-    EXPECT_THAT(error_of([&] { read_stereo_sequence(folder); }),
+    EXPECT_THAT(error_of([&] { (void)read_stereo_sequence(folder); }),
                 AllOf(HasSubstr("calib.txt"), HasSubstr("baseline is 0 m")));
     write_text(folder / "calib.txt",
                "P0: -50 0 32 0 0 50 24 0 0 0 1 0\nP1: -50 0 32 25 0 50 24 0 0 0 1 0\n");
-    EXPECT_THAT(error_of([&] { read_stereo_sequence(folder); }),
+    EXPECT_THAT(error_of([&] { (void)read_stereo_sequence(folder); }),
                 AllOf(HasSubstr("calib.txt"), HasSubstr("focal lengths must be positive")));
   }
   {
     const fs::path folder = make_kitti_sequence("kitti_poses", 2);
     write_text(folder / "poses.txt", "1 0 0 0 0 1 0 0 0 0 1 0\n");
-    EXPECT_THAT(error_of([&] { read_stereo_sequence(folder); }),
+    EXPECT_THAT(error_of([&] { (void)read_stereo_sequence(folder); }),
                 AllOf(HasSubstr("poses.txt"), HasSubstr("has 1 poses but times.txt has 2")));
   }
-  EXPECT_THAT(error_of([&] { read_stereo_sequence(testing::fresh_folder("not_a_sequence")); }),
+  EXPECT_THAT(error_of([&] { (void)read_stereo_sequence(testing::fresh_folder("not_a_sequence")); }),
               HasSubstr("not a stereo sequence"));
 }
 
@@ -179,14 +179,14 @@ TEST(FrontendSequence, EurocErrorsNameTheFile) {
     std::string text = read_text(list);
     text.replace(text.find("1403715273912143104,"), 20, "1403715273912153104,");
     write_text(list, text);
-    EXPECT_THAT(error_of([&] { read_stereo_sequence(folder); }),
+    EXPECT_THAT(error_of([&] { (void)read_stereo_sequence(folder); }),
                 AllOf(HasSubstr("cam1/data.csv"), HasSubstr("image 2"),
                       HasSubstr("mismatched by 10000 ns")));
   }
   {
     const fs::path folder = copy_euroc("euroc_missing_image");
     fs::remove(folder / "mav0/cam0/data/1403715274562142976.png");
-    EXPECT_THAT(error_of([&] { read_stereo_sequence(folder); }),
+    EXPECT_THAT(error_of([&] { (void)read_stereo_sequence(folder); }),
                 AllOf(HasSubstr("cam0/data.csv:4"), HasSubstr("image not found"),
                       HasSubstr("1403715274562142976.png")));
   }
@@ -195,9 +195,9 @@ TEST(FrontendSequence, EurocErrorsNameTheFile) {
     const fs::path list = folder / "mav0/cam1/data.csv";
     const std::string text = read_text(list);
     write_text(list, text.substr(0, text.find("1403715275212143104")));
-    EXPECT_THAT(error_of([&] { read_stereo_sequence(folder); }),
-                AllOf(HasSubstr("cam1/data.csv"), HasSubstr("lists 3 images"),
-                      HasSubstr("lists 4")));
+    EXPECT_THAT(
+        error_of([&] { (void)read_stereo_sequence(folder); }),
+        AllOf(HasSubstr("cam1/data.csv"), HasSubstr("lists 3 images"), HasSubstr("lists 4")));
   }
   {
     const fs::path folder = copy_euroc("euroc_distortion");
@@ -205,7 +205,7 @@ TEST(FrontendSequence, EurocErrorsNameTheFile) {
     std::string text = read_text(yaml);
     text.replace(text.find("radial-tangential"), 17, "equidistant");
     write_text(yaml, text);
-    EXPECT_THAT(error_of([&] { read_stereo_sequence(folder); }),
+    EXPECT_THAT(error_of([&] { (void)read_stereo_sequence(folder); }),
                 AllOf(HasSubstr("cam0/sensor.yaml"), HasSubstr("distortion_model"),
                       HasSubstr("equidistant")));
   }
@@ -215,7 +215,7 @@ TEST(FrontendSequence, EurocErrorsNameTheFile) {
     std::string text = read_text(yaml);
     text.replace(text.find("[457.587, 456.134, 379.999, 255.238]"), 36, "[457.587, 456.134]");
     write_text(yaml, text);
-    EXPECT_THAT(error_of([&] { read_stereo_sequence(folder); }),
+    EXPECT_THAT(error_of([&] { (void)read_stereo_sequence(folder); }),
                 AllOf(HasSubstr("cam1/sensor.yaml"), HasSubstr("intrinsics"),
                       HasSubstr("sequence of 4 numbers")));
   }
@@ -228,7 +228,7 @@ TEST(FrontendSequence, EurocErrorsNameTheFile) {
     text.replace(text.find("-0.0198435579556"), 16, "-0.0216401454975");
     text.replace(text.find("0.00786212447038"), 16, "0.00981073058949");
     write_text(yaml, text);
-    EXPECT_THAT(error_of([&] { read_stereo_sequence(folder); }),
+    EXPECT_THAT(error_of([&] { (void)read_stereo_sequence(folder); }),
                 AllOf(HasSubstr("unusable stereo calibration"), HasSubstr("baseline")));
   }
 }
@@ -254,7 +254,7 @@ TEST(FrontendDetections, ReadsPerFrameListsAndNamesBadRows) {
 
   const auto problem = [&](const std::string& text, int frames = 3) {
     write_text(file, text);
-    return error_of([&] { read_detections(file, frames); });
+    return error_of([&] { (void)read_detections(file, frames); });
   };
   const std::string header = "frame,track_id,class,x_min,y_min,x_max,y_max\n";
   EXPECT_THAT(problem("frame,id,x\n"), AllOf(HasSubstr("detections.csv:1"), HasSubstr("header")));
@@ -273,8 +273,8 @@ TEST(FrontendDetections, ReadsPerFrameListsAndNamesBadRows) {
 }
 
 TEST(FrontendOptionsFile, ReadsWritesAndNamesEveryProblem) {
-  const FrontendOptions options =
-      parse_frontend_options("tracker: {target_features: 300}\nodometry: {pixel_sigma: 0.3}\n", "x");
+  const FrontendOptions options = parse_frontend_options(
+      "tracker: {target_features: 300}\nodometry: {pixel_sigma: 0.3}\n", "x");
   EXPECT_EQ(options.tracker.target_features, 300);
   EXPECT_DOUBLE_EQ(options.odometry.pixel_sigma, 0.3);
   EXPECT_EQ(options.objects.min_region_size, ObjectOptions{}.min_region_size);
@@ -282,13 +282,13 @@ TEST(FrontendOptionsFile, ReadsWritesAndNamesEveryProblem) {
   EXPECT_EQ(to_yaml(again), to_yaml(options));
 
   const std::string message = error_of([] {
-    parse_frontend_options(
+    (void)parse_frontend_options(
         "tracker: {target_feature: 3, klt_window: 4, grid_rows: many}\nodometer: {}\n", "fe.yaml");
   });
   EXPECT_THAT(message, AllOf(HasSubstr("fe.yaml"), HasSubstr("unknown key tracker.target_feature"),
                              HasSubstr("tracker.grid_rows: expected an integer"),
                              HasSubstr("unknown section 'odometer'")));
-  EXPECT_THAT(error_of([] { parse_frontend_options("tracker: {klt_window: 4}\n", "fe.yaml"); }),
+  EXPECT_THAT(error_of([] { (void)parse_frontend_options("tracker: {klt_window: 4}\n", "fe.yaml"); }),
               HasSubstr("klt_window = 4"));
 }
 

@@ -7,6 +7,8 @@
 
 #include <filesystem>
 #include <string>
+#include <system_error>
+#include <vector>
 
 #include "concord/dataset/dataset.h"
 #include "sim/render.h"
@@ -19,12 +21,31 @@ inline std::filesystem::path euroc_frames() {
   return std::filesystem::path(CONCORD_SOURCE_DIR) / "data" / "euroc-v101-static-4";
 }
 
-/// A fresh temporary folder for one test.
+/// The folders fresh_folder made, removed when the test process ends.
+class TemporaryFolders {
+ public:
+  void add(const std::filesystem::path& folder) { folders_.push_back(folder); }
+  ~TemporaryFolders() {
+    std::error_code ignored;
+    for (const auto& folder : folders_) std::filesystem::remove_all(folder, ignored);
+  }
+
+ private:
+  std::vector<std::filesystem::path> folders_;
+};
+
+inline TemporaryFolders& temporary_folders() {
+  static TemporaryFolders folders;
+  return folders;
+}
+
+/// A fresh temporary folder for one test (removed when the test process ends).
 inline std::filesystem::path fresh_folder(const std::string& name) {
   const std::filesystem::path folder = std::filesystem::path(::testing::TempDir()) /
                                        ("concord_" + name + "_" + std::to_string(getpid()));
   std::filesystem::remove_all(folder);
   std::filesystem::create_directories(folder);
+  temporary_folders().add(folder);
   return folder;
 }
 

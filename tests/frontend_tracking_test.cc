@@ -33,8 +33,8 @@ std::pair<cv::Mat, cv::Mat> images(const StereoSequence& sequence, int frame) {
 /// Runs the whole front-end over the rendered sequence.
 std::vector<FrontendFrame> run_rendered(const FrontendOptions& options = {}) {
   StereoSequence sequence = read_stereo_sequence(rendered_sequence().sequence);
-  const auto detections = read_detections(rendered_sequence().sequence / "detections.csv",
-                                          sequence.num_frames());
+  const auto detections =
+      read_detections(rendered_sequence().sequence / "detections.csv", sequence.num_frames());
   StereoFrontend frontend(std::move(sequence), options, detections);
   std::vector<FrontendFrame> frames;
   while (!frontend.done()) frames.push_back(frontend.process_next());
@@ -114,8 +114,8 @@ Corruption track_with_corruption(TrackerOptions options, MatchStage stage, cv::P
   // F of the left images of frames 2 and 3: x3^T F x2 = 0.
   const Eigen::Isometry3d T_3_2 = (*sequence.groundtruth)[3].inverse() * (*sequence.groundtruth)[2];
   const Eigen::Matrix3d K_inverse = rendered_sequence().camera.K.inverse();
-  const Eigen::Matrix3d fundamental = K_inverse.transpose() * lie::skew(T_3_2.translation()) *
-                                      T_3_2.linear() * K_inverse;
+  const Eigen::Matrix3d fundamental =
+      K_inverse.transpose() * lie::skew(T_3_2.translation()) * T_3_2.linear() * K_inverse;
   StereoTracker tracker(options);
   Corruption result;
   std::vector<LandmarkId> previous_ids;
@@ -265,7 +265,7 @@ TEST(FrontendRendered, TheUsersOwnOdometryGoesThroughTheSameInterface) {
   Matrix6d covariance = Matrix6d::Identity() * 1e-4;
   StereoFrontend frontend(std::move(sequence), {}, {},
                           std::make_unique<FileOdometry>(motions, covariance));
-  frontend.process_next();
+  (void)frontend.process_next();  // frame 0: no motion
   for (int k = 1; k < 4; ++k) {
     const FrontendFrame frame = frontend.process_next();
     ASSERT_TRUE(frame.input.T_previous_current.has_value());
@@ -274,7 +274,7 @@ TEST(FrontendRendered, TheUsersOwnOdometryGoesThroughTheSameInterface) {
     EXPECT_GT(frame.input.features.size(), 100u);
   }
   FileOdometry short_file({}, covariance);
-  EXPECT_THROW(short_file.estimate(1, {}, {}), FrontendError);
+  EXPECT_THROW((void)short_file.estimate(1, {}, {}), FrontendError);
 }
 
 TEST(FrontendRendered, RunWritesADatasetThatReadsBack) {
@@ -303,7 +303,7 @@ TEST(FrontendRendered, RunWritesADatasetThatReadsBack) {
   EXPECT_TRUE(fs::exists(out / "frontend.json"));
   // Detections and odometry files belong to a single sequence, not to a team.
   options.detections = rendered_sequence().sequence / "detections.csv";
-  EXPECT_THROW(run_frontend(rendered_sequence().team, out, options), FrontendError);
+  EXPECT_THROW((void)run_frontend(rendered_sequence().team, out, options), FrontendError);
 }
 
 }  // namespace

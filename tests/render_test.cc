@@ -1,9 +1,10 @@
 // concord sim --render's world: deterministic images, ray casting, visible object boxes and the
 // world.csv geometry that evaluations read back.
+#include "sim/render.h"
+
 #include <gtest/gtest.h>
 
 #include "frontend_test_support.h"
-#include "sim/render.h"
 
 namespace concord::sim {
 namespace {
@@ -36,8 +37,7 @@ TEST(Render, RaysMeetTheNearestSurfaceAndObjectCubesAreWhereTheObjectsAre) {
     }
   }
   // Nothing is outside the hall.
-  EXPECT_FALSE(rendered.world
-                   .cast(Eigen::Vector3d(1e4, 0.0, 0.0), Eigen::Vector3d(1.0, 0.0, 0.0))
+  EXPECT_FALSE(rendered.world.cast(Eigen::Vector3d(1e4, 0.0, 0.0), Eigen::Vector3d(1.0, 0.0, 0.0))
                    .has_value());
 }
 
@@ -46,9 +46,9 @@ TEST(Render, VisibleBoxesContainTheObjectCentreAndAreUnoccluded) {
   const StereoCamera& camera = rendered.camera;
   int boxes = 0;
   for (const Eigen::Isometry3d& pose : rendered.simulated.robots[0].groundtruth) {
-    for (const ObjectBox& box : visible_object_boxes(rendered.world, camera, pose,
-                                                     rendered.render.width, rendered.render.height,
-                                                     0.5, 10.0)) {
+    for (const ObjectBox& box :
+         visible_object_boxes(rendered.world, camera, pose, rendered.render.width,
+                              rendered.render.height, 0.5, 10.0)) {
       ++boxes;
       const Eigen::Vector3d p =
           camera.T_cam0_body * pose.inverse() * rendered.simulated.objects_groundtruth.at(box.id);
@@ -79,7 +79,7 @@ TEST(Render, WorldGeometryReadsBack) {
     EXPECT_EQ(a->quad, b->quad);
     EXPECT_NEAR(a->distance, b->distance, 1e-12);
   }
-  EXPECT_THROW(geometry.render(rendered.camera.K, Eigen::Isometry3d::Identity(), 10, 10, 0, 0),
+  EXPECT_THROW((void)geometry.render(rendered.camera.K, Eigen::Isometry3d::Identity(), 10, 10, 0, 0),
                std::logic_error);
 }
 

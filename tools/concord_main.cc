@@ -15,12 +15,12 @@
 #include <CLI/CLI.hpp>
 #include <chrono>
 #include <cmath>
-#include <numbers>
 #include <cstdio>
 #include <exception>
 #include <filesystem>
 #include <iostream>
 #include <nlohmann/json.hpp>
+#include <numbers>
 
 #include "concord/config/options_file.h"
 #include "concord/dataset/dataset.h"
@@ -29,8 +29,8 @@
 #include "concord/frontend/frontend_options_file.h"
 #include "concord/frontend/frontend_run.h"
 #include "evaluation/frontend_metrics.h"
-#include "evaluation/metrics.h"
 #include "evaluation/line_plot.h"
+#include "evaluation/metrics.h"
 #include "evaluation/plot.h"
 #include "launch/launch.h"
 #include "replay/team_replay.h"
@@ -183,7 +183,8 @@ int run_sim(sim::SimulationOptions options, const fs::path& out,
             const std::optional<sim::RenderOptions>& render) {
   if (render) {
     // The rendered camera's vertical field of view follows from the image's aspect ratio.
-    const double half_width = std::tan(0.5 * options.horizontal_fov_degrees * std::numbers::pi / 180.0);
+    const double half_width =
+        std::tan(0.5 * options.horizontal_fov_degrees * std::numbers::pi / 180.0);
     options.vertical_fov_degrees =
         2.0 * std::atan(half_width * render->height / render->width) * 180.0 / std::numbers::pi;
   }
@@ -257,8 +258,8 @@ int run_frontend_command(const fs::path& input, const fs::path& out,
               << s.tracks_per_frame << " tracks a frame (min " << s.min_tracks
               << "), mean track length " << s.mean_track_length << ", " << s.objects_observed
               << " of " << s.detections << " detections observed, " << s.odometry_failures
-              << " odometry failures, " << s.total_ms.p50 << " ms a frame (p50), "
-              << s.total_ms.p99 << " ms (p99); CPU without image decoding " << s.processing_cpu_ms.p50
+              << " odometry failures, " << s.total_ms.p50 << " ms a frame (p50), " << s.total_ms.p99
+              << " ms (p99); CPU without image decoding " << s.processing_cpu_ms.p50
               << " ms (p50), " << s.processing_cpu_ms.p99 << " ms (p99)\n";
   }
   std::cout << "concord frontend: wrote " << out.string() << " (statistics in "
@@ -273,8 +274,8 @@ int run_frontend_eval(const fs::path& dataset_dir, const fs::path& world_file) {
   std::optional<sim::TexturedWorld> world;
   if (!world_file.empty()) world.emplace(sim::read_world_geometry(world_file));
   const auto statistics_json = [](const evaluation::ErrorStatistics& s) {
-    return nlohmann::json{{"count", s.count}, {"median", s.median}, {"p90", s.p90},
-                          {"mean", s.mean}, {"max", s.max}};
+    return nlohmann::json{
+        {"count", s.count}, {"median", s.median}, {"p90", s.p90}, {"mean", s.mean}, {"max", s.max}};
   };
   nlohmann::json robots = nlohmann::json::array();
   for (const dataset::RobotData& robot : data.robots) {
@@ -283,30 +284,31 @@ int run_frontend_eval(const fs::path& dataset_dir, const fs::path& world_file) {
     if (fs::exists(folder / "odometry_covariance.csv")) {
       covariances = frontend::read_odometry_covariances(folder / "odometry_covariance.csv");
     }
-    const auto odometry = evaluation::odometry_accuracy(robot.groundtruth, robot.odometry, covariances);
-    const auto objects = evaluation::object_observation_accuracy(data.camera, robot.groundtruth,
-                                                                 robot.objects, data.objects_groundtruth);
-    nlohmann::json entry = {
-        {"robot", robot.index},
-        {"odometry",
-         {{"path_length", odometry.path_length},
-          {"final_error", odometry.final_error},
-          {"final_error_percent", odometry.final_error_percent},
-          {"max_error", odometry.max_error},
-          {"rmse", odometry.rmse},
-          {"translation_error_rms", odometry.translation_error_rms},
-          {"rotation_error_rms", odometry.rotation_error_rms},
-          {"nees_mean", odometry.nees_mean}}},
-        {"objects",
-         {{"centre_px", statistics_json(objects.centre)},
-          {"disparity_px", statistics_json(objects.disparity)},
-          {"relative_depth", statistics_json(objects.relative_depth)}}}};
+    const auto odometry =
+        evaluation::odometry_accuracy(robot.groundtruth, robot.odometry, covariances);
+    const auto objects = evaluation::object_observation_accuracy(
+        data.camera, robot.groundtruth, robot.objects, data.objects_groundtruth);
+    nlohmann::json entry = {{"robot", robot.index},
+                            {"odometry",
+                             {{"path_length", odometry.path_length},
+                              {"final_error", odometry.final_error},
+                              {"final_error_percent", odometry.final_error_percent},
+                              {"max_error", odometry.max_error},
+                              {"rmse", odometry.rmse},
+                              {"translation_error_rms", odometry.translation_error_rms},
+                              {"rotation_error_rms", odometry.rotation_error_rms},
+                              {"nees_mean", odometry.nees_mean}}},
+                            {"objects",
+                             {{"centre_px", statistics_json(objects.centre)},
+                              {"disparity_px", statistics_json(objects.disparity)},
+                              {"relative_depth", statistics_json(objects.relative_depth)}}}};
     std::cout << "robot " << robot.index << ": odometry over " << odometry.path_length
-              << " m: final error " << odometry.final_error << " m (" << odometry.final_error_percent
-              << " %), RMSE " << odometry.rmse << " m, per motion " << odometry.translation_error_rms
-              << " m / " << odometry.rotation_error_rms << " rad RMS, NEES " << odometry.nees_mean
-              << "; objects: centre " << objects.centre.median << " px, disparity "
-              << objects.disparity.median << " px (medians)";
+              << " m: final error " << odometry.final_error << " m ("
+              << odometry.final_error_percent << " %), RMSE " << odometry.rmse << " m, per motion "
+              << odometry.translation_error_rms << " m / " << odometry.rotation_error_rms
+              << " rad RMS, NEES " << odometry.nees_mean << "; objects: centre "
+              << objects.centre.median << " px, disparity " << objects.disparity.median
+              << " px (medians)";
     if (world) {
       const auto tracks =
           evaluation::track_accuracy(*world, data.camera, robot.groundtruth, robot.features);
@@ -388,7 +390,8 @@ int main(int argc, char** argv) {
   replay_command->add_flag("--separate", separate, "No consensus (each robot alone)");
   replay_command
       ->add_option("--config", config_file,
-                   "Estimator config (default: the dataset's estimator.yaml, else configs/datasets/<dataset name>.yaml)")
+                   "Estimator config (default: the dataset's estimator.yaml, else "
+                   "configs/datasets/<dataset name>.yaml)")
       ->check(CLI::ExistingFile);
   replay_command->add_option("--graph", graph, "Communication graph: complete, ring or random")
       ->check(CLI::IsMember({"complete", "ring", "random"}));
@@ -616,8 +619,9 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   frontend_command->add_option("--frames", frames, "Only the first N frames")
       ->check(CLI::PositiveNumber);
-  frontend_command->add_option("--features", frontend_options.frontend.tracker.target_features,
-                               "Tracks kept per frame")
+  frontend_command
+      ->add_option("--features", frontend_options.frontend.tracker.target_features,
+                   "Tracks kept per frame")
       ->capture_default_str();
   frontend_command->add_option("--name", frontend_options.name, "dataset.json name of the output")
       ->capture_default_str();
@@ -633,7 +637,8 @@ int main(int argc, char** argv) {
       ->check(CLI::NonNegativeNumber);
 
   auto* frontend_eval_command = app.add_subcommand(
-      "frontend-eval", "Accuracy of a front-end's dataset (odometry, tracks, objects) against truth");
+      "frontend-eval",
+      "Accuracy of a front-end's dataset (odometry, tracks, objects) against truth");
   std::string world_file;
   frontend_eval_command->add_option("--dataset", dataset_dir, "Dataset written by concord frontend")
       ->required()
@@ -667,9 +672,9 @@ int main(int argc, char** argv) {
     if (eval_command->parsed()) return run_eval(dataset_dir, result_dir);
     if (slice_command->parsed()) return run_slice(dataset_dir, out_dir, frames, robots);
     if (sim_command->parsed()) {
-      return run_sim(sim_options, out_dir,
-                     render_images ? std::optional<sim::RenderOptions>(render_options)
-                                   : std::nullopt);
+      return run_sim(
+          sim_options, out_dir,
+          render_images ? std::optional<sim::RenderOptions>(render_options) : std::nullopt);
     }
     if (frontend_eval_command->parsed()) return run_frontend_eval(dataset_dir, world_file);
     if (frontend_command->parsed()) {

@@ -93,7 +93,8 @@ TrackAccuracy track_accuracy(const sim::TexturedWorld& world, const StereoCamera
       if (first) {
         ++accuracy.tracks;
         const Eigen::Vector3d ray =
-            T_world_cam0.linear() * (K_inverse * Eigen::Vector3d(observation.uv(0), observation.uv(1), 1.0));
+            T_world_cam0.linear() *
+            (K_inverse * Eigen::Vector3d(observation.uv(0), observation.uv(1), 1.0));
         if (const auto hit = world.cast(T_world_cam0.translation(), ray)) {
           entry->second = T_world_cam0.translation() + hit->distance * ray;
         } else {

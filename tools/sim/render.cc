@@ -124,7 +124,7 @@ class TexturedWorld::Textures {
   float sample(int texture, double x, double y, double footprint) const {
     const std::vector<cv::Mat>& levels = pyramids_[texture];
     const double level = std::clamp(std::log2(std::max(footprint, 1.0)), 0.0,
-                                     static_cast<double>(levels.size() - 1));
+                                    static_cast<double>(levels.size() - 1));
     const int lower = static_cast<int>(level);
     const double fraction = level - lower;
     const float a = bilinear(levels[lower], x / (1 << lower), y / (1 << lower));
@@ -258,8 +258,8 @@ std::optional<TexturedWorld::Hit> TexturedWorld::cast(const Eigen::Vector3d& ori
 }
 
 std::vector<std::uint8_t> TexturedWorld::render(const Eigen::Matrix3d& K,
-                                                const Eigen::Isometry3d& T_world_camera,
-                                                int width, int height, double noise_sigma,
+                                                const Eigen::Isometry3d& T_world_camera, int width,
+                                                int height, double noise_sigma,
                                                 std::uint64_t noise_seed) const {
   if (!textures_) throw std::logic_error("TexturedWorld::render: the world has no textures");
   const std::size_t pixels = static_cast<std::size_t>(width) * height;
@@ -338,10 +338,10 @@ std::vector<std::uint8_t> TexturedWorld::render(const Eigen::Matrix3d& K,
         const double cosine = std::max(std::abs(normal.dot(ray.normalized())), 0.05);
         const double metres_per_pixel = depth[pixel] * ray.norm() / (0.5 * (fx + fy));
         const double footprint = quad.texels_per_metre * metres_per_pixel / std::sqrt(cosine);
-        const double x = quad.texture_offset.x() +
-                         hit_s[pixel] * quad.edge_u.norm() * quad.texels_per_metre;
-        const double y = quad.texture_offset.y() +
-                         hit_t[pixel] * quad.edge_v.norm() * quad.texels_per_metre;
+        const double x =
+            quad.texture_offset.x() + hit_s[pixel] * quad.edge_u.norm() * quad.texels_per_metre;
+        const double y =
+            quad.texture_offset.y() + hit_t[pixel] * quad.edge_v.norm() * quad.texels_per_metre;
         value = quad.gain * textures_->sample(quad.texture, x, y, footprint);
       }
       if (noise_sigma > 0.0) value += noise_sigma * noise.at(noise_seed, pixel);
@@ -361,7 +361,8 @@ TexturedWorld build_world(const dataset::Dataset& simulated, const RenderOptions
   // 1. Extent of every path and object.
   std::vector<Eigen::Vector3d> path_points;
   for (const dataset::RobotData& robot : simulated.robots) {
-    for (const Eigen::Isometry3d& pose : robot.groundtruth) path_points.push_back(pose.translation());
+    for (const Eigen::Isometry3d& pose : robot.groundtruth)
+      path_points.push_back(pose.translation());
   }
   Eigen::Vector3d low = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
   Eigen::Vector3d high = -low;
@@ -394,7 +395,8 @@ TexturedWorld build_world(const dataset::Dataset& simulated, const RenderOptions
 
   // 3. The hall: walls 12 m beyond everything, floor and ceiling 2.5 m beyond.
   const double wall_margin = 12.0, floor_margin = 2.5;
-  const Eigen::Vector3d hall_low(low.x() - wall_margin, low.y() - wall_margin, low.z() - floor_margin);
+  const Eigen::Vector3d hall_low(low.x() - wall_margin, low.y() - wall_margin,
+                                 low.z() - floor_margin);
   const Eigen::Vector3d hall_high(high.x() + wall_margin, high.y() + wall_margin,
                                   high.z() + floor_margin);
   TexturedWorld::Quad scenery;
@@ -418,12 +420,12 @@ TexturedWorld build_world(const dataset::Dataset& simulated, const RenderOptions
       const auto horizontal = [&](const Eigen::Vector3d& p) {
         return std::hypot(p.x() - centre.x(), p.y() - centre.y());
       };
-      const bool near_path = std::any_of(path_points.begin(), path_points.end(),
-                                         [&](const auto& p) { return horizontal(p) < reach + 2.0; });
-      const bool near_object =
-          std::any_of(world.cubes().begin(), world.cubes().end(), [&](const auto& cube) {
-            return horizontal(cube.centre) < reach + 2.0 * half_size;
-          });
+      const bool near_path =
+          std::any_of(path_points.begin(), path_points.end(),
+                      [&](const auto& p) { return horizontal(p) < reach + 2.0; });
+      const bool near_object = std::any_of(
+          world.cubes().begin(), world.cubes().end(),
+          [&](const auto& cube) { return horizontal(cube.centre) < reach + 2.0 * half_size; });
       if (near_path || near_object) continue;
       world.add_box(centre, Eigen::Vector3d(half_width, half_width, hall_half.z()),
                     uniform(0.0, std::numbers::pi), pillar_style,

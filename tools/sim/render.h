@@ -52,7 +52,7 @@ struct RenderOptions {
   /// frames, data/euroc-v101-static-4, by default (--render-textures).
   std::filesystem::path textures;
 
-  std::vector<std::string> validate() const;
+  [[nodiscard]] std::vector<std::string> validate() const;
 };
 
 /// The pinhole camera of the rendered images: fx = fy = (width / 2) / tan(hfov / 2), principal
@@ -79,7 +79,8 @@ class TexturedWorld {
 
   /// Where a ray first meets the world.
   struct Hit {
-    double distance = 0.0;  ///< along the (unnormalized) direction: the point is origin + distance * direction
+    double distance =
+        0.0;  ///< along the (unnormalized) direction: the point is origin + distance * direction
     int quad = -1;
   };
 
@@ -113,13 +114,14 @@ class TexturedWorld {
   const std::vector<Cube>& cubes() const { return cubes_; }
 
   /// The first quad hit by the ray origin + d * direction, d > 1e-9.
-  std::optional<Hit> cast(const Eigen::Vector3d& origin, const Eigen::Vector3d& direction) const;
+  [[nodiscard]] std::optional<Hit> cast(const Eigen::Vector3d& origin,
+                                        const Eigen::Vector3d& direction) const;
 
   /// The 8-bit grey image of a pinhole camera (K, pose T_world_camera, optical z forward) of
   /// width x height pixels, row-major; noise of `noise_sigma` grey levels from `noise_seed`.
-  std::vector<std::uint8_t> render(const Eigen::Matrix3d& K, const Eigen::Isometry3d& T_world_camera,
-                                   int width, int height, double noise_sigma,
-                                   std::uint64_t noise_seed) const;
+  std::vector<std::uint8_t> render(const Eigen::Matrix3d& K,
+                                   const Eigen::Isometry3d& T_world_camera, int width, int height,
+                                   double noise_sigma, std::uint64_t noise_seed) const;
 
  private:
   class Textures;
@@ -142,7 +144,7 @@ std::string format_world_geometry(const TexturedWorld& world);
 
 /// Reads world.csv into a world without textures. Throws std::runtime_error naming the file and
 /// line on bad input.
-TexturedWorld read_world_geometry(const std::filesystem::path& file);
+[[nodiscard]] TexturedWorld read_world_geometry(const std::filesystem::path& file);
 
 /// Takes objects out of a dataset: ground truth and every robot's observations.
 void remove_objects(dataset::Dataset& data, const std::vector<LandmarkId>& ids);

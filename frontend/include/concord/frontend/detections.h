@@ -33,9 +33,8 @@ struct Detection {
 /// after num_frames (unless later_frames_allowed: a sequence cut short, whose later detections
 /// are dropped), an empty box (x_min >= x_max or y_min >= y_max) or a track id detected twice in
 /// one frame.
-std::vector<std::vector<Detection>> read_detections(const std::filesystem::path& file,
-                                                    int num_frames,
-                                                    bool later_frames_allowed = false);
+[[nodiscard]] std::vector<std::vector<Detection>> read_detections(
+    const std::filesystem::path& file, int num_frames, bool later_frames_allowed = false);
 
 /// The text of a detections table (header and one row per detection, frames in order).
 std::string format_detections(const std::vector<std::vector<Detection>>& per_frame);

@@ -81,7 +81,7 @@ class StereoFrontend {
 
   /// Processes the next frame. Throws FrontendError if an image cannot be read or decoded, and
   /// std::logic_error when done().
-  FrontendFrame process_next();
+  [[nodiscard]] FrontendFrame process_next();
 
  private:
   class Impl;

@@ -53,7 +53,7 @@ struct TrackerOptions {
   double ransac_min_parallax = 2.0;
 
   /// Every problem with the values, each naming the field and the bad value; empty when valid.
-  std::vector<std::string> validate() const;
+  [[nodiscard]] std::vector<std::string> validate() const;
 };
 
 /// Stereo visual odometry (StereoVisualOdometry).
@@ -79,7 +79,7 @@ struct OdometryOptions {
   double failure_translation_sigma = 0.5;
   double failure_rotation_sigma = 0.2;
 
-  std::vector<std::string> validate() const;
+  [[nodiscard]] std::vector<std::string> validate() const;
 };
 
 /// Object detections to stereo observations (ObjectObserver).
@@ -105,7 +105,7 @@ struct ObjectOptions {
   /// config (estimator.yaml).
   double detection_sigma = 2.0;
 
-  std::vector<std::string> validate() const;
+  [[nodiscard]] std::vector<std::string> validate() const;
 };
 
 /// The whole front-end.
@@ -115,7 +115,7 @@ struct FrontendOptions {
   ObjectOptions objects;
 
   /// Problems of all parts, each prefixed with its part ("tracker.", "odometry.", "objects.").
-  std::vector<std::string> validate() const;
+  [[nodiscard]] std::vector<std::string> validate() const;
 };
 
 }  // namespace concord::frontend

@@ -19,11 +19,11 @@
 namespace concord::frontend {
 
 /// Throws FrontendError listing every problem, each naming the key (and line).
-FrontendOptions parse_frontend_options(const std::string& yaml_text,
-                                       const std::string& source_name);
+[[nodiscard]] FrontendOptions parse_frontend_options(const std::string& yaml_text,
+                                                     const std::string& source_name);
 
 /// Reads a file; FrontendError if it cannot be read or is invalid.
-FrontendOptions load_frontend_options(const std::filesystem::path& file);
+[[nodiscard]] FrontendOptions load_frontend_options(const std::filesystem::path& file);
 
 /// Every option as YAML in the format the loader reads; numbers in their shortest exact form.
 std::string to_yaml(const FrontendOptions& options);

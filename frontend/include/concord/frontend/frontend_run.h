@@ -99,9 +99,9 @@ struct FrontendRunSummary {
 /// Runs the front-end on `input` and writes the dataset to `out` (created if needed). Throws
 /// FrontendError on bad input (naming the file), dataset::DatasetError if `out` holds more robot
 /// folders than written.
-FrontendRunSummary run_frontend(const std::filesystem::path& input,
-                                const std::filesystem::path& out,
-                                const FrontendRunOptions& options);
+[[nodiscard]] FrontendRunSummary run_frontend(const std::filesystem::path& input,
+                                              const std::filesystem::path& out,
+                                              const FrontendRunOptions& options);
 
 /// Estimator options for a front-end's dataset, noise values from the front-end and the sensor
 /// (docs/frontend.md): odometry sigmas = the median over robots of the odometry's reported
@@ -114,11 +114,11 @@ EstimatorOptions suggested_estimator_options(const FrontendRunSummary& summary,
 
 /// The covariances of an odometry_covariance.csv (one per motion, in file order). Throws
 /// FrontendError naming the file and line on bad input.
-std::vector<Eigen::Matrix<double, 6, 6>> read_odometry_covariances(
+[[nodiscard]] std::vector<Eigen::Matrix<double, 6, 6>> read_odometry_covariances(
     const std::filesystem::path& file);
 
 /// The sequence folders of an input: the input itself if it is a sequence, else its robot_NN
 /// sub-folders in order. Throws FrontendError if there are none.
-std::vector<std::filesystem::path> list_sequences(const std::filesystem::path& input);
+[[nodiscard]] std::vector<std::filesystem::path> list_sequences(const std::filesystem::path& input);
 
 }  // namespace concord::frontend

@@ -31,7 +31,8 @@ struct ObjectMeasurement {
 };
 
 /// Measures one detection whose box is in rectified left-image pixels, on a rectified pair.
-ObjectMeasurement observe_object(const Detection& box, const cv::Mat& left, const cv::Mat& right,
-                                 const StereoCamera& camera, const ObjectOptions& options);
+[[nodiscard]] ObjectMeasurement observe_object(const Detection& box, const cv::Mat& left,
+                                               const cv::Mat& right, const StereoCamera& camera,
+                                               const ObjectOptions& options);
 
 }  // namespace concord::frontend

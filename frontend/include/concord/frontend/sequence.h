@@ -62,7 +62,7 @@ struct StereoRig {
   /// principal point outside the image, image sizes that differ, a baseline under 1 mm, a right
   /// camera that is not beside the left one, non-finite numbers), each a sentence; empty if
   /// usable.
-  std::vector<std::string> problems() const;
+  [[nodiscard]] std::vector<std::string> problems() const;
 };
 
 enum class SequenceLayout { kEuroc, kKitti };
@@ -94,16 +94,16 @@ struct SequenceReadOptions {
 
 /// Reads the sequence in `folder`: EuRoC if it holds `mav0/` (or is a `mav0` folder with
 /// `cam0/`), KITTI if it holds `calib.txt`. Throws FrontendError on any problem.
-StereoSequence read_stereo_sequence(const std::filesystem::path& folder,
-                                    const SequenceReadOptions& options = {});
+[[nodiscard]] StereoSequence read_stereo_sequence(const std::filesystem::path& folder,
+                                                  const SequenceReadOptions& options = {});
 
 /// Reads an EuRoC ASL sequence; `folder` holds `mav0/` or is it. Throws FrontendError.
-StereoSequence read_euroc_sequence(const std::filesystem::path& folder,
-                                   const SequenceReadOptions& options = {});
+[[nodiscard]] StereoSequence read_euroc_sequence(const std::filesystem::path& folder,
+                                                 const SequenceReadOptions& options = {});
 
 /// Reads a KITTI odometry sequence folder. Throws FrontendError.
-StereoSequence read_kitti_sequence(const std::filesystem::path& folder,
-                                   const SequenceReadOptions& options = {});
+[[nodiscard]] StereoSequence read_kitti_sequence(const std::filesystem::path& folder,
+                                                 const SequenceReadOptions& options = {});
 
 /// Whether `folder` looks like a sequence in either layout (without reading it).
 bool is_stereo_sequence(const std::filesystem::path& folder);

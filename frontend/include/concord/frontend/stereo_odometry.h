@@ -56,8 +56,9 @@ class OdometrySource {
   virtual ~OdometrySource() = default;
   /// The motion from frame `frame` - 1 to `frame` (>= 1), given both frames' tracks (rectified
   /// pixels, sorted by id as the tracker gives them).
-  virtual MotionEstimate estimate(int frame, std::span<const StereoObservation> previous,
-                                  std::span<const StereoObservation> current) = 0;
+  [[nodiscard]] virtual MotionEstimate estimate(int frame,
+                                                std::span<const StereoObservation> previous,
+                                                std::span<const StereoObservation> current) = 0;
 };
 
 /// Stereo visual odometry on a rectified camera (K, T_cam0_body, baseline along x).
@@ -83,8 +84,8 @@ class FileOdometry final : public OdometrySource {
 
   /// Reads a KITTI pose file of motions; the covariance is diagonal with the given standard
   /// deviations per axis. Throws FrontendError (naming the file and line) on bad input.
-  static FileOdometry read(const std::filesystem::path& file, double translation_sigma,
-                           double rotation_sigma);
+  [[nodiscard]] static FileOdometry read(const std::filesystem::path& file,
+                                         double translation_sigma, double rotation_sigma);
 
   /// Number of motions (frames - 1 of the sequence it belongs to).
   int size() const { return static_cast<int>(motions_.size()); }
@@ -100,7 +101,8 @@ class FileOdometry final : public OdometrySource {
 
 /// Rectified stereo triangulation: the point in the left camera frame of (u_left, v_left,
 /// u_right, v_right), or nothing unless the disparity is at least min_disparity.
-std::optional<Eigen::Vector3d> triangulate(const StereoCamera& camera, const Eigen::Vector4d& uv,
-                                           double min_disparity);
+[[nodiscard]] std::optional<Eigen::Vector3d> triangulate(const StereoCamera& camera,
+                                                         const Eigen::Vector4d& uv,
+                                                         double min_disparity);
 
 }  // namespace concord::frontend

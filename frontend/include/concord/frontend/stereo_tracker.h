@@ -59,7 +59,7 @@ class StereoTracker {
   explicit StereoTracker(const TrackerOptions& options);
 
   /// Tracks a rectified 8-bit grey pair (both of one size) as the next frame.
-  TrackedFrame track(const cv::Mat& left, const cv::Mat& right);
+  [[nodiscard]] TrackedFrame track(const cv::Mat& left, const cv::Mat& right);
 
   /// Ends the given tracks (e.g. the visual odometry's outliers) so they do not continue.
   void drop_tracks(std::span<const LandmarkId> ids);

@@ -25,9 +25,8 @@ struct TrackConsistency {
 
 /// `odometry[k-1]` is T_body(k-1)_body(k); `features` the tracks per frame (rectified pixels of
 /// `camera`). Tracks with fewer than min_observations observations are not used.
-TrackConsistency track_consistency(const StereoCamera& camera,
-                                   const std::vector<Eigen::Isometry3d>& odometry,
-                                   const std::vector<std::vector<StereoObservation>>& features,
-                                   int min_observations = 4);
+[[nodiscard]] TrackConsistency track_consistency(
+    const StereoCamera& camera, const std::vector<Eigen::Isometry3d>& odometry,
+    const std::vector<std::vector<StereoObservation>>& features, int min_observations = 4);
 
 }  // namespace concord::frontend
