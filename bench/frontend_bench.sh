@@ -19,8 +19,8 @@ cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=Release >/dev/null
 cmake --build build --parallel 2 --target concord >/dev/null
 concord=./build/tools/concord
 
-# The exact team's noise is the front-end's (docs/frontend.md, "Benchmark"): odometry 2 mm and
-# 0.2 mrad per axis per frame (the visual odometry's reported standard deviations are 3.5 mm and
+# The exact team's noise is the front-end's: odometry 2 mm and 0.2 mrad per axis per frame (the
+# visual odometry's per-axis errors are about 2 mm and 0.1 mrad; it reports about 3.3 mm and
 # 0.2 mrad), 0.4 px on every image coordinate (the front-end's tracks deviate from the truth by
 # about that much), 200 point tracks a frame lost at 15 % a frame (the front-end keeps 200 tracks
 # of about 10 frames). Pixel noise is in normalized units: 0.4 px / 537 px focal length.

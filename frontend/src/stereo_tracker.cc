@@ -355,6 +355,8 @@ void StereoTracker::add_features(const cv::Mat& left, const std::vector<cv::Mat>
     int rank = 0;
   };
   const std::size_t matched = static_cast<std::size_t>(std::max(3 * missing, 30));
+  // A cell may offer up to twice its share; three times when the tracker starts from nothing.
+  const int cell_limit = (tracks_.ids.empty() ? 3 : 2) * per_cell;
   std::vector<int> cell_order(cells);
   std::iota(cell_order.begin(), cell_order.end(), 0);
   std::stable_sort(cell_order.begin(), cell_order.end(),
@@ -364,7 +366,7 @@ void StereoTracker::add_features(const cv::Mat& left, const std::vector<cv::Mat>
   const int cell_height = (size.height + rows - 1) / rows;
   std::vector<cv::KeyPoint> keypoints;
   for (const int cell : cell_order) {
-    if (candidates.size() >= matched || in_cell[cell] >= 2 * per_cell) break;
+    if (candidates.size() >= matched || in_cell[cell] >= cell_limit) break;
     const int row = cell / columns, column = cell % columns;
     const cv::Rect rect = cv::Rect(column * cell_width, row * cell_height, cell_width,
                                    cell_height) &
@@ -375,7 +377,7 @@ void StereoTracker::add_features(const cv::Mat& left, const std::vector<cv::Mat>
               [](const cv::KeyPoint& a, const cv::KeyPoint& b) { return a.response > b.response; });
     int rank = in_cell[cell];
     for (const cv::KeyPoint& keypoint : keypoints) {
-      if (rank >= 2 * per_cell) break;
+      if (rank >= cell_limit) break;
       const cv::Point2f point(keypoint.pt.x + static_cast<float>(rect.x),
                               keypoint.pt.y + static_cast<float>(rect.y));
       if (!inside(point, size)) continue;
