@@ -5,13 +5,14 @@
 #include <opencv2/imgproc.hpp>
 
 #include "concord/frontend/sequence.h"
+#include "text_lines.h"
 
 namespace concord::frontend {
 
 std::vector<std::string> ObjectOptions::validate() const {
   std::vector<std::string> problems;
   const auto require = [&](bool ok, const std::string& field, double value, const char* rule) {
-    if (!ok) problems.push_back(field + " = " + std::to_string(value) + ": must be " + rule);
+    if (!ok) problems.push_back(text::problem(field, value, rule));
   };
   require(central_fraction > 0.0 && central_fraction <= 1.0, "central_fraction", central_fraction,
           "in (0, 1]");

@@ -8,6 +8,7 @@
 #include "concord/dataset/result_io.h"
 #include "concord/estimator/lie.h"
 #include "concord/frontend/sequence.h"
+#include "text_lines.h"
 
 namespace concord::frontend {
 
@@ -140,7 +141,7 @@ Matrix6d diagonal_covariance(double translation_sigma, double rotation_sigma) {
 std::vector<std::string> OdometryOptions::validate() const {
   std::vector<std::string> problems;
   const auto require = [&](bool ok, const std::string& field, double value, const char* rule) {
-    if (!ok) problems.push_back(field + " = " + std::to_string(value) + ": must be " + rule);
+    if (!ok) problems.push_back(text::problem(field, value, rule));
   };
   require(pixel_sigma > 0.0, "pixel_sigma", pixel_sigma, "> 0");
   require(ransac_threshold > 0.0, "ransac_threshold", ransac_threshold, "> 0");

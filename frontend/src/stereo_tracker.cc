@@ -13,6 +13,7 @@
 #include <unordered_set>
 
 #include "concord/frontend/sequence.h"
+#include "text_lines.h"
 
 namespace concord::frontend {
 
@@ -125,7 +126,7 @@ double distance(const cv::Point2f& a, const cv::Point2f& b) {
 std::vector<std::string> TrackerOptions::validate() const {
   std::vector<std::string> problems;
   const auto require = [&](bool ok, const std::string& field, double value, const char* rule) {
-    if (!ok) problems.push_back(field + " = " + std::to_string(value) + ": must be " + rule);
+    if (!ok) problems.push_back(text::problem(field, value, rule));
   };
   require(target_features >= 1, "target_features", target_features, ">= 1");
   require(grid_columns >= 1 && grid_columns <= 64, "grid_columns", grid_columns, "in [1, 64]");

@@ -24,6 +24,18 @@ namespace concord::frontend::text {
   throw FrontendError(file.string() + ": " + std::string(problem));
 }
 
+/// A number in its shortest exact form ("4", "0.25"), for messages.
+inline std::string number_text(double value) {
+  char buffer[32];
+  const auto result = std::to_chars(buffer, buffer + sizeof(buffer), value);
+  return std::string(buffer, result.ptr);
+}
+
+/// A validation problem: "<field> = <value>: must be <rule>".
+inline std::string problem(const std::string& field, double value, const char* rule) {
+  return field + " = " + number_text(value) + ": must be " + rule;
+}
+
 /// `text` without leading and trailing blanks (spaces, tabs, carriage returns).
 inline std::string_view trimmed(std::string_view text) {
   constexpr std::string_view kBlanks = " \t\r";
