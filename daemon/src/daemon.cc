@@ -168,16 +168,17 @@ bool Daemon::Impl::load_source() {
       const SourceConfig& source = config_.source;
       frontend::SequenceReadOptions read_options;
       if (source.max_frames > 0) read_options.max_frames = source.max_frames;
-      frontend::StereoSequence sequence = frontend::read_stereo_sequence(source.images, read_options);
-      const frontend::FrontendOptions options = source.frontend.empty()
-                                                    ? frontend::FrontendOptions{}
-                                                    : frontend::load_frontend_options(source.frontend);
+      frontend::StereoSequence sequence =
+          frontend::read_stereo_sequence(source.images, read_options);
+      const frontend::FrontendOptions options =
+          source.frontend.empty() ? frontend::FrontendOptions{}
+                                  : frontend::load_frontend_options(source.frontend);
       const std::filesystem::path detections_file =
           source.detections.empty() ? source.images / "detections.csv" : source.detections;
       std::vector<std::vector<frontend::Detection>> detections;
       if (!source.detections.empty() || std::filesystem::exists(detections_file)) {
         detections = frontend::read_detections(detections_file, sequence.num_frames(),
-                                                source.max_frames > 0);
+                                               source.max_frames > 0);
       }
       if (sequence.groundtruth) {
         start_pose_ = sequence.groundtruth->front();
@@ -192,8 +193,7 @@ bool Daemon::Impl::load_source() {
                                                              std::move(detections));
       camera_ = frontend_->camera();
       spdlog::info("source: images of {} through the front-end ({} frames{})",
-                   source.images.string(), frames,
-                   detections.empty() ? "" : ", with detections");
+                   source.images.string(), frames, detections.empty() ? "" : ", with detections");
     } else {
       camera_ = dataset::read_camera(config_.source.camera);
       const auto& p = config_.source.start_pose;

@@ -2,9 +2,9 @@
 
 #include <algorithm>
 #include <array>
-#include <numeric>
 #include <cmath>
 #include <limits>
+#include <numeric>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/features2d.hpp>
 #include <opencv2/imgproc.hpp>
@@ -369,9 +369,9 @@ void StereoTracker::add_features(const cv::Mat& left, const std::vector<cv::Mat>
   for (const int cell : cell_order) {
     if (candidates.size() >= matched || in_cell[cell] >= cell_limit) break;
     const int row = cell / columns, column = cell % columns;
-    const cv::Rect rect = cv::Rect(column * cell_width, row * cell_height, cell_width,
-                                   cell_height) &
-                          cv::Rect(0, 0, size.width, size.height);
+    const cv::Rect rect =
+        cv::Rect(column * cell_width, row * cell_height, cell_width, cell_height) &
+        cv::Rect(0, 0, size.width, size.height);
     keypoints.clear();
     cv::FAST(left(rect), keypoints, options_.fast_threshold, true);
     std::sort(keypoints.begin(), keypoints.end(),
