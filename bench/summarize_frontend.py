@@ -73,10 +73,10 @@ print(f"| rendered: track reprojection error against truth, median "
       f"| < 0.5 px | {', '.join(f'{e:.2f}' for e in reprojection)} px | "
       f"{yes(max(reprojection) < 0.5)} |")
 print(f"| rendered team from the front-end's outputs: consensus beats separate and odometry only "
-      f"| consensus < both | consensus {fe_con:.3f} m, separate {fe_sep:.3f} m, odometry "
-      f"{fe_odo:.3f} m | {yes(fe_con < fe_sep and fe_con < fe_odo)} |")
+      f"| consensus < both | consensus {fe_con:.4f} m, separate {fe_sep:.4f} m, odometry "
+      f"{fe_odo:.4f} m | {yes(fe_con < fe_sep and fe_con < fe_odo)} |")
 print(f"| rendered team: trajectory RMSE against the same team on the simulator's exact tracks "
-      f"| within 2x | {fe_con:.3f} m against {ex_con:.4f} m: {ratio:.1f}x | {yes(ratio <= 2.0)} |")
+      f"| within 2x | {fe_con:.4f} m against {ex_con:.4f} m: {ratio:.1f}x | {yes(ratio <= 2.0)} |")
 print(f"| EuRoC: stereo tracks a frame | >= 150 | {euroc['tracks_per_frame']:.1f} on average, "
       f"{euroc['min_tracks']} at least | {yes(euroc['tracks_per_frame'] >= 150)} (average), "
       f"{yes(euroc['min_tracks'] >= 150)} (every frame) |")
@@ -129,7 +129,7 @@ print("The estimator config is the `estimator.yaml` that `concord frontend` wrot
 print()
 print("| team | odometry only m | separate m | consensus m | objects, consensus m |")
 print("|---|---|---|---|---|")
-print(f"| front-end (images) | {fe_odo:.3f} | {fe_sep:.3f} | {fe_con:.3f} | "
+print(f"| front-end (images) | {fe_odo:.4f} | {fe_sep:.4f} | {fe_con:.4f} | "
       f"{teams['team-consensus']['average']['object_error']:.3f} |")
 print(f"| simulator's exact tracks | {teams['exact-consensus']['average']['odometry_rmse']:.3f} | "
       f"{ex_sep:.4f} | {ex_con:.4f} | {teams['exact-consensus']['average']['object_error']:.4f} |")
