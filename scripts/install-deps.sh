@@ -9,7 +9,8 @@ packages=(
   libyaml-cpp-dev          # configuration files
   libcli11-dev             # command-line parsing
   nlohmann-json3-dev       # metrics.json, dataset.json, HTTP bodies
-  libopencv-core-dev libopencv-imgproc-dev libopencv-imgcodecs-dev  # trajectory plots (PNG)
+  libopencv-core-dev libopencv-imgproc-dev libopencv-imgcodecs-dev  # trajectory plots (PNG), images
+  libopencv-features2d-dev libopencv-video-dev libopencv-calib3d-dev  # stereo front-end (frontend/)
   libboost-dev             # Asio (peer-to-peer network) and Beast (HTTP endpoint), header-only
   libprotobuf-dev protobuf-compiler  # wire schema (proto/)
   libspdlog-dev            # daemon logging, one event per line

@@ -52,7 +52,7 @@ Team perfect_trajectories(int robots, int frames) {
   Team team;
   for (int robot = 0; robot < robots; ++robot) {
     team.truths.push_back(wiggly_truth(frames));
-    team.results.push_back({team.truths.back().groundtruth, {}});
+    team.results.push_back({team.truths.back().groundtruth, {}, {}});
   }
   return team;
 }
@@ -159,7 +159,7 @@ TEST(EvaluationTest, AverageAndMaximumSkipNaN) {
   // Object errors 1, 3 and none (NaN); frames 2, 2 and 3.
   Team team = perfect_trajectories(2, 2);
   team.truths.push_back(wiggly_truth(3));
-  team.results.push_back({team.truths.back().groundtruth, {}});
+  team.results.push_back({team.truths.back().groundtruth, {}, {}});
   const std::map<LandmarkId, Eigen::Vector3d> objects_groundtruth = {{1, Eigen::Vector3d::Zero()}};
   team.results[0].objects = {object(1, Eigen::Vector3d(0, 0, 1))};
   team.results[1].objects = {object(1, Eigen::Vector3d(0, 3, 0))};

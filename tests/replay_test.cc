@@ -38,7 +38,8 @@ TeamRun run_replay(const dataset::Dataset& data, const EstimatorOptions& options
   std::vector<evaluation::RobotResult> results;
   for (std::size_t i = 0; i < data.robots.size(); ++i) {
     truths.push_back({data.robots[i].groundtruth, data.robots[i].odometry});
-    results.push_back({out.result.robots[i].trajectory, out.result.robots[i].objects});
+    results.push_back({out.result.robots[i].trajectory, out.result.robots[i].objects,
+                       out.result.robots[i].pose_covariances});
   }
   out.metrics = evaluation::evaluate(truths, results, data.objects_groundtruth);
   return out;

@@ -7,28 +7,37 @@
 ///   concord launch --dataset DIR --out DIR [--lockstep|--async|--separate] [--base-port P]
 ///                  [--http-base-port P] [--config FILE] [--robots R] [--frames N] [--rate HZ]
 ///   concord plot --input CHART.json --out CHART.png
+///   concord frontend --input DIR --out DIR [--detections FILE] [--odometry FILE] [--frames N]
+///   concord frontend-eval --dataset DIR [--world FILE]
 ///   concord sim --robots N --out DIR [--seed S] [--frames F] [--objects M] [--points-per-frame P]
 ///               [--odometry-translation-noise T] [--odometry-rotation-noise R] [--pixel-noise S]
 ///               ... (camera, path and object-placement parameters: concord sim --help)
 
 #include <CLI/CLI.hpp>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <exception>
 #include <filesystem>
 #include <iostream>
 #include <nlohmann/json.hpp>
 #include <yaml-cpp/yaml.h>
+#include <numbers>
 
 #include "concord/config/options_file.h"
 #include "concord/dataset/dataset.h"
 #include "concord/dataset/result_io.h"
 #include "calibration/calibration.h"
-#include "evaluation/metrics.h"
+#include "concord/frontend/frontend.h"
+#include "concord/frontend/frontend_options_file.h"
+#include "concord/frontend/frontend_run.h"
+#include "evaluation/frontend_metrics.h"
 #include "evaluation/line_plot.h"
+#include "evaluation/metrics.h"
 #include "evaluation/plot.h"
 #include "launch/launch.h"
 #include "replay/team_replay.h"
+#include "sim/render.h"
 #include "sim/simulator.h"
 
 namespace fs = std::filesystem;
@@ -36,10 +45,12 @@ using namespace concord;
 
 namespace {
 
-/// The checked-in config of the sensor that recorded a dataset (one config per sensor, not per
-/// dataset): configs/sensors/<sensor>.yaml, the sensor from dataset.json's "sensor" or, for the
-/// shared sets that have none, from configs/sensors/datasets.yaml (dataset name -> sensor).
+/// The config of a dataset: its own estimator.yaml (written by `concord frontend` from the
+/// front-end's noise), else the checked-in config of the sensor that recorded it (one config per
+/// sensor, not per dataset): configs/sensors/<sensor>.yaml, the sensor from dataset.json's
+/// "sensor" or, for the shared sets that have none, from configs/sensors/datasets.yaml.
 std::optional<fs::path> dataset_config(const dataset::Dataset& data) {
+  if (fs::exists(data.root / "estimator.yaml")) return data.root / "estimator.yaml";
   const fs::path sensors = fs::path(CONCORD_CONFIG_DIR) / "sensors";
   std::string sensor = data.sensor;
   if (sensor.empty()) {
@@ -233,18 +244,50 @@ int run_slice(const fs::path& dataset_dir, const fs::path& out, int frames, int 
   return 0;
 }
 
-int run_sim(const sim::SimulationOptions& options, const fs::path& out) {
-  if (const auto problems = options.validate(); !problems.empty()) {
+int run_sim(sim::SimulationOptions options, const fs::path& out,
+            const std::optional<sim::RenderOptions>& render) {
+  if (render) {
+    // The rendered camera's vertical field of view follows from the image's aspect ratio.
+    const double half_width =
+        std::tan(0.5 * options.horizontal_fov_degrees * std::numbers::pi / 180.0);
+    options.vertical_fov_degrees =
+        2.0 * std::atan(half_width * render->height / render->width) * 180.0 / std::numbers::pi;
+  }
+  auto problems = options.validate();
+  if (render) {
+    for (const auto& problem : render->validate()) problems.push_back(problem);
+  }
+  if (!problems.empty()) {
     std::cerr << "concord sim: invalid parameters:\n";
     for (const auto& problem : problems) std::cerr << "  " << problem << "\n";
     return 1;
   }
   using Clock = std::chrono::steady_clock;
   const auto start = Clock::now();
-  const dataset::Dataset data = sim::simulate(options);
+  dataset::Dataset data = sim::simulate(options);
+  std::optional<sim::TexturedWorld> world;
+  if (render) {
+    std::vector<LandmarkId> removed;
+    world.emplace(sim::build_world(data, *render, options.seed, removed));
+    sim::remove_objects(data, removed);
+    std::cerr << "concord sim: rendered world of " << world->quads().size() << " textured quads ("
+              << world->cubes().size() << " object cubes; " << removed.size()
+              << " objects dropped because a path passes through them)\n";
+  }
   const auto simulated = Clock::now();
   dataset::write_dataset(data, out);
   dataset::write_file_atomically(out / "simulation.json", sim::to_json(options));
+  if (render) {
+    const StereoCamera camera =
+        sim::render_camera(data.camera, options.horizontal_fov_degrees, *render);
+    sim::write_rendered_sequences(
+        data, *world, camera, *render, options.min_depth, options.max_depth, options.seed, out,
+        [](long long done, long long total) {
+          if (done % 100 == 0 || done == total) {
+            std::cerr << "  rendered " << done << "/" << total << " frames\n";
+          }
+        });
+  }
   const auto written = Clock::now();
   const auto seconds = [](Clock::duration duration) {
     return std::chrono::duration<double>(duration).count();
@@ -259,6 +302,95 @@ int run_sim(const sim::SimulationOptions& options, const fs::path& out) {
             << out.string() << "\n";
   std::cerr << "concord sim: simulated in " << seconds(simulated - start) << " s, written in "
             << seconds(written - simulated) << " s\n";
+  return 0;
+}
+
+/// The stereo front-end over a sequence (or a team of them), written as a dataset.
+int run_frontend_command(const fs::path& input, const fs::path& out,
+                         frontend::FrontendRunOptions options) {
+  int last_percent = -1;
+  options.progress = [&](int robot, int frame, int frames) {
+    const int percent = 100 * (frame + 1) / frames;
+    if (percent / 10 != last_percent / 10 || frame + 1 == frames) {
+      std::cerr << "  robot " << robot << ": frame " << frame + 1 << "/" << frames << "\n";
+      last_percent = percent;
+    }
+  };
+  const frontend::FrontendRunSummary summary = frontend::run_frontend(input, out, options);
+  for (std::size_t robot = 0; robot < summary.robots.size(); ++robot) {
+    const frontend::SequenceSummary& s = summary.robots[robot];
+    std::cout << "concord frontend: robot " << robot << ": " << s.frames << " frames, "
+              << s.tracks_per_frame << " tracks a frame (min " << s.min_tracks
+              << "), mean track length " << s.mean_track_length << ", " << s.objects_observed
+              << " of " << s.detections << " detections observed, " << s.odometry_failures
+              << " odometry failures, " << s.total_ms.p50 << " ms a frame (p50), " << s.total_ms.p99
+              << " ms (p99); CPU without image decoding " << s.processing_cpu_ms.p50
+              << " ms (p50), " << s.processing_cpu_ms.p99 << " ms (p99)\n";
+  }
+  std::cout << "concord frontend: wrote " << out.string() << " (statistics in "
+            << (out / "frontend.json").string() << ")\n";
+  return 0;
+}
+
+/// Accuracy of a front-end's dataset against its ground truth (and, for rendered sequences, the
+/// world's geometry): prints one line per robot and writes frontend_eval.json next to it.
+int run_frontend_eval(const fs::path& dataset_dir, const fs::path& world_file) {
+  const dataset::Dataset data = dataset::read_dataset(dataset_dir);
+  std::optional<sim::TexturedWorld> world;
+  if (!world_file.empty()) world.emplace(sim::read_world_geometry(world_file));
+  const auto statistics_json = [](const evaluation::ErrorStatistics& s) {
+    return nlohmann::json{
+        {"count", s.count}, {"median", s.median}, {"p90", s.p90}, {"mean", s.mean}, {"max", s.max}};
+  };
+  nlohmann::json robots = nlohmann::json::array();
+  for (const dataset::RobotData& robot : data.robots) {
+    const fs::path folder = dataset_dir / dataset::robot_folder_name(robot.index);
+    std::vector<Eigen::Matrix<double, 6, 6>> covariances;
+    if (fs::exists(folder / "odometry_covariance.csv")) {
+      covariances = frontend::read_odometry_covariances(folder / "odometry_covariance.csv");
+    }
+    const auto odometry =
+        evaluation::odometry_accuracy(robot.groundtruth, robot.odometry, covariances);
+    const auto objects = evaluation::object_observation_accuracy(
+        data.camera, robot.groundtruth, robot.objects, data.objects_groundtruth);
+    nlohmann::json entry = {{"robot", robot.index},
+                            {"odometry",
+                             {{"path_length", odometry.path_length},
+                              {"final_error", odometry.final_error},
+                              {"final_error_percent", odometry.final_error_percent},
+                              {"max_error", odometry.max_error},
+                              {"rmse", odometry.rmse},
+                              {"translation_error_rms", odometry.translation_error_rms},
+                              {"rotation_error_rms", odometry.rotation_error_rms},
+                              {"nees_mean", odometry.nees_mean}}},
+                            {"objects",
+                             {{"centre_px", statistics_json(objects.centre)},
+                              {"disparity_px", statistics_json(objects.disparity)},
+                              {"relative_depth", statistics_json(objects.relative_depth)}}}};
+    std::cout << "robot " << robot.index << ": odometry over " << odometry.path_length
+              << " m: final error " << odometry.final_error << " m ("
+              << odometry.final_error_percent << " %), RMSE " << odometry.rmse << " m, per motion "
+              << odometry.translation_error_rms << " m / " << odometry.rotation_error_rms
+              << " rad RMS, NEES " << odometry.nees_mean << "; objects: centre "
+              << objects.centre.median << " px, disparity " << objects.disparity.median
+              << " px (medians)";
+    if (world) {
+      const auto tracks =
+          evaluation::track_accuracy(*world, data.camera, robot.groundtruth, robot.features);
+      entry["tracks"] = {{"tracks", tracks.tracks},
+                         {"unanchored", tracks.unanchored},
+                         {"left_px", statistics_json(tracks.left)},
+                         {"right_px", statistics_json(tracks.right)},
+                         {"all_px", statistics_json(tracks.all)}};
+      std::cout << "; tracks: " << tracks.all.median << " px median, " << tracks.all.p90
+                << " px p90 reprojection error";
+    }
+    std::cout << "\n";
+    robots.push_back(std::move(entry));
+  }
+  dataset::write_file_atomically(dataset_dir / "frontend_eval.json",
+                                 nlohmann::json{{"robots", robots}}.dump(2) + "\n");
+  std::cout << "frontend-eval: " << (dataset_dir / "frontend_eval.json").string() << "\n";
   return 0;
 }
 
@@ -321,7 +453,8 @@ int main(int argc, char** argv) {
   replay_command->add_flag("--separate", separate, "No consensus (each robot alone)");
   replay_command
       ->add_option("--config", config_file,
-                   "Estimator config (default: the sensor's, configs/sensors/)")
+                   "Estimator config (default: the dataset's estimator.yaml, else its sensor's "
+                   "in configs/sensors/)")
       ->check(CLI::ExistingFile);
   replay_command->add_option("--graph", graph, "Communication graph: complete, ring or random")
       ->check(CLI::IsMember({"complete", "ring", "random"}));
@@ -470,6 +603,34 @@ int main(int argc, char** argv) {
                    "Largest depth of an object in view of the pose it is placed around, metres")
       ->capture_default_str();
 
+  bool render_images = false;
+  sim::RenderOptions render_options;
+  render_options.textures = CONCORD_TEXTURE_DIR;
+  sim_command->add_flag("--render", render_images,
+                        "Also render stereo images of a textured world (KITTI layout per robot, "
+                        "with detections.csv) for the front-end");
+  sim_command->add_option("--render-width", render_options.width, "Rendered image width, pixels")
+      ->capture_default_str();
+  sim_command->add_option("--render-height", render_options.height, "Rendered image height, pixels")
+      ->capture_default_str();
+  sim_command
+      ->add_option("--render-noise", render_options.image_noise,
+                   "Pixel noise of the rendered images, grey levels (one sigma)")
+      ->capture_default_str();
+  sim_command
+      ->add_option("--render-object-size", render_options.object_size,
+                   "Edge of the cube drawn for each object, metres")
+      ->capture_default_str();
+  sim_command
+      ->add_option("--render-pillars", render_options.pillar_density,
+                   "Textured pillars per 100 square metres")
+      ->capture_default_str();
+  sim_command
+      ->add_option("--render-textures", render_options.textures,
+                   "Folder of PNG photographs used as textures")
+      ->check(CLI::ExistingDirectory)
+      ->capture_default_str();
+
   auto* launch_command = app.add_subcommand(
       "launch", "Run one concordd per robot of a dataset on loopback and score the outputs");
   launch::LaunchOptions launch_options;
@@ -513,6 +674,64 @@ int main(int argc, char** argv) {
       ->check(CLI::ExistingFile);
   plot_command->add_option("--out", out_dir, "PNG file to write")->required();
 
+  auto* frontend_command = app.add_subcommand(
+      "frontend",
+      "Stereo front-end: image sequence(s) to a dataset folder (tracks, odometry, objects)");
+  frontend::FrontendRunOptions frontend_options;
+  std::string frontend_input;
+  frontend_command
+      ->add_option("--input", frontend_input,
+                   "A sequence (EuRoC or KITTI layout) or a folder of robot_NN sequences")
+      ->required()
+      ->check(CLI::ExistingDirectory);
+  frontend_command->add_option("--out", out_dir, "Output dataset folder")->required();
+  frontend_command
+      ->add_option("--detections", frontend_options.detections,
+                   "detections.csv of a single sequence (default: <sequence>/detections.csv)")
+      ->check(CLI::ExistingFile);
+  frontend_command
+      ->add_option("--odometry", frontend_options.odometry,
+                   "The robot's own odometry (KITTI poses T_body(k-1)_body(k)) instead of "
+                   "visual odometry")
+      ->check(CLI::ExistingFile);
+  frontend_command
+      ->add_option("--odometry-translation-sigma", frontend_options.odometry_translation_sigma,
+                   "Standard deviation of --odometry per axis per frame, metres")
+      ->capture_default_str();
+  frontend_command
+      ->add_option("--odometry-rotation-sigma", frontend_options.odometry_rotation_sigma,
+                   "Standard deviation of --odometry per axis per frame, radians")
+      ->capture_default_str();
+  frontend_command->add_option("--frames", frames, "Only the first N frames")
+      ->check(CLI::PositiveNumber);
+  frontend_command
+      ->add_option("--features", frontend_options.frontend.tracker.target_features,
+                   "Tracks kept per frame")
+      ->capture_default_str();
+  frontend_command->add_option("--name", frontend_options.name, "dataset.json name of the output")
+      ->capture_default_str();
+  std::string frontend_config;
+  frontend_command
+      ->add_option("--config", frontend_config,
+                   "Front-end options (YAML: tracker:, odometry:, objects:; docs/frontend.md)")
+      ->check(CLI::ExistingFile);
+  int frontend_threads = 0;
+  frontend_command
+      ->add_option("--threads", frontend_threads,
+                   "Threads OpenCV may use (1: one core; default: OpenCV's choice)")
+      ->check(CLI::NonNegativeNumber);
+
+  auto* frontend_eval_command = app.add_subcommand(
+      "frontend-eval",
+      "Accuracy of a front-end's dataset (odometry, tracks, objects) against truth");
+  std::string world_file;
+  frontend_eval_command->add_option("--dataset", dataset_dir, "Dataset written by concord frontend")
+      ->required()
+      ->check(CLI::ExistingDirectory);
+  frontend_eval_command
+      ->add_option("--world", world_file, "world.csv of rendered sequences (concord sim --render)")
+      ->check(CLI::ExistingFile);
+
   CLI11_PARSE(app, argc, argv);
   try {
     if (plot_command->parsed()) {
@@ -538,7 +757,25 @@ int main(int argc, char** argv) {
     if (eval_command->parsed()) return run_eval(dataset_dir, result_dir);
     if (slice_command->parsed()) return run_slice(dataset_dir, out_dir, frames, robots);
     if (calibrate_command->parsed()) return run_calibrate(dataset_dir, calibration_options);
-    if (sim_command->parsed()) return run_sim(sim_options, out_dir);
+    if (sim_command->parsed()) {
+      return run_sim(
+          sim_options, out_dir,
+          render_images ? std::optional<sim::RenderOptions>(render_options) : std::nullopt);
+    }
+    if (frontend_eval_command->parsed()) return run_frontend_eval(dataset_dir, world_file);
+    if (frontend_command->parsed()) {
+      if (frames > 0) frontend_options.max_frames = frames;
+      if (frontend_threads > 0) frontend::set_opencv_threads(frontend_threads);
+      if (!frontend_config.empty()) {
+        const int features = frontend_options.frontend.tracker.target_features;
+        frontend_options.frontend = frontend::load_frontend_options(frontend_config);
+        if (frontend_command->count("--features") > 0) {
+          frontend_options.frontend.tracker.target_features = features;
+        }
+      }
+      std::cerr << "concord frontend: options\n" << frontend::to_yaml(frontend_options.frontend);
+      return run_frontend_command(frontend_input, out_dir, frontend_options);
+    }
   } catch (const std::exception& error) {
     std::cerr << "concord: error: " << error.what() << "\n";
     return 1;

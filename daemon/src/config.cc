@@ -188,6 +188,10 @@ std::vector<std::string> DaemonConfig::validate() const {
     if (source.robot < 0) problems.push_back("source.robot: expected >= 0");
     if (!(source.rate_hz >= 0.0)) problems.push_back("source.rate_hz: expected >= 0");
     if (source.max_frames < 0) problems.push_back("source.max_frames: expected >= 0");
+  } else if (source.kind == SourceKind::kImages) {
+    if (source.images.empty()) problems.push_back("source.images: required for images");
+    if (!(source.rate_hz >= 0.0)) problems.push_back("source.rate_hz: expected >= 0");
+    if (source.max_frames < 0) problems.push_back("source.max_frames: expected >= 0");
   } else {
     if (source.camera.empty()) problems.push_back("source.camera: required for ingest");
   }
@@ -246,8 +250,10 @@ DaemonConfig parse_daemon_config(const std::string& yaml_text, const std::string
     config.source.kind = SourceKind::kReplay;
   } else if (kind == "ingest") {
     config.source.kind = SourceKind::kIngest;
+  } else if (kind == "images") {
+    config.source.kind = SourceKind::kImages;
   } else {
-    problems.push_back("source.kind: expected replay or ingest, got '" + kind + "'");
+    problems.push_back("source.kind: expected replay, ingest or images, got '" + kind + "'");
   }
   source.read("dataset", config.source.dataset, base_directory);
   source.read("robot", config.source.robot);
@@ -258,6 +264,9 @@ DaemonConfig parse_daemon_config(const std::string& yaml_text, const std::string
   source.read_port("ingest_port", config.source.ingest_port, true);
   source.read("camera", config.source.camera, base_directory);
   source.read_numbers("start_pose", config.source.start_pose, 7);
+  source.read("images", config.source.images, base_directory);
+  source.read("detections", config.source.detections, base_directory);
+  source.read("frontend", config.source.frontend, base_directory);
   source.finish();
 
   Section network(top.child("network"), "network.", problems);

@@ -22,6 +22,8 @@
 #include "concord/dataset/dataset.h"
 #include "concord/dataset/result_io.h"
 #include "concord/estimator/estimator.h"
+#include "concord/frontend/frontend.h"
+#include "concord/frontend/frontend_options_file.h"
 #include "concord/net/frame_listener.h"
 #include "concord/net/peer_network.h"
 #include "concord/v1/concord.pb.h"
@@ -116,6 +118,7 @@ class Daemon::Impl {
   bool start_services();
   void register_routes();
   void replay_frames();
+  void image_frames();
   void on_ingest(const v1::Envelope& envelope);
   void estimator_loop();
   bool process(QueuedFrame& item);
@@ -128,8 +131,9 @@ class Daemon::Impl {
   std::atomic<bool> stop_requested_{false};
   Clock::time_point started_ = Clock::now();
 
-  // Source data (replay).
+  // Source data (replay; images through the front-end).
   std::optional<dataset::RobotData> robot_;
+  std::unique_ptr<frontend::StereoFrontend> frontend_;
   StereoCamera camera_;
   Eigen::Isometry3d start_pose_ = Eigen::Isometry3d::Identity();
   std::optional<Estimator> estimator_;
@@ -162,6 +166,36 @@ bool Daemon::Impl::load_source() {
       spdlog::info("source: replay of {} robot {} ({} frames{})", config_.source.dataset.string(),
                    config_.source.robot, robot_->num_frames(),
                    robot_->has_features ? ", point features" : "");
+    } else if (config_.source.kind == SourceKind::kImages) {
+      const SourceConfig& source = config_.source;
+      frontend::SequenceReadOptions read_options;
+      if (source.max_frames > 0) read_options.max_frames = source.max_frames;
+      frontend::StereoSequence sequence =
+          frontend::read_stereo_sequence(source.images, read_options);
+      const frontend::FrontendOptions options =
+          source.frontend.empty() ? frontend::FrontendOptions{}
+                                  : frontend::load_frontend_options(source.frontend);
+      const std::filesystem::path detections_file =
+          source.detections.empty() ? source.images / "detections.csv" : source.detections;
+      std::vector<std::vector<frontend::Detection>> detections;
+      if (!source.detections.empty() || std::filesystem::exists(detections_file)) {
+        detections = frontend::read_detections(detections_file, sequence.num_frames(),
+                                               source.max_frames > 0);
+      }
+      if (sequence.groundtruth) {
+        start_pose_ = sequence.groundtruth->front();
+      } else {
+        const auto& p = source.start_pose;
+        start_pose_.translation() = Eigen::Vector3d(p[0], p[1], p[2]);
+        start_pose_.linear() =
+            Eigen::Quaterniond(p[3], p[4], p[5], p[6]).normalized().toRotationMatrix();
+      }
+      const int frames = sequence.num_frames();
+      frontend_ = std::make_unique<frontend::StereoFrontend>(std::move(sequence), options,
+                                                             std::move(detections));
+      camera_ = frontend_->camera();
+      spdlog::info("source: images of {} through the front-end ({} frames{})",
+                   source.images.string(), frames, detections.empty() ? "" : ", with detections");
     } else {
       camera_ = dataset::read_camera(config_.source.camera);
       const auto& p = config_.source.start_pose;
@@ -265,6 +299,38 @@ void Daemon::Impl::replay_frames() {
       next += period;
     }
     QueuedFrame item{robot_->frame_input(k), static_cast<double>(k), Clock::now()};
+    if (!queue_.push(std::move(item))) return;
+  }
+  queue_.close();
+}
+
+/// The image source: the front-end processes frame after frame on this thread (at the camera rate
+/// when rate_hz is set) and queues what the estimator takes. An unreadable image ends the source.
+void Daemon::Impl::image_frames() {
+  const auto period = config_.source.rate_hz > 0.0
+                          ? std::chrono::duration_cast<Clock::duration>(
+                                std::chrono::duration<double>(1.0 / config_.source.rate_hz))
+                          : Clock::duration::zero();
+  auto next = Clock::now();
+  while (!frontend_->done() && !stop_requested_) {
+    if (period > Clock::duration::zero()) {
+      // Pacing at the camera rate (not synchronisation).
+      std::this_thread::sleep_until(next);
+      next += period;
+    }
+    frontend::FrontendFrame frame;
+    try {
+      frame = frontend_->process_next();
+    } catch (const std::exception& error) {
+      spdlog::error("source: front-end stopped at frame {}: {}", frontend_->next_frame(),
+                    error.what());
+      break;
+    }
+    if (frame.input.frame > 0 && !frame.motion.valid) {
+      spdlog::warn("source: no visual odometry at frame {} (the previous motion is repeated)",
+                   frame.input.frame);
+    }
+    QueuedFrame item{std::move(frame.input), frame.timestamp, Clock::now()};
     if (!queue_.push(std::move(item))) return;
   }
   queue_.close();
@@ -451,7 +517,9 @@ void Daemon::Impl::register_routes() {
     json body = {{"robot_id", config_.robot_id},
                  {"team", config_.team},
                  {"mode", to_string(config_.consensus.mode)},
-                 {"source", config_.source.kind == SourceKind::kReplay ? "replay" : "ingest"},
+                 {"source", config_.source.kind == SourceKind::kReplay   ? "replay"
+                            : config_.source.kind == SourceKind::kImages ? "images"
+                                                                         : "ingest"},
                  {"uptime_seconds", seconds_between(started_, Clock::now())},
                  {"queue", queue_.size()}};
     body["live_peers"] = exchange_ ? exchange_->live_peers() : std::vector<int>{};
@@ -646,6 +714,7 @@ int Daemon::Impl::run() {
     }
   });
   if (robot_) source_thread_ = std::thread([this] { replay_frames(); });
+  if (frontend_) source_thread_ = std::thread([this] { image_frames(); });
 
   estimator_loop();
 

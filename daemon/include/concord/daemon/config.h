@@ -29,6 +29,7 @@ std::string to_string(ConsensusMode mode);
 enum class SourceKind {
   kReplay,  ///< frames of one robot folder of a dataset
   kIngest,  ///< SensorFrame envelopes received on a TCP port
+  kImages,  ///< a stereo image sequence through the front-end (frontend/, docs/frontend.md)
 };
 
 struct SourceConfig {
@@ -36,10 +37,16 @@ struct SourceConfig {
   /// Replay: the dataset folder and which robot_NN to replay.
   std::filesystem::path dataset;
   int robot = 0;
-  /// Replay: frames per second; 0 = as fast as the consensus mode allows.
+  /// Replay and images: frames per second; 0 = as fast as the consensus mode allows.
   double rate_hz = 0.0;
-  /// Replay: only the first max_frames frames (0 = all).
+  /// Replay and images: only the first max_frames frames (0 = all).
   int max_frames = 0;
+  /// Images: the sequence folder (EuRoC or KITTI layout), the robot's detections (default:
+  /// <images>/detections.csv if present) and front-end options (a YAML file; "" = defaults).
+  /// The start pose is the sequence's first ground-truth pose, or start_pose without one.
+  std::filesystem::path images;
+  std::filesystem::path detections;
+  std::filesystem::path frontend;
   /// Replay: read features.csv (point features) where present.
   bool point_features = true;
   /// Ingest: where SensorFrame envelopes are accepted.
@@ -47,7 +54,8 @@ struct SourceConfig {
   std::uint16_t ingest_port = 7600;
   /// Ingest: the camera (a dataset.json whose "camera" object describes it).
   std::filesystem::path camera;
-  /// Ingest: the known start pose T_world_body: x y z qw qx qy qz.
+  /// Ingest (and images without ground truth): the known start pose T_world_body:
+  /// x y z qw qx qy qz.
   std::vector<double> start_pose{0, 0, 0, 1, 0, 0, 0};
 };
 

@@ -1,0 +1,124 @@
+#pragma once
+/// \file
+/// `concord frontend`: runs the front-end over one stereo sequence or a team of them and writes a
+/// dataset folder in the shared layout (docs/datasets.md) that `concord replay` and the daemons
+/// read:
+///
+///     OUT/dataset.json          the rectified camera (K in pixels, T_cam_body, T_cam0_cam1)
+///     OUT/objects_gt.csv        copied from the input folder when it has one
+///     OUT/frontend.json         options, per-robot statistics, timings, noise estimates
+///     OUT/estimator.yaml        an estimator config whose noise values are the front-end's own
+///                               (suggested_estimator_options); `concord replay` uses it
+///     OUT/robot_NN/groundtruth.kitti    the sequence's ground truth, or (without one) the
+///                                       odometry integrated from the identity (a dead reckoning)
+///     OUT/robot_NN/odometry.kitti       T_body(k-1)_body(k) from the visual (or given) odometry
+///     OUT/robot_NN/odometry_covariance.csv   frame,valid,inliers, then the 21 upper-triangle
+///                                       entries of its 6x6 covariance ([rho; phi], row-major)
+///     OUT/robot_NN/features.csv         point-feature tracks (rectified pixels)
+///     OUT/robot_NN/objects.csv          stereo object observations from the detections
+///
+/// The input is a sequence folder (EuRoC or KITTI layout; it becomes robot_00) or a folder of
+/// robot_NN sequence folders (one robot each). A sequence's detections are `detections.csv` in its
+/// folder unless given. OpenCV-free.
+
+#include <Eigen/Core>
+#include <filesystem>
+#include <functional>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "concord/estimator/options.h"
+#include "concord/estimator/types.h"
+#include "concord/frontend/frontend_options.h"
+
+namespace concord::frontend {
+
+struct FrontendRunOptions {
+  FrontendOptions frontend;
+  /// Only the first max_frames frames of each sequence.
+  std::optional<int> max_frames;
+  /// Detections of a single-sequence input (default: <sequence>/detections.csv if present).
+  std::filesystem::path detections;
+  /// The robot's own odometry for a single-sequence input (a KITTI pose file of
+  /// T_body(k-1)_body(k), one line per frame after the first) instead of visual odometry, with
+  /// the standard deviations that become its covariance.
+  std::filesystem::path odometry;
+  double odometry_translation_sigma = 0.05;
+  double odometry_rotation_sigma = 0.01;
+  /// dataset.json "name" of the output (replay uses the estimator.yaml written beside it).
+  std::string name = "frontend";
+  /// Called after each frame with (robot, frame, frames of that robot).
+  std::function<void(int, int, int)> progress;
+};
+
+/// Percentiles of a per-frame sample.
+struct Percentiles {
+  double p50 = 0.0, p90 = 0.0, p99 = 0.0, max = 0.0, mean = 0.0;
+};
+
+/// What the front-end measured on one sequence.
+struct SequenceSummary {
+  std::string sequence;  ///< the input folder
+  int frames = 0;
+  /// Tracks per frame (mean and smallest), the mean over frames of the current tracks' lengths
+  /// (frames), and the number of distinct tracks.
+  double tracks_per_frame = 0.0;
+  int min_tracks = 0;
+  double mean_track_length = 0.0;
+  long long distinct_tracks = 0;
+  /// Tracks removed per frame on average by each check.
+  double rejected_circular_per_frame = 0.0;
+  double rejected_epipolar_per_frame = 0.0;
+  double rejected_ransac_per_frame = 0.0;
+  double odometry_outliers_per_frame = 0.0;
+  /// Frames whose motion could not be measured.
+  int odometry_failures = 0;
+  /// Median over frames of the odometry's standard deviations: sqrt of the mean of the three
+  /// translation (rotation) variances, metres (radians).
+  double odometry_translation_sigma = 0.0;
+  double odometry_rotation_sigma = 0.0;
+  /// Median over frames of the tracker's stereo-row noise estimate, pixels.
+  double feature_pixel_sigma = 0.0;
+  /// Noise of a track coordinate from the tracks' own consistency under the odometry
+  /// (track_consistency), pixels: the value the estimator's feature_noise (per coordinate) should take.
+  double feature_track_sigma = 0.0;
+  /// Detections and the observations made from them.
+  long long detections = 0;
+  long long objects_observed = 0;
+  /// Per-frame milliseconds: total (wall, and the thread's CPU time with and without loading the
+  /// images) and each stage (wall).
+  Percentiles total_ms, total_cpu_ms, processing_cpu_ms, load_ms, rectify_ms, track_ms, odometry_ms,
+      objects_ms;
+};
+
+struct FrontendRunSummary {
+  std::vector<SequenceSummary> robots;
+};
+
+/// Runs the front-end on `input` and writes the dataset to `out` (created if needed). Throws
+/// FrontendError on bad input (naming the file), dataset::DatasetError if `out` holds more robot
+/// folders than written.
+[[nodiscard]] FrontendRunSummary run_frontend(const std::filesystem::path& input,
+                                              const std::filesystem::path& out,
+                                              const FrontendRunOptions& options);
+
+/// Estimator options for a front-end's dataset, noise values from the front-end and the sensor
+/// (docs/frontend.md): odometry sigmas = the median over robots of the odometry's reported
+/// standard deviations, feature_noise = the median of the tracks' consistency estimate,
+/// object_noise = ObjectOptions::detection_sigma (isotropic), sanity limits at 3 and 4 sigma,
+/// depth limits from fx * baseline (features out to 1 pixel of disparity, objects to 5).
+EstimatorOptions suggested_estimator_options(const FrontendRunSummary& summary,
+                                             const StereoCamera& camera,
+                                             const FrontendOptions& options);
+
+/// The covariances of an odometry_covariance.csv (one per motion, in file order). Throws
+/// FrontendError naming the file and line on bad input.
+[[nodiscard]] std::vector<Eigen::Matrix<double, 6, 6>> read_odometry_covariances(
+    const std::filesystem::path& file);
+
+/// The sequence folders of an input: the input itself if it is a sequence, else its robot_NN
+/// sub-folders in order. Throws FrontendError if there are none.
+[[nodiscard]] std::vector<std::filesystem::path> list_sequences(const std::filesystem::path& input);
+
+}  // namespace concord::frontend

@@ -1,0 +1,102 @@
+#pragma once
+/// \file
+/// Stereo feature tracking on rectified image pairs (the paper's §VI-A; anchors: OpenVINS
+/// ov_core TrackKLT, Kimera-VIO's stereo front-end). Per frame:
+///
+///   1. Temporal KLT: every track's left position at k-1 is followed into the left image at k.
+///   2. Stereo KLT: left k -> right k, starting from the track's previous disparity.
+///   3. Circular matching: right k -> right k-1 must close the loop on the track's right position
+///      at k-1 (left k-1 -> left k -> right k -> right k-1 -> left k-1).
+///   4. Epipolar check: on rectified images the right match must be on the same row, at a
+///      disparity in range.
+///   5. RANSAC on temporal matches: a fundamental matrix fit on left k-1 -> left k.
+///   6. Replenishment: FAST corners on a grid, away from the tracked ones, matched left -> right
+///      and checked right -> left and on the row, get new track ids.
+///
+/// Names OpenCV types: for the front-end library and its tests.
+
+#include <cstdint>
+#include <functional>
+#include <opencv2/core.hpp>
+#include <span>
+#include <vector>
+
+#include "concord/estimator/types.h"
+#include "concord/frontend/frontend_options.h"
+#include "concord/frontend/tracking_counts.h"
+
+namespace concord::frontend {
+
+/// The tracks of one frame.
+struct TrackedFrame {
+  /// Frame number (0 for the first frame tracked).
+  int frame = 0;
+  /// One stereo observation per live track: id and rectified (u_left, v_left, u_right, v_right).
+  std::vector<StereoObservation> observations;
+  /// Frames each track has been observed, including this one (same order as observations).
+  std::vector<int> track_lengths;
+  TrackingCounts counts;
+  /// Median left-image flow of the continued tracks from k-1 to k, pixels.
+  double median_flow = 0.0;
+  /// Robust standard deviation (1.4826 median absolute deviation / sqrt 2) of the row difference
+  /// v_left - v_right of this frame's stereo matches before the epipolar check: an estimate of
+  /// the per-coordinate tracking noise from the rectified geometry alone (no ground truth). 0 when
+  /// there are fewer than 10 matches.
+  double row_noise_sigma = 0.0;
+};
+
+/// Where a test may alter matched positions (like a failpoint): after the temporal KLT
+/// (positions in the left image at k), after the stereo KLT of continued tracks (right image at
+/// k), after the stereo KLT of new features.
+enum class MatchStage { kTemporal, kStereo, kNewStereo };
+
+class StereoTracker {
+ public:
+  /// Called with a stage and the matched positions of that stage, which it may change. For tests.
+  using MatchHook = std::function<void(MatchStage stage, std::vector<cv::Point2f>& points)>;
+
+  /// Throws FrontendError if the options are invalid.
+  explicit StereoTracker(const TrackerOptions& options);
+
+  /// Tracks a rectified 8-bit grey pair (both of one size) as the next frame.
+  [[nodiscard]] TrackedFrame track(const cv::Mat& left, const cv::Mat& right);
+
+  /// Ends the given tracks (e.g. the visual odometry's outliers) so they do not continue.
+  void drop_tracks(std::span<const LandmarkId> ids);
+
+  /// Installs a hook (tests only).
+  void set_match_hook(MatchHook hook) { hook_ = std::move(hook); }
+
+  const TrackerOptions& options() const { return options_; }
+
+ private:
+  /// The state of one live track: id, rectified positions at the last frame, length.
+  struct Tracks {
+    std::vector<LandmarkId> ids;
+    std::vector<cv::Point2f> left;
+    std::vector<cv::Point2f> right;
+    std::vector<int> lengths;
+    std::size_t size() const { return ids.size(); }
+    void keep(const std::vector<unsigned char>& keep_mask);
+  };
+
+  void continue_tracks(const std::vector<cv::Mat>& left_pyramid,
+                       const std::vector<cv::Mat>& right_pyramid, const cv::Size& size,
+                       TrackedFrame& out);
+  void add_features(const cv::Mat& left, const std::vector<cv::Mat>& left_pyramid,
+                    const std::vector<cv::Mat>& right_pyramid, TrackedFrame& out);
+  bool inside(const cv::Point2f& point, const cv::Size& size) const;
+
+  TrackerOptions options_;
+  MatchHook hook_;
+  Tracks tracks_;
+  std::vector<cv::Mat> previous_left_pyramid_;
+  std::vector<cv::Mat> previous_right_pyramid_;
+  std::vector<cv::Mat> spare_left_pyramid_;
+  std::vector<cv::Mat> spare_right_pyramid_;
+  cv::Mat free_mask_;
+  LandmarkId next_id_ = 0;
+  int frame_ = 0;
+};
+
+}  // namespace concord::frontend

@@ -1,0 +1,380 @@
+#include "concord/frontend/frontend_run.h"
+
+#include <algorithm>
+#include <charconv>
+#include <cmath>
+#include <nlohmann/json.hpp>
+
+#include "concord/config/options_file.h"
+#include "concord/dataset/dataset.h"
+#include "concord/dataset/result_io.h"
+#include "concord/frontend/frontend.h"
+#include "concord/frontend/track_statistics.h"
+#include "options_fields.h"
+#include "text_lines.h"
+
+namespace concord::frontend {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+Percentiles percentiles_of(std::vector<double> values) {
+  Percentiles result;
+  if (values.empty()) return result;
+  std::sort(values.begin(), values.end());
+  const auto at = [&](double p) {
+    const auto rank = static_cast<std::size_t>(std::ceil(p / 100.0 * values.size()));
+    return values[std::clamp<std::size_t>(rank, 1, values.size()) - 1];
+  };
+  result.p50 = at(50);
+  result.p90 = at(90);
+  result.p99 = at(99);
+  result.max = values.back();
+  double sum = 0.0;
+  for (const double value : values) sum += value;
+  result.mean = sum / values.size();
+  return result;
+}
+
+double median_of(std::vector<double> values) {
+  if (values.empty()) return 0.0;
+  const auto middle = values.begin() + static_cast<std::ptrdiff_t>(values.size() / 2);
+  std::nth_element(values.begin(), middle, values.end());
+  return *middle;
+}
+
+void append_number(std::string& out, double value) {
+  char buffer[32];
+  const auto result = std::to_chars(buffer, buffer + sizeof(buffer), value);
+  out.append(buffer, result.ptr);
+}
+
+/// odometry_covariance.csv: frame,valid,inliers and the upper triangle of each covariance.
+std::string format_covariances(const std::vector<MotionEstimate>& motions) {
+  std::string out = "frame,valid,inliers";
+  for (int row = 0; row < 6; ++row) {
+    for (int column = row; column < 6; ++column) {
+      out += ",c" + std::to_string(row) + std::to_string(column);
+    }
+  }
+  out += '\n';
+  for (std::size_t index = 0; index < motions.size(); ++index) {
+    const MotionEstimate& motion = motions[index];
+    out += std::to_string(index + 1) + "," + (motion.valid ? "1" : "0") + "," +
+           std::to_string(motion.inliers);
+    for (int row = 0; row < 6; ++row) {
+      for (int column = row; column < 6; ++column) {
+        out += ',';
+        append_number(out, motion.covariance(row, column));
+      }
+    }
+    out += '\n';
+  }
+  return out;
+}
+
+nlohmann::ordered_json percentiles_json(const Percentiles& p) {
+  return {{"p50", p.p50}, {"p90", p.p90}, {"p99", p.p99}, {"max", p.max}, {"mean", p.mean}};
+}
+
+nlohmann::ordered_json options_json(const FrontendOptions& options) {
+  nlohmann::ordered_json document;
+  visit_option_fields(options, [&](const char* section, const char* key, const auto& field) {
+    document[section][key] = field;
+  });
+  return document;
+}
+
+nlohmann::ordered_json summary_json(const SequenceSummary& s) {
+  return {{"sequence", s.sequence},
+          {"frames", s.frames},
+          {"tracks_per_frame", s.tracks_per_frame},
+          {"min_tracks", s.min_tracks},
+          {"mean_track_length", s.mean_track_length},
+          {"distinct_tracks", s.distinct_tracks},
+          {"rejected_circular_per_frame", s.rejected_circular_per_frame},
+          {"rejected_epipolar_per_frame", s.rejected_epipolar_per_frame},
+          {"rejected_ransac_per_frame", s.rejected_ransac_per_frame},
+          {"odometry_outliers_per_frame", s.odometry_outliers_per_frame},
+          {"odometry_failures", s.odometry_failures},
+          {"odometry_translation_sigma", s.odometry_translation_sigma},
+          {"odometry_rotation_sigma", s.odometry_rotation_sigma},
+          {"feature_pixel_sigma", s.feature_pixel_sigma},
+          {"feature_track_sigma", s.feature_track_sigma},
+          {"detections", s.detections},
+          {"objects_observed", s.objects_observed},
+          {"milliseconds_per_frame",
+           {{"total", percentiles_json(s.total_ms)},
+            {"total_cpu", percentiles_json(s.total_cpu_ms)},
+            {"processing_cpu", percentiles_json(s.processing_cpu_ms)},
+            {"load", percentiles_json(s.load_ms)},
+            {"rectify", percentiles_json(s.rectify_ms)},
+            {"track", percentiles_json(s.track_ms)},
+            {"odometry", percentiles_json(s.odometry_ms)},
+            {"objects", percentiles_json(s.objects_ms)}}}};
+}
+
+bool same_camera(const StereoCamera& a, const StereoCamera& b) {
+  return a.K.isApprox(b.K, 1e-9) && a.T_cam0_body.isApprox(b.T_cam0_body, 1e-9) &&
+         a.T_cam0_cam1.isApprox(b.T_cam0_cam1, 1e-9);
+}
+
+/// One robot: the front-end over its sequence, as dataset robot data plus what was measured.
+struct RobotRun {
+  dataset::RobotData data;
+  std::vector<MotionEstimate> motions;
+  SequenceSummary summary;
+  StereoCamera camera;
+};
+
+RobotRun run_sequence(const fs::path& folder, int robot, bool single,
+                      const FrontendRunOptions& options) {
+  SequenceReadOptions read_options;
+  read_options.max_frames = options.max_frames;
+  StereoSequence sequence = read_stereo_sequence(folder, read_options);
+  const int frames = sequence.num_frames();
+
+  std::vector<std::vector<Detection>> detections;
+  const fs::path detections_file =
+      single && !options.detections.empty() ? options.detections : folder / "detections.csv";
+  if (fs::exists(detections_file) || (single && !options.detections.empty())) {
+    detections = read_detections(detections_file, frames, options.max_frames.has_value());
+  }
+  std::unique_ptr<OdometrySource> odometry;
+  if (single && !options.odometry.empty()) {
+    auto given = std::make_unique<FileOdometry>(FileOdometry::read(
+        options.odometry, options.odometry_translation_sigma, options.odometry_rotation_sigma));
+    if (given->size() < frames - 1) {
+      throw FrontendError(options.odometry.string() + ": " + std::to_string(given->size()) +
+                          " motions, the sequence needs " + std::to_string(frames - 1) +
+                          " (one per frame after the first)");
+    }
+    odometry = std::move(given);
+  }
+  const std::optional<std::vector<Eigen::Isometry3d>> groundtruth = sequence.groundtruth;
+  StereoFrontend frontend(std::move(sequence), options.frontend, std::move(detections),
+                          std::move(odometry));
+
+  RobotRun run;
+  run.camera = frontend.camera();
+  run.data.index = robot;
+  run.data.has_features = true;
+  run.summary.sequence = folder.string();
+  run.summary.frames = frames;
+  run.summary.min_tracks = std::numeric_limits<int>::max();
+  std::vector<double> total, total_cpu, processing_cpu, load, rectify, track, odometry_ms, objects,
+      translation_sigmas, rotation_sigmas, row_sigmas;
+  double track_sum = 0.0, length_sum = 0.0, circular = 0.0, epipolar = 0.0, ransac = 0.0,
+         outliers = 0.0;
+  LandmarkId largest_id = -1;
+  while (!frontend.done()) {
+    FrontendFrame frame = frontend.process_next();
+    const int tracks = static_cast<int>(frame.input.features.size());
+    track_sum += tracks;
+    run.summary.min_tracks = std::min(run.summary.min_tracks, tracks);
+    length_sum += frame.mean_track_length;
+    circular += frame.counts.rejected_circular;
+    epipolar += frame.counts.rejected_epipolar;
+    ransac += frame.counts.rejected_ransac;
+    for (const StereoObservation& feature : frame.input.features) {
+      largest_id = std::max(largest_id, feature.id);
+    }
+    if (frame.row_noise_sigma > 0.0) row_sigmas.push_back(frame.row_noise_sigma);
+    run.summary.detections += frame.detections;
+    run.summary.objects_observed += frame.objects_observed;
+    if (frame.input.frame > 0) {
+      outliers += static_cast<double>(frame.motion.outliers.size());
+      if (!frame.motion.valid) {
+        ++run.summary.odometry_failures;
+      } else {
+        translation_sigmas.push_back(
+            std::sqrt(frame.motion.covariance.diagonal().head<3>().mean()));
+        rotation_sigmas.push_back(std::sqrt(frame.motion.covariance.diagonal().tail<3>().mean()));
+      }
+      run.data.odometry.push_back(*frame.input.T_previous_current);
+      run.motions.push_back(frame.motion);
+    }
+    total.push_back(frame.timings.total);
+    total_cpu.push_back(frame.timings.total_cpu);
+    processing_cpu.push_back(frame.timings.processing_cpu);
+    load.push_back(frame.timings.load);
+    rectify.push_back(frame.timings.rectify);
+    track.push_back(frame.timings.track);
+    odometry_ms.push_back(frame.timings.odometry);
+    objects.push_back(frame.timings.objects);
+    run.data.objects.push_back(std::move(frame.input.objects));
+    run.data.features.push_back(std::move(frame.input.features));
+    if (options.progress) options.progress(robot, frame.input.frame, frames);
+  }
+  if (groundtruth) {
+    run.data.groundtruth = *groundtruth;
+  } else {
+    // No ground truth: the known start is the identity and the poses are dead reckoning.
+    run.data.groundtruth.push_back(Eigen::Isometry3d::Identity());
+    for (const Eigen::Isometry3d& motion : run.data.odometry) {
+      run.data.groundtruth.push_back(run.data.groundtruth.back() * motion);
+    }
+  }
+  SequenceSummary& s = run.summary;
+  s.tracks_per_frame = track_sum / frames;
+  s.mean_track_length = length_sum / frames;
+  s.distinct_tracks = largest_id + 1;
+  s.rejected_circular_per_frame = circular / frames;
+  s.rejected_epipolar_per_frame = epipolar / frames;
+  s.rejected_ransac_per_frame = ransac / frames;
+  s.odometry_outliers_per_frame = outliers / std::max(frames - 1, 1);
+  s.odometry_translation_sigma = median_of(translation_sigmas);
+  s.odometry_rotation_sigma = median_of(rotation_sigmas);
+  s.feature_pixel_sigma = median_of(row_sigmas);
+  s.feature_track_sigma = track_consistency(run.camera, run.data.odometry, run.data.features).sigma;
+  s.total_ms = percentiles_of(total);
+  s.total_cpu_ms = percentiles_of(total_cpu);
+  s.processing_cpu_ms = percentiles_of(processing_cpu);
+  s.load_ms = percentiles_of(load);
+  s.rectify_ms = percentiles_of(rectify);
+  s.track_ms = percentiles_of(track);
+  s.odometry_ms = percentiles_of(odometry_ms);
+  s.objects_ms = percentiles_of(objects);
+  return run;
+}
+
+}  // namespace
+
+EstimatorOptions suggested_estimator_options(const FrontendRunSummary& summary,
+                                             const StereoCamera& camera,
+                                             const FrontendOptions& options) {
+  std::vector<double> translation, rotation, feature;
+  for (const SequenceSummary& robot : summary.robots) {
+    if (robot.odometry_translation_sigma > 0.0)
+      translation.push_back(robot.odometry_translation_sigma);
+    if (robot.odometry_rotation_sigma > 0.0) rotation.push_back(robot.odometry_rotation_sigma);
+    if (robot.feature_track_sigma > 0.0) feature.push_back(robot.feature_track_sigma);
+  }
+  EstimatorOptions estimator;
+  // A floor keeps a perfectly static or texture-poor sequence from claiming zero noise.
+  estimator.odometry_translation_sigma = std::max(median_of(translation), 1e-4);
+  estimator.odometry_rotation_sigma = std::max(median_of(rotation), 1e-5);
+  const double feature_sigma = std::max(median_of(feature), 0.05);
+  estimator.feature_noise = StereoNoise::isotropic(feature_sigma);
+  estimator.feature_max_reprojection_error = 4.0 * feature_sigma;
+  estimator.object_noise = StereoNoise::isotropic(options.objects.detection_sigma);
+  estimator.object_init_max_reprojection_error = 3.0 * options.objects.detection_sigma;
+  const double focal_baseline = camera.K(0, 0) * camera.baseline();
+  estimator.feature_min_distance = 0.2;
+  estimator.feature_max_distance = focal_baseline / 1.0;
+  estimator.object_min_distance = 0.5;
+  estimator.object_max_distance = focal_baseline / 5.0;
+  estimator.object_archive_after_frames = 10;
+  return estimator;
+}
+
+std::vector<Eigen::Matrix<double, 6, 6>> read_odometry_covariances(const fs::path& file) {
+  text::LineReader reader(file);
+  std::string_view line;
+  if (!reader.next_line(line) || !line.starts_with("frame,valid,inliers")) {
+    reader.fail("expected the header 'frame,valid,inliers,c00,...'");
+  }
+  std::vector<Eigen::Matrix<double, 6, 6>> covariances;
+  while (reader.next_line(line)) {
+    const auto fields = text::split(line, ',');
+    if (fields.size() != 24) {
+      reader.fail("expected 24 fields (frame, valid, inliers, 21 covariance entries)");
+    }
+    Eigen::Matrix<double, 6, 6> covariance;
+    std::size_t field = 3;
+    for (int row = 0; row < 6; ++row) {
+      for (int column = row; column < 6; ++column) {
+        covariance(row, column) = covariance(column, row) =
+            reader.number(fields[field++], "covariance entry");
+      }
+    }
+    covariances.push_back(covariance);
+  }
+  return covariances;
+}
+
+std::vector<fs::path> list_sequences(const fs::path& input) {
+  if (!fs::is_directory(input)) throw FrontendError(input.string() + ": input folder not found");
+  if (is_stereo_sequence(input)) return {input};
+  std::vector<fs::path> sequences;
+  for (int robot = 0;; ++robot) {
+    const fs::path folder = input / dataset::robot_folder_name(robot);
+    if (!fs::is_directory(folder)) break;
+    sequences.push_back(folder);
+  }
+  if (sequences.empty()) {
+    throw FrontendError(input.string() +
+                        ": neither a stereo sequence (KITTI calib.txt, EuRoC mav0/) nor a folder "
+                        "of robot_NN sequences");
+  }
+  return sequences;
+}
+
+FrontendRunSummary run_frontend(const fs::path& input, const fs::path& out,
+                                const FrontendRunOptions& options) {
+  const std::vector<std::string> problems = options.frontend.validate();
+  if (!problems.empty()) {
+    std::string message = "invalid front-end options:";
+    for (const std::string& problem : problems) message += " " + problem + ";";
+    throw FrontendError(message);
+  }
+  const std::vector<fs::path> sequences = list_sequences(input);
+  const bool single = sequences.size() == 1 && sequences.front() == input;
+  if (!single && (!options.detections.empty() || !options.odometry.empty())) {
+    throw FrontendError(input.string() +
+                        ": --detections and --odometry apply to a single sequence; a team's "
+                        "robot_NN folders hold their own detections.csv");
+  }
+
+  dataset::Dataset data;
+  data.name = options.name;
+  FrontendRunSummary summary;
+  std::vector<std::vector<MotionEstimate>> motions;
+  for (std::size_t robot = 0; robot < sequences.size(); ++robot) {
+    RobotRun run = run_sequence(sequences[robot], static_cast<int>(robot), single, options);
+    if (robot == 0) {
+      data.camera = run.camera;
+    } else if (!same_camera(run.camera, data.camera)) {
+      throw FrontendError(sequences[robot].string() +
+                          ": its rectified camera differs from robot_00's; a dataset has one "
+                          "camera, so every robot must share the calibration");
+    }
+    data.robots.push_back(std::move(run.data));
+    motions.push_back(std::move(run.motions));
+    summary.robots.push_back(std::move(run.summary));
+  }
+
+  dataset::write_dataset(data, out);
+  if (!single && fs::exists(input / "objects_gt.csv")) {
+    fs::copy_file(input / "objects_gt.csv", out / "objects_gt.csv",
+                  fs::copy_options::overwrite_existing);
+  }
+  for (std::size_t robot = 0; robot < motions.size(); ++robot) {
+    dataset::write_file_atomically(
+        out / dataset::robot_folder_name(static_cast<int>(robot)) / "odometry_covariance.csv",
+        format_covariances(motions[robot]));
+  }
+  std::string estimator_yaml =
+      "# Estimator options for this dataset, written by `concord frontend`: the noise values are\n"
+      "# the front-end's own (odometry: median reported standard deviation; features: the tracks'\n"
+      "# consistency; objects: the detector's stated accuracy, objects.detection_sigma), the "
+      "depth\n"
+      "# limits follow from fx * baseline. See docs/frontend.md.\n";
+  estimator_yaml +=
+      config::to_yaml(suggested_estimator_options(summary, data.camera, options.frontend));
+  dataset::write_file_atomically(out / "estimator.yaml", estimator_yaml);
+
+  nlohmann::ordered_json document;
+  document["input"] = input.string();
+  document["odometry"] =
+      options.odometry.empty() ? "stereo visual odometry" : options.odometry.string();
+  document["options"] = options_json(options.frontend);
+  document["robots"] = nlohmann::ordered_json::array();
+  for (const SequenceSummary& robot : summary.robots)
+    document["robots"].push_back(summary_json(robot));
+  dataset::write_file_atomically(out / "frontend.json", document.dump(2) + "\n");
+  return summary;
+}
+
+}  // namespace concord::frontend

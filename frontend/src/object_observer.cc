@@ -1,0 +1,93 @@
+#include "concord/frontend/object_observer.h"
+
+#include <algorithm>
+#include <cmath>
+#include <opencv2/imgproc.hpp>
+
+#include "concord/frontend/sequence.h"
+#include "text_lines.h"
+
+namespace concord::frontend {
+
+std::vector<std::string> ObjectOptions::validate() const {
+  std::vector<std::string> problems;
+  const auto require = [&](bool ok, const std::string& field, double value, const char* rule) {
+    if (!ok) problems.push_back(text::problem(field, value, rule));
+  };
+  require(central_fraction > 0.0 && central_fraction <= 1.0, "central_fraction", central_fraction,
+          "in (0, 1]");
+  require(min_region_size >= 3, "min_region_size", min_region_size, ">= 3");
+  require(min_match_score > -1.0 && min_match_score < 1.0, "min_match_score", min_match_score,
+          "in (-1, 1)");
+  require(max_disparity > 0.0, "max_disparity", max_disparity, "> 0");
+  require(centre_depth_fraction >= 0.0, "centre_depth_fraction", centre_depth_fraction, ">= 0");
+  require(border >= 0, "border", border, ">= 0");
+  require(detection_sigma > 0.0, "detection_sigma", detection_sigma, "> 0");
+  return problems;
+}
+
+ObjectMeasurement observe_object(const Detection& box, const cv::Mat& left, const cv::Mat& right,
+                                 const StereoCamera& camera, const ObjectOptions& options) {
+  ObjectMeasurement result;
+  const double border = options.border;
+  if (box.x_min < border || box.y_min < border || box.x_max > left.cols - 1 - border ||
+      box.y_max > left.rows - 1 - border) {
+    result.skipped = ObjectSkip::kAtBorder;
+    return result;
+  }
+  // 1. The central region of the box in the left image.
+  const double centre_x = box.centre_x(), centre_y = box.centre_y();
+  const int width =
+      static_cast<int>(std::round((box.x_max - box.x_min) * options.central_fraction));
+  const int height =
+      static_cast<int>(std::round((box.y_max - box.y_min) * options.central_fraction));
+  if (width < options.min_region_size || height < options.min_region_size) {
+    result.skipped = ObjectSkip::kTooSmall;
+    return result;
+  }
+  const cv::Rect region(static_cast<int>(std::round(centre_x - 0.5 * width)),
+                        static_cast<int>(std::round(centre_y - 0.5 * height)), width, height);
+  // 2. Its match along the same rows of the right image, disparities 0 to max_disparity.
+  const int search_start = std::max(0, region.x - static_cast<int>(options.max_disparity));
+  const cv::Rect strip(search_start, region.y, region.x + region.width - search_start,
+                       region.height);
+  cv::Mat scores;
+  cv::matchTemplate(right(strip), left(region), scores, cv::TM_CCOEFF_NORMED);
+  double best = 0.0;
+  cv::Point best_at;
+  cv::minMaxLoc(scores, nullptr, &best, nullptr, &best_at);
+  result.score = best;
+  if (!(best >= options.min_match_score)) {
+    result.skipped = ObjectSkip::kNoMatch;
+    return result;
+  }
+  // Sub-pixel peak: a parabola through the best score and its neighbours.
+  double offset = 0.0;
+  if (best_at.x > 0 && best_at.x < scores.cols - 1) {
+    const double before = scores.at<float>(0, best_at.x - 1);
+    const double after = scores.at<float>(0, best_at.x + 1);
+    const double curvature = before - 2.0 * best + after;
+    if (curvature < 0.0) offset = std::clamp(0.5 * (before - after) / curvature, -0.5, 0.5);
+  }
+  const double surface_disparity = region.x - (search_start + best_at.x + offset);
+  if (!(surface_disparity > 0.0)) {
+    result.skipped = ObjectSkip::kNoMatch;
+    return result;
+  }
+  // 3. From the surface to the centre: depth + fraction * the box's width in metres.
+  const double fx = camera.K(0, 0);
+  const double focal_baseline = fx * camera.baseline();
+  const double surface_depth = focal_baseline / surface_disparity;
+  const double width_metres = (box.x_max - box.x_min) * surface_depth / fx;
+  const double centre_depth = surface_depth + options.centre_depth_fraction * width_metres;
+  result.surface_disparity = surface_disparity;
+  result.centre_disparity = focal_baseline / centre_depth;
+  StereoObservation observation;
+  observation.id = box.track_id;
+  observation.uv =
+      Eigen::Vector4d(centre_x, centre_y, centre_x - result.centre_disparity, centre_y);
+  result.observation = observation;
+  return result;
+}
+
+}  // namespace concord::frontend

@@ -1,0 +1,80 @@
+// concordd's image source: a stereo sequence through the front-end on the source thread into the
+// estimator queue (source.kind: images).
+#include <gtest/gtest.h>
+
+#include <fstream>
+#include <nlohmann/json.hpp>
+
+#include "concord/config/options_file.h"
+#include "concord/daemon/config.h"
+#include "concord/daemon/daemon.h"
+#include "concord/dataset/result_io.h"
+#include "frontend_test_support.h"
+
+namespace concord::daemon {
+namespace {
+
+namespace fs = std::filesystem;
+
+TEST(DaemonImageSource, ConfigReadsTheSequenceDetectionsAndFrontEndOptions) {
+  const DaemonConfig config = parse_daemon_config(
+      "source: {kind: images, images: seq, detections: seq/boxes.csv, frontend: fe.yaml, "
+      "rate_hz: 20}\n",
+      "robot.yaml", "/base");
+  EXPECT_EQ(config.source.kind, SourceKind::kImages);
+  EXPECT_EQ(config.source.images, fs::path("/base/seq"));
+  EXPECT_EQ(config.source.detections, fs::path("/base/seq/boxes.csv"));
+  EXPECT_EQ(config.source.frontend, fs::path("/base/fe.yaml"));
+  EXPECT_DOUBLE_EQ(config.source.rate_hz, 20.0);
+  try {
+    parse_daemon_config("source: {kind: images}\n", "robot.yaml", "/");
+    FAIL() << "expected a ConfigError";
+  } catch (const config::ConfigError& error) {
+    EXPECT_NE(std::string(error.what()).find("source.images: required for images"),
+              std::string::npos);
+  }
+}
+
+TEST(DaemonImageSource, TheDaemonRunsTheFrontEndIntoTheEstimator) {
+  const auto& rendered = testing::rendered_sequence();
+  const fs::path out = testing::fresh_folder("daemon_images");
+  const DaemonConfig config = parse_daemon_config(
+      "source: {kind: images, images: " + rendered.sequence.string() +
+          "}\n"
+          "consensus: {mode: off}\n"
+          "http: {enabled: false}\n"
+          "output: {directory: " +
+          out.string() +
+          ", write_interval_ms: 0}\n"
+          "estimator: {odometry_translation_sigma: 0.01, odometry_rotation_sigma: 0.002, "
+          "feature_noise: 0.5, object_noise: 2.0, "
+          "object_init_max_reprojection_error: 6.0, object_min_distance: 1.0}\n",
+      "robot.yaml", "/");
+  Daemon daemon(config);
+  ASSERT_EQ(daemon.run(), 0);
+  const auto trajectory = dataset::read_trajectory_kitti(out / "trajectory.kitti");
+  const auto& truth = rendered.simulated.robots[0].groundtruth;
+  ASSERT_EQ(trajectory.size(), truth.size());
+  // The KITTI layout's body is the left camera, at the simulated body's position.
+  for (std::size_t frame = 0; frame < truth.size(); ++frame) {
+    EXPECT_LT((trajectory[frame].translation() - truth[frame].translation()).norm(), 0.1)
+        << "frame " << frame;
+  }
+  const auto stats = nlohmann::json::parse(std::ifstream(out / "stats.json"));
+  EXPECT_EQ(stats["frames"], truth.size());
+  EXPECT_EQ(stats["frames_rejected"], 0);
+}
+
+TEST(DaemonImageSource, AnUnreadableSequenceStopsTheDaemonWithStatusTwo) {
+  const fs::path out = testing::fresh_folder("daemon_images_missing");
+  const DaemonConfig config = parse_daemon_config(
+      "source: {kind: images, images: " + (out / "nothing").string() +
+          "}\nconsensus: {mode: off}\nhttp: {enabled: false}\noutput: {directory: " + out.string() +
+          "}\n",
+      "robot.yaml", "/");
+  Daemon daemon(config);
+  EXPECT_EQ(daemon.run(), 2);
+}
+
+}  // namespace
+}  // namespace concord::daemon

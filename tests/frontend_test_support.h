@@ -1,0 +1,97 @@
+#pragma once
+/// Shared helpers for the front-end tests: a small rendered sequence (concord sim --render's code
+/// path: simulated path and objects, textured world, KITTI layout), made once per test process,
+/// and the repository's EuRoC frames.
+
+#include <unistd.h>
+
+#include <filesystem>
+#include <string>
+#include <system_error>
+#include <vector>
+
+#include "concord/dataset/dataset.h"
+#include "sim/render.h"
+#include "sim/simulator.h"
+
+namespace concord::testing {
+
+/// The four EuRoC V1_01 stereo pairs kept in the repository (data/README.md).
+inline std::filesystem::path euroc_frames() {
+  return std::filesystem::path(CONCORD_SOURCE_DIR) / "data" / "euroc-v101-static-4";
+}
+
+/// The folders fresh_folder made, removed when the test process ends.
+class TemporaryFolders {
+ public:
+  void add(const std::filesystem::path& folder) { folders_.push_back(folder); }
+  ~TemporaryFolders() {
+    std::error_code ignored;
+    for (const auto& folder : folders_) std::filesystem::remove_all(folder, ignored);
+  }
+
+ private:
+  std::vector<std::filesystem::path> folders_;
+};
+
+inline TemporaryFolders& temporary_folders() {
+  static TemporaryFolders folders;
+  return folders;
+}
+
+/// A fresh temporary folder for one test (removed when the test process ends).
+inline std::filesystem::path fresh_folder(const std::string& name) {
+  const std::filesystem::path folder = std::filesystem::path(::testing::TempDir()) /
+                                       ("concord_" + name + "_" + std::to_string(getpid()));
+  std::filesystem::remove_all(folder);
+  std::filesystem::create_directories(folder);
+  temporary_folders().add(folder);
+  return folder;
+}
+
+/// One robot flying 16 frames of a Lissajous path (0.22 m a frame) through a textured hall with
+/// object cubes, rendered at 376 x 240 pixels.
+struct RenderedSequence {
+  std::filesystem::path team;      ///< the dataset folder (robot_00 inside)
+  std::filesystem::path sequence;  ///< team / robot_00, a KITTI-layout sequence
+  dataset::Dataset simulated;      ///< the simulator's dataset (exact ground truth)
+  StereoCamera camera;             ///< the rendered (rectified, pixel) camera
+  sim::TexturedWorld world;        ///< the world, for true projections
+  sim::RenderOptions render;
+  sim::SimulationOptions simulation;
+};
+
+inline const RenderedSequence& rendered_sequence() {
+  static const RenderedSequence sequence = [] {
+    RenderedSequence made;
+    made.simulation.robots = 1;
+    made.simulation.frames = 16;
+    made.simulation.objects = 40;
+    made.simulation.points_per_frame = 0;
+    made.simulation.seed = 3;
+    made.render.width = 376;
+    made.render.height = 240;
+    made.render.textures = euroc_frames();
+    const double half_width =
+        std::tan(0.5 * made.simulation.horizontal_fov_degrees * 3.14159265358979323846 / 180.0);
+    made.simulation.vertical_fov_degrees =
+        2.0 * std::atan(half_width * made.render.height / made.render.width) * 180.0 /
+        3.14159265358979323846;
+    made.simulated = sim::simulate(made.simulation);
+    std::vector<LandmarkId> removed;
+    made.world = sim::build_world(made.simulated, made.render, made.simulation.seed, removed);
+    sim::remove_objects(made.simulated, removed);
+    made.camera = sim::render_camera(made.simulated.camera, made.simulation.horizontal_fov_degrees,
+                                     made.render);
+    made.team = fresh_folder("rendered_sequence");
+    dataset::write_dataset(made.simulated, made.team);
+    sim::write_rendered_sequences(made.simulated, made.world, made.camera, made.render,
+                                  made.simulation.min_depth, made.simulation.max_depth,
+                                  made.simulation.seed, made.team);
+    made.sequence = made.team / "robot_00";
+    return made;
+  }();
+  return sequence;
+}
+
+}  // namespace concord::testing

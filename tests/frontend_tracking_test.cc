@@ -1,0 +1,310 @@
+// The front-end on a rendered sequence with exact ground truth (concord sim --render's world):
+// known motion recovered, track positions against the true projections, injected wrong matches
+// removed by circular matching and RANSAC, detections turned into stereo observations of the true
+// object centres; the user's own odometry through the same interface; the dataset it writes.
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <opencv2/imgcodecs.hpp>
+#include <set>
+
+#include "concord/dataset/dataset.h"
+#include "concord/estimator/lie.h"
+#include "concord/frontend/frontend.h"
+#include "concord/frontend/frontend_run.h"
+#include "concord/frontend/object_observer.h"
+#include "concord/frontend/stereo_tracker.h"
+#include "evaluation/frontend_metrics.h"
+#include "frontend_test_support.h"
+
+namespace concord::frontend {
+namespace {
+
+namespace fs = std::filesystem;
+using testing::rendered_sequence;
+
+/// The rendered sequence's left and right images of a frame.
+std::pair<cv::Mat, cv::Mat> images(const StereoSequence& sequence, int frame) {
+  return {cv::imread(sequence.left_images[frame].string(), cv::IMREAD_GRAYSCALE),
+          cv::imread(sequence.right_images[frame].string(), cv::IMREAD_GRAYSCALE)};
+}
+
+/// Runs the whole front-end over the rendered sequence.
+std::vector<FrontendFrame> run_rendered(const FrontendOptions& options = {}) {
+  StereoSequence sequence = read_stereo_sequence(rendered_sequence().sequence);
+  const auto detections =
+      read_detections(rendered_sequence().sequence / "detections.csv", sequence.num_frames());
+  StereoFrontend frontend(std::move(sequence), options, detections);
+  std::vector<FrontendFrame> frames;
+  while (!frontend.done()) frames.push_back(frontend.process_next());
+  return frames;
+}
+
+TEST(FrontendRendered, TheKittiLayoutCarriesTheRenderedCameraAndExactPoses) {
+  const auto& rendered = rendered_sequence();
+  const StereoSequence sequence = read_stereo_sequence(rendered.sequence);
+  EXPECT_EQ(sequence.num_frames(), rendered.simulation.frames);
+  EXPECT_EQ(sequence.rig.left.width, 376);
+  EXPECT_NEAR(sequence.rig.left.fx, rendered.camera.K(0, 0), 1e-9);
+  EXPECT_NEAR(sequence.rig.T_cam0_cam1.translation().x(), rendered.simulation.baseline, 1e-12);
+  ASSERT_TRUE(sequence.groundtruth.has_value());
+  for (int frame = 0; frame < sequence.num_frames(); ++frame) {
+    const Eigen::Isometry3d T_world_cam0 =
+        rendered.simulated.robots[0].groundtruth[frame] * rendered.camera.T_cam0_body.inverse();
+    EXPECT_TRUE((*sequence.groundtruth)[frame].isApprox(T_world_cam0, 1e-12));
+  }
+}
+
+TEST(FrontendRendered, VisualOdometryRecoversTheKnownMotion) {
+  const auto frames = run_rendered();
+  const StereoSequence sequence = read_stereo_sequence(rendered_sequence().sequence);
+  const std::vector<Eigen::Isometry3d>& truth = *sequence.groundtruth;
+  std::vector<Eigen::Isometry3d> odometry;
+  for (std::size_t k = 1; k < frames.size(); ++k) {
+    ASSERT_TRUE(frames[k].motion.valid) << "frame " << k;
+    EXPECT_GE(frames[k].motion.inliers, 30) << "frame " << k;
+    const Eigen::Isometry3d true_motion = truth[k - 1].inverse() * truth[k];
+    const lie::Vector6d error =
+        lie::se3_log(true_motion.inverse() * *frames[k].input.T_previous_current);
+    // At this small image size (focal length 268 px); the bench measures full-size images.
+    EXPECT_LT(error.head<3>().norm(), 0.02) << "frame " << k;   // true motion: 0.22 m a frame
+    EXPECT_LT(error.tail<3>().norm(), 0.003) << "frame " << k;  // radians
+    odometry.push_back(*frames[k].input.T_previous_current);
+  }
+  const auto accuracy = evaluation::odometry_accuracy(truth, odometry, {});
+  EXPECT_GT(accuracy.path_length, 3.0);
+  EXPECT_LT(accuracy.final_error_percent, 2.0);
+}
+
+TEST(FrontendRendered, TrackPositionsMatchTheTrueProjections) {
+  const auto frames = run_rendered();
+  const auto& rendered = rendered_sequence();
+  const StereoSequence sequence = read_stereo_sequence(rendered.sequence);
+  std::vector<std::vector<StereoObservation>> features;
+  std::size_t tracked = 0;
+  for (const FrontendFrame& frame : frames) {
+    features.push_back(frame.input.features);
+    tracked += frame.input.features.size();
+  }
+  EXPECT_GT(tracked / frames.size(), 150u);
+  StereoCamera camera = rendered.camera;
+  camera.T_cam0_body = Eigen::Isometry3d::Identity();  // the KITTI layout's body is the camera
+  const auto accuracy =
+      evaluation::track_accuracy(rendered.world, camera, *sequence.groundtruth, features);
+  EXPECT_EQ(accuracy.unanchored, 0);
+  EXPECT_GT(accuracy.left.count, 1000);
+  // Pixels at this small image size (the bench measures full-size images).
+  EXPECT_LT(accuracy.left.median, 0.5);    // along the tracks
+  EXPECT_LT(accuracy.right.median, 0.75);  // stereo matches
+  EXPECT_LT(accuracy.all.p90, 4.0);
+}
+
+/// Tracks the first frames with a hook that corrupts every fourth match at `stage` on frame 3: by
+/// `shift`, or (when `across_epipolar_line`) by 8 pixels across the match's true epipolar line
+/// (from the true motion), which no fundamental matrix near the truth explains.
+struct Corruption {
+  std::set<LandmarkId> corrupted;
+  TrackedFrame frame;
+};
+
+Corruption track_with_corruption(TrackerOptions options, MatchStage stage, cv::Point2f shift,
+                                 bool across_epipolar_line = false) {
+  const StereoSequence sequence = read_stereo_sequence(rendered_sequence().sequence);
+  // F of the left images of frames 2 and 3: x3^T F x2 = 0.
+  const Eigen::Isometry3d T_3_2 = (*sequence.groundtruth)[3].inverse() * (*sequence.groundtruth)[2];
+  const Eigen::Matrix3d K_inverse = rendered_sequence().camera.K.inverse();
+  const Eigen::Matrix3d fundamental =
+      K_inverse.transpose() * lie::skew(T_3_2.translation()) * T_3_2.linear() * K_inverse;
+  StereoTracker tracker(options);
+  Corruption result;
+  std::vector<LandmarkId> previous_ids;
+  std::vector<cv::Point2f> previous_left;
+  for (int frame = 0; frame <= 3; ++frame) {
+    if (frame == 3) {
+      tracker.set_match_hook([&](MatchStage at, std::vector<cv::Point2f>& points) {
+        if (at != stage) return;
+        for (std::size_t index = 0; index < points.size(); index += 4) {
+          cv::Point2f step = shift;
+          if (across_epipolar_line) {
+            const Eigen::Vector3d line =
+                fundamental * Eigen::Vector3d(previous_left[index].x, previous_left[index].y, 1.0);
+            const Eigen::Vector2d normal = line.head<2>().normalized();
+            step = cv::Point2f(static_cast<float>(8.0 * normal.x()),
+                               static_cast<float>(8.0 * normal.y()));
+          }
+          points[index] += step;
+          result.corrupted.insert(previous_ids[index]);
+        }
+      });
+    }
+    const auto [left, right] = images(sequence, frame);
+    result.frame = tracker.track(left, right);
+    previous_ids.clear();
+    previous_left.clear();
+    for (const StereoObservation& observation : result.frame.observations) {
+      previous_ids.push_back(observation.id);
+      previous_left.emplace_back(observation.uv(0), observation.uv(1));
+    }
+  }
+  return result;
+}
+
+bool contains_any(const TrackedFrame& frame, const std::set<LandmarkId>& ids) {
+  return std::any_of(frame.observations.begin(), frame.observations.end(),
+                     [&](const StereoObservation& o) { return ids.count(o.id) > 0; });
+}
+
+TEST(FrontendRendered, CircularMatchingRemovesWrongTemporalMatches) {
+  const Corruption result =
+      track_with_corruption({}, MatchStage::kTemporal, cv::Point2f(9.0f, 6.0f));
+  ASSERT_GT(result.corrupted.size(), 20u);
+  EXPECT_FALSE(contains_any(result.frame, result.corrupted));
+  EXPECT_GE(result.frame.counts.rejected_circular + result.frame.counts.rejected_ransac +
+                result.frame.counts.lost_stereo,
+            static_cast<int>(result.corrupted.size()));
+}
+
+TEST(FrontendRendered, RansacRemovesWrongTemporalMatchesThatCircularMatchingLetsThrough) {
+  TrackerOptions options;
+  options.circular_tolerance = 1000.0;  // circular matching off
+  const Corruption result =
+      track_with_corruption(options, MatchStage::kTemporal, cv::Point2f(), true);
+  ASSERT_GT(result.corrupted.size(), 20u);
+  EXPECT_FALSE(contains_any(result.frame, result.corrupted));
+  const TrackingCounts& counts = result.frame.counts;
+  EXPECT_GE(counts.rejected_ransac, static_cast<int>(result.corrupted.size()) -
+                                        counts.rejected_circular - counts.lost_stereo -
+                                        counts.rejected_epipolar);
+  EXPECT_GE(counts.rejected_ransac, static_cast<int>(result.corrupted.size()) / 2);
+}
+
+TEST(FrontendRendered, CircularMatchingRemovesWrongStereoMatchesOnTheRightRow) {
+  // A wrong disparity on the right row passes the epipolar check; the loop through the previous
+  // right image does not close.
+  const Corruption result = track_with_corruption({}, MatchStage::kStereo, cv::Point2f(4.0f, 0.0f));
+  ASSERT_GT(result.corrupted.size(), 20u);
+  EXPECT_FALSE(contains_any(result.frame, result.corrupted));
+  EXPECT_GE(result.frame.counts.rejected_circular, static_cast<int>(result.corrupted.size()));
+}
+
+TEST(FrontendRendered, NewStereoMatchesAreCheckedBackAndOnTheRow) {
+  const StereoSequence sequence = read_stereo_sequence(rendered_sequence().sequence);
+  const auto [left, right] = images(sequence, 0);
+  for (const cv::Point2f shift : {cv::Point2f(3.0f, 0.0f), cv::Point2f(0.0f, 3.0f)}) {
+    StereoTracker tracker(TrackerOptions{});
+    tracker.set_match_hook([&](MatchStage stage, std::vector<cv::Point2f>& points) {
+      if (stage == MatchStage::kNewStereo) {
+        for (cv::Point2f& point : points) point += shift;
+      }
+    });
+    const TrackedFrame frame = tracker.track(left, right);
+    EXPECT_GT(frame.counts.detected, 100);
+    // A match along an edge parallel to the shift cannot be told from the right one (the
+    // aperture problem); it is caught at the next frame by circular matching.
+    EXPECT_LE(frame.counts.added, frame.counts.detected / 50) << "shift " << shift;
+  }
+  // Without the corruption, every new match is on the row of its left feature.
+  StereoTracker tracker(TrackerOptions{});
+  const TrackedFrame frame = tracker.track(left, right);
+  EXPECT_GT(frame.counts.added, 150);
+  for (const StereoObservation& observation : frame.observations) {
+    EXPECT_LE(std::abs(observation.uv(1) - observation.uv(3)), 1.0);
+    EXPECT_GT(observation.uv(0) - observation.uv(2), 0.0);
+  }
+}
+
+TEST(FrontendRendered, DetectionsBecomeStereoObservationsOfTheObjectCentres) {
+  const auto frames = run_rendered();
+  const auto& rendered = rendered_sequence();
+  const StereoSequence sequence = read_stereo_sequence(rendered.sequence);
+  int detections = 0, observed = 0;
+  std::vector<std::vector<StereoObservation>> objects;
+  for (const FrontendFrame& frame : frames) {
+    detections += frame.detections;
+    observed += frame.objects_observed;
+    objects.push_back(frame.input.objects);
+  }
+  ASSERT_GT(detections, 20);
+  EXPECT_GE(observed, 0.85 * detections);
+  StereoCamera camera = rendered.camera;
+  camera.T_cam0_body = Eigen::Isometry3d::Identity();
+  const auto accuracy = evaluation::object_observation_accuracy(
+      camera, *sequence.groundtruth, objects, rendered.simulated.objects_groundtruth);
+  EXPECT_EQ(accuracy.centre.count, observed);
+  // Box centres differ from the projected cube centre by perspective only.
+  EXPECT_LT(accuracy.centre.median, 3.0);
+  EXPECT_LT(accuracy.disparity.median, 1.0);
+  EXPECT_LT(accuracy.relative_depth.median, 0.05);
+  for (const auto& frame_objects : objects) {
+    for (const StereoObservation& object : frame_objects) {
+      EXPECT_DOUBLE_EQ(object.uv(1), object.uv(3));  // rectified: same row
+    }
+  }
+}
+
+TEST(FrontendRendered, ObjectsAtTheBorderOrWithoutAMatchAreSkipped) {
+  const StereoSequence sequence = read_stereo_sequence(rendered_sequence().sequence);
+  const auto [left, right] = images(sequence, 0);
+  const StereoCamera& camera = rendered_sequence().camera;
+  Detection box{0, 1, "cube", 0.0, 10.0, 40.0, 50.0};
+  EXPECT_EQ(observe_object(box, left, right, camera, {}).skipped, ObjectSkip::kAtBorder);
+  box = {0, 1, "cube", 100.0, 100.0, 104.0, 104.0};
+  EXPECT_EQ(observe_object(box, left, right, camera, {}).skipped, ObjectSkip::kTooSmall);
+  const cv::Mat flat(left.size(), CV_8UC1, cv::Scalar(128));
+  box = {0, 1, "cube", 100.0, 100.0, 160.0, 160.0};
+  EXPECT_EQ(observe_object(box, left, flat, camera, {}).skipped, ObjectSkip::kNoMatch);
+}
+
+TEST(FrontendRendered, TheUsersOwnOdometryGoesThroughTheSameInterface) {
+  StereoSequence sequence = read_stereo_sequence(rendered_sequence().sequence);
+  std::vector<Eigen::Isometry3d> motions;
+  for (int k = 1; k < sequence.num_frames(); ++k) {
+    motions.push_back((*sequence.groundtruth)[k - 1].inverse() * (*sequence.groundtruth)[k]);
+  }
+  Matrix6d covariance = Matrix6d::Identity() * 1e-4;
+  StereoFrontend frontend(std::move(sequence), {}, {},
+                          std::make_unique<FileOdometry>(motions, covariance));
+  (void)frontend.process_next();  // frame 0: no motion
+  for (int k = 1; k < 4; ++k) {
+    const FrontendFrame frame = frontend.process_next();
+    ASSERT_TRUE(frame.input.T_previous_current.has_value());
+    EXPECT_TRUE(frame.input.T_previous_current->isApprox(motions[k - 1], 1e-15));
+    EXPECT_TRUE(frame.motion.covariance.isApprox(covariance));
+    EXPECT_GT(frame.input.features.size(), 100u);
+  }
+  FileOdometry short_file({}, covariance);
+  EXPECT_THROW((void)short_file.estimate(1, {}, {}), FrontendError);
+}
+
+TEST(FrontendRendered, RunWritesADatasetThatReadsBack) {
+  const fs::path out = testing::fresh_folder("frontend_run");
+  FrontendRunOptions options;
+  options.max_frames = 6;
+  options.name = "rendered-test";
+  const FrontendRunSummary summary = run_frontend(rendered_sequence().team, out, options);
+  ASSERT_EQ(summary.robots.size(), 1u);
+  EXPECT_EQ(summary.robots[0].frames, 6);
+  EXPECT_GT(summary.robots[0].tracks_per_frame, 150.0);
+  EXPECT_GT(summary.robots[0].feature_track_sigma, 0.0);
+  EXPECT_LT(summary.robots[0].feature_track_sigma, 1.0);
+  const dataset::Dataset data = dataset::read_dataset(out);
+  EXPECT_EQ(data.name, "rendered-test");
+  ASSERT_EQ(data.robots.size(), 1u);
+  EXPECT_EQ(data.robots[0].num_frames(), 6);
+  EXPECT_TRUE(data.robots[0].has_features);
+  EXPECT_EQ(data.camera.K, rendered_sequence().camera.K);
+  EXPECT_FALSE(data.objects_groundtruth.empty());  // copied from the team folder
+  const auto covariances = read_odometry_covariances(out / "robot_00" / "odometry_covariance.csv");
+  ASSERT_EQ(covariances.size(), 5u);
+  for (const Matrix6d& covariance : covariances) {
+    EXPECT_GT(covariance.llt().matrixL().determinant(), 0.0);
+  }
+  EXPECT_TRUE(fs::exists(out / "frontend.json"));
+  // Detections and odometry files belong to a single sequence, not to a team.
+  options.detections = rendered_sequence().sequence / "detections.csv";
+  EXPECT_THROW((void)run_frontend(rendered_sequence().team, out, options), FrontendError);
+}
+
+}  // namespace
+}  // namespace concord::frontend

@@ -1,0 +1,97 @@
+// concord sim --render's world: deterministic images, ray casting, visible object boxes and the
+// world.csv geometry that evaluations read back.
+#include "sim/render.h"
+
+#include <gtest/gtest.h>
+
+#include "frontend_test_support.h"
+
+namespace concord::sim {
+namespace {
+
+using concord::testing::rendered_sequence;
+
+TEST(Render, SameWorldAndSeedGiveTheSameImage) {
+  const auto& rendered = rendered_sequence();
+  const Eigen::Isometry3d pose =
+      rendered.simulated.robots[0].groundtruth[5] * rendered.camera.T_cam0_body.inverse();
+  const auto first = rendered.world.render(rendered.camera.K, pose, 120, 80, 1.0, 42);
+  EXPECT_EQ(first, rendered.world.render(rendered.camera.K, pose, 120, 80, 1.0, 42));
+  EXPECT_NE(first, rendered.world.render(rendered.camera.K, pose, 120, 80, 1.0, 43));
+  // Without noise, two seeds agree.
+  EXPECT_EQ(rendered.world.render(rendered.camera.K, pose, 120, 80, 0.0, 1),
+            rendered.world.render(rendered.camera.K, pose, 120, 80, 0.0, 2));
+}
+
+TEST(Render, RaysMeetTheNearestSurfaceAndObjectCubesAreWhereTheObjectsAre) {
+  const auto& rendered = rendered_sequence();
+  ASSERT_FALSE(rendered.world.cubes().empty());
+  for (const TexturedWorld::Cube& cube : rendered.world.cubes()) {
+    EXPECT_EQ(rendered.simulated.objects_groundtruth.at(cube.id), cube.centre);
+    // From 5 m above, straight down: the cube's top face, half a cube above the centre.
+    const Eigen::Vector3d origin = cube.centre + Eigen::Vector3d(0.0, 0.0, 5.0);
+    const auto hit = rendered.world.cast(origin, Eigen::Vector3d(0.0, 0.0, -1.0));
+    ASSERT_TRUE(hit.has_value());
+    if (rendered.world.quads()[hit->quad].object == cube.id) {
+      EXPECT_NEAR(hit->distance, 5.0 - cube.half_size, 1e-9);
+    }
+  }
+  // Nothing is outside the hall.
+  EXPECT_FALSE(rendered.world.cast(Eigen::Vector3d(1e4, 0.0, 0.0), Eigen::Vector3d(1.0, 0.0, 0.0))
+                   .has_value());
+}
+
+TEST(Render, VisibleBoxesContainTheObjectCentreAndAreUnoccluded) {
+  const auto& rendered = rendered_sequence();
+  const StereoCamera& camera = rendered.camera;
+  int boxes = 0;
+  for (const Eigen::Isometry3d& pose : rendered.simulated.robots[0].groundtruth) {
+    for (const ObjectBox& box :
+         visible_object_boxes(rendered.world, camera, pose, rendered.render.width,
+                              rendered.render.height, 0.5, 10.0)) {
+      ++boxes;
+      const Eigen::Vector3d p =
+          camera.T_cam0_body * pose.inverse() * rendered.simulated.objects_groundtruth.at(box.id);
+      const double u = camera.K(0, 0) * p.x() / p.z() + camera.K(0, 2);
+      const double v = camera.K(1, 1) * p.y() / p.z() + camera.K(1, 2);
+      EXPECT_GT(u, box.x_min);
+      EXPECT_LT(u, box.x_max);
+      EXPECT_GT(v, box.y_min);
+      EXPECT_LT(v, box.y_max);
+      EXPECT_GE(box.x_min, 0.0);
+      EXPECT_LE(box.y_max, rendered.render.height - 1.0);
+    }
+  }
+  EXPECT_GT(boxes, 10);
+}
+
+TEST(Render, WorldGeometryReadsBack) {
+  const auto& rendered = rendered_sequence();
+  const TexturedWorld geometry = read_world_geometry(rendered.team / "world.csv");
+  ASSERT_EQ(geometry.quads().size(), rendered.world.quads().size());
+  EXPECT_EQ(geometry.texture_count(), 0);
+  const Eigen::Vector3d origin = rendered.simulated.robots[0].groundtruth[0].translation();
+  for (const Eigen::Vector3d& direction :
+       {Eigen::Vector3d(1, 0, 0), Eigen::Vector3d(0.3, 1, 0.2), Eigen::Vector3d(0, -1, -0.4)}) {
+    const auto a = rendered.world.cast(origin, direction);
+    const auto b = geometry.cast(origin, direction);
+    ASSERT_TRUE(a && b);
+    EXPECT_EQ(a->quad, b->quad);
+    EXPECT_NEAR(a->distance, b->distance, 1e-12);
+  }
+  EXPECT_THROW((void)geometry.render(rendered.camera.K, Eigen::Isometry3d::Identity(), 10, 10, 0, 0),
+               std::logic_error);
+}
+
+TEST(Render, InvalidOptionsAreNamed) {
+  RenderOptions options;
+  options.width = 10;
+  options.object_size = -1.0;
+  const auto problems = options.validate();
+  ASSERT_EQ(problems.size(), 2u);
+  EXPECT_NE(problems[0].find("--render-width"), std::string::npos);
+  EXPECT_NE(problems[1].find("--render-object-size"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace concord::sim
