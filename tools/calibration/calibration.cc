@@ -90,15 +90,17 @@ CalibrationReport calibrate(const dataset::Dataset& dataset, const CalibrationOp
   const StereoCamera& camera = dataset.camera;
   CalibrationReport report;
 
-  // 1. Odometry: the scale that maps measured onto true translations (least squares), then the
-  //    error of each relative pose.
-  double true_dot_measured = 0.0, measured_squared = 0.0;
+  // 1. Odometry: the scale of measured against true translations, measured = s * true + noise,
+  //    by least squares with the (noise-free) truth as regressor, so that the noise does not bias
+  //    it (regressing the other way shrinks it by |t|^2 / (|t|^2 + 3 sigma^2)); the correction
+  //    is 1 / s. Then the error of each relative pose.
+  double true_dot_measured = 0.0, true_squared = 0.0;
   for (int k = first; k + 1 < end; ++k) {
     const Eigen::Isometry3d truth = robot.groundtruth[k].inverse() * robot.groundtruth[k + 1];
     true_dot_measured += truth.translation().dot(robot.odometry[k].translation());
-    measured_squared += robot.odometry[k].translation().squaredNorm();
+    true_squared += truth.translation().squaredNorm();
   }
-  report.translation_scale = measured_squared > 0.0 ? true_dot_measured / measured_squared : 1.0;
+  report.translation_scale = true_dot_measured > 0.0 ? true_squared / true_dot_measured : 1.0;
   Eigen::Matrix<double, 6, 1> sum = Eigen::Matrix<double, 6, 1>::Zero();
   Eigen::Matrix<double, 6, 1> squares = Eigen::Matrix<double, 6, 1>::Zero();
   for (int k = first; k + 1 < end; ++k) {

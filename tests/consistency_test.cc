@@ -1,0 +1,264 @@
+// Consistency of the filter (issue: honest uncertainty): a Monte-Carlo NEES test on the simulator
+// with the sensor config, the NEES computation on hand-computed cases, the failure counters, and
+// the calibration of a sensor with known noise.
+#include <gtest/gtest.h>
+
+#include <boost/math/distributions/chi_squared.hpp>
+#include <cmath>
+#include <filesystem>
+
+#include "calibration/calibration.h"
+#include "concord/config/options_file.h"
+#include "concord/dataset/result_io.h"
+#include "concord/estimator/estimator.h"
+#include "concord/estimator/lie.h"
+#include "concord/estimator/state_helper.h"
+#include "concord/estimator/updater_helper.h"
+#include "evaluation/metrics.h"
+#include "replay/team_replay.h"
+#include "sim/simulator.h"
+#include "test_support.h"
+
+namespace concord {
+namespace {
+
+const std::string kSimConfig = std::string(CONCORD_SOURCE_DIR) + "/configs/sensors/sim.yaml";
+
+/// The interval that holds the mean of `samples` independent chi2(dof) draws with probability
+/// `probability` (two-sided).
+std::pair<double, double> mean_interval(int samples, int dof, double probability) {
+  const boost::math::chi_squared sum(static_cast<double>(samples * dof));
+  const double tail = 0.5 * (1.0 - probability);
+  return {boost::math::quantile(sum, tail) / samples,
+          boost::math::quantile(boost::math::complement(sum, tail)) / samples};
+}
+
+struct MonteCarlo {
+  std::vector<double> pose;    ///< final-frame pose NEES of robot 0 of each seed
+  std::vector<double> object;  ///< NEES of robot 0's final objects of each seed, all pooled
+};
+
+/// Short runs of a simulated team, one per seed, with the checked-in sensor config. Only robot 0
+/// of each run enters, so that the samples are independent (robots of one team are not, once
+/// they exchange marginals).
+MonteCarlo monte_carlo(bool consensus, int seeds, int robots, int frames) {
+  const EstimatorOptions options = config::load_estimator_options(kSimConfig);
+  MonteCarlo out;
+  for (int seed = 1; seed <= seeds; ++seed) {
+    sim::SimulationOptions simulation;
+    simulation.robots = robots;
+    simulation.frames = frames;
+    simulation.seed = static_cast<std::uint64_t>(seed);
+    simulation.points_per_frame = 0;
+    const dataset::Dataset data = sim::simulate(simulation);
+    replay::ReplayOptions replay_options;
+    replay_options.consensus = consensus;
+    const replay::ReplayResult result = replay::run_team(data, options, replay_options);
+    const replay::RobotOutput& robot = result.robots.front();
+    const auto& truth = data.robots.front().groundtruth;
+    out.pose.push_back(
+        evaluation::pose_nees(robot.trajectory.back(), robot.pose_covariances.back(), truth.back())
+            .pose);
+    for (const ObjectEstimate& object : robot.objects) {
+      out.object.push_back(evaluation::point_nees(object.p_world, object.covariance,
+                                                  data.objects_groundtruth.at(object.id)));
+    }
+  }
+  return out;
+}
+
+double mean(const std::vector<double>& values) {
+  double sum = 0.0;
+  for (double value : values) sum += value;
+  return sum / static_cast<double>(values.size());
+}
+
+TEST(MonteCarloNees, SeparateRobotsPosesAreConsistent) {
+  // 20 seeds: the mean final pose NEES of independent runs must lie in the 99.9 % interval of
+  // the mean of 20 chi2(6) draws ([3.7, 8.9]); measured about 8.4, a mild overconfidence left by
+  // the stereo depth's nonlinearity (docs/results-consistency.md). Without the left-invariant
+  // errors and first-estimate Jacobians it is several times that.
+  const MonteCarlo runs = monte_carlo(false, 20, 1, 120);
+  const auto [low, high] = mean_interval(static_cast<int>(runs.pose.size()), 6, 0.999);
+  EXPECT_GT(mean(runs.pose), low);
+  EXPECT_LT(mean(runs.pose), high);
+  // Objects of one run share the robot's trajectory error, so they are not independent samples:
+  // check the mean against a wider band around 3 instead of the chi-square interval.
+  EXPECT_GT(mean(runs.object), 1.5);
+  EXPECT_LT(mean(runs.object), 6.0);
+}
+
+TEST(MonteCarloNees, ConsensusPosesAreConsistentAndObjectsNotOverconfident) {
+  const MonteCarlo runs = monte_carlo(true, 20, 3, 120);
+  const auto [low, high] = mean_interval(static_cast<int>(runs.pose.size()), 6, 0.999);
+  EXPECT_GT(mean(runs.pose), low);
+  EXPECT_LT(mean(runs.pose), high);
+  // The consensus average (a geometric mean) is conservative: objects may be under- but never
+  // over-confident.
+  EXPECT_LT(mean(runs.object), 6.0);
+}
+
+TEST(Nees, HandComputedPoseAndPointCases) {
+  // Truth = estimate * exp(xi) with xi = (0.2, 0, 0, 0, 0, 0.1); covariance diag(0.01 ... ,
+  // 0.04 ... ): NEES = 0.2^2 / 0.01 + 0.1^2 / 0.04 = 4.25, position 4, orientation 0.25.
+  const Eigen::Isometry3d estimate =
+      lie::se3_exp((lie::Vector6d() << 1.0, 2.0, 3.0, 0.3, -0.2, 0.1).finished());
+  const lie::Vector6d xi = (lie::Vector6d() << 0.2, 0.0, 0.0, 0.0, 0.0, 0.1).finished();
+  const Eigen::Isometry3d truth = estimate * lie::se3_exp(xi);
+  lie::Matrix6d covariance = lie::Matrix6d::Zero();
+  covariance.diagonal() << 0.01, 0.01, 0.01, 0.04, 0.04, 0.04;
+  const evaluation::PoseNees nees = evaluation::pose_nees(estimate, covariance, truth);
+  EXPECT_NEAR(nees.pose, 4.25, 1e-9);
+  EXPECT_NEAR(nees.position, 4.0, 1e-9);
+  EXPECT_NEAR(nees.orientation, 0.25, 1e-9);
+  EXPECT_TRUE(std::isnan(evaluation::pose_nees(estimate, -covariance, truth).pose));
+  // Point: error (1, 2, 0) under diag(1, 4, 9): 1 + 1 = 2.
+  EXPECT_NEAR(evaluation::point_nees(Eigen::Vector3d(1, 2, 3),
+                                     Eigen::Vector3d(1.0, 4.0, 9.0).asDiagonal(),
+                                     Eigen::Vector3d(0, 0, 3)),
+              2.0, 1e-12);
+}
+
+TEST(Nees, SummaryCountsTheBoundAndTheQuarters) {
+  // chi2(3) 95 % bound is 7.815: 7 of 8 samples inside; first quarter {1, 2}, last {9, 3}.
+  const evaluation::NeesSummary summary =
+      evaluation::summarize_nees({1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 9.0, 3.0,
+                                  std::numeric_limits<double>::quiet_NaN()},
+                                 3);
+  EXPECT_EQ(summary.samples, 8);
+  EXPECT_NEAR(summary.mean, 33.0 / 8.0, 1e-12);
+  EXPECT_NEAR(summary.median, 3.5, 1e-12);
+  EXPECT_NEAR(summary.inside_95, 7.0 / 8.0, 1e-12);
+  EXPECT_NEAR(summary.first_quarter_median, 1.5, 1e-12);
+  EXPECT_NEAR(summary.last_quarter_median, 6.0, 1e-12);
+  EXPECT_EQ(evaluation::summarize_nees({}, 6).samples, 0);
+}
+
+TEST(Nees, EvaluationReportsPoseAndObjectNeesFromTheCovariances) {
+  // One robot, two frames, estimate = truth except a 0.3 m error along x at frame 1 with
+  // variance 0.09 (NEES 1 in 3-D position, 1 in 6-D); one object off by 0.2 m with variance 0.04.
+  evaluation::RobotTruth truth;
+  truth.groundtruth = {Eigen::Isometry3d::Identity(), Eigen::Isometry3d::Identity()};
+  evaluation::RobotResult result;
+  result.trajectory = truth.groundtruth;
+  result.trajectory[1].translation().x() = 0.3;
+  lie::Matrix6d covariance = 0.09 * lie::Matrix6d::Identity();
+  result.pose_covariances = {covariance, covariance};
+  result.objects.push_back({7, Eigen::Vector3d(0.2, 0, 0), 0.04 * Eigen::Matrix3d::Identity()});
+  const auto metrics =
+      evaluation::evaluate({truth}, {result}, {{7, Eigen::Vector3d::Zero()}});
+  EXPECT_EQ(metrics.robots[0].pose_nees.samples, 2);
+  EXPECT_NEAR(metrics.robots[0].pose_nees.mean, 0.5, 1e-9);
+  EXPECT_NEAR(metrics.robots[0].object_nees.mean, 1.0, 1e-9);
+  // Pose covariances of the wrong length are an error that names the robot.
+  result.pose_covariances.pop_back();
+  EXPECT_THROW(evaluation::evaluate({truth}, {result}, {}), std::invalid_argument);
+}
+
+TEST(PoseCovarianceCsv, RoundTripsAndNamesBadLines) {
+  const auto folder = std::filesystem::temp_directory_path() / "concord_pose_covariance_test";
+  std::filesystem::create_directories(folder);
+  std::mt19937 random(3);
+  const Eigen::MatrixXd random_spd = testing::random_spd(6, random);
+  const Eigen::MatrixXd spd = 0.5 * (random_spd + random_spd.transpose());
+  const std::vector<dataset::PoseCovariance> written = {{0, spd}, {1, 2.0 * spd}};
+  const auto file = folder / "pose_covariance.csv";
+  dataset::write_pose_covariances_csv(file, written);
+  const auto read = dataset::read_pose_covariances_csv(file);
+  ASSERT_EQ(read.size(), 2u);
+  EXPECT_EQ(read[1].frame, 1);
+  EXPECT_TRUE(read[1].covariance.isApprox(2.0 * spd, 0.0));
+  dataset::write_file_atomically(file, "frame,c00\n0,1\n");
+  EXPECT_THROW(dataset::read_pose_covariances_csv(file), dataset::DatasetError);
+  std::filesystem::remove_all(folder);
+}
+
+TEST(FailureCounters, AnInconsistentNewObjectIsGatedAndCounted) {
+  // A robot drives straight past an object; its third observation is off by 40 px in the left
+  // image only (a wrong association): triangulation still succeeds under a generous RMS limit,
+  // but the chi-square test of the rows that do not involve the object rejects it.
+  const StereoCamera camera = testing::kitti_like_camera();
+  EstimatorOptions options;
+  options.object_noise = StereoNoise::isotropic(1.0);
+  options.object_init_max_reprojection_error = 1000.0;
+  options.object_min_observations = 3;
+  Estimator estimator(options, camera, Eigen::Isometry3d::Identity());
+  const Eigen::Vector3d p_object(15.0, 3.0, 0.5);
+  Eigen::Isometry3d truth = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d step = Eigen::Isometry3d::Identity();
+  step.translation() = Eigen::Vector3d(0.8, 0.0, 0.0);
+  int gated = 0, initialized = 0;
+  for (int frame = 0; frame < 3; ++frame) {
+    FrameInput input;
+    input.frame = frame;
+    if (frame > 0) {
+      input.T_previous_current = step;
+      truth = truth * step;
+    }
+    Eigen::Vector4d uv =
+        camera.denormalize(UpdaterHelper::project(camera, truth, p_object)->xy);
+    if (frame == 2) uv(0) += 40.0;
+    input.objects.push_back({3, uv});
+    const FrameReport report = estimator.process(input);
+    gated += report.objects.init_gated;
+    initialized += report.objects.initialized;
+  }
+  EXPECT_EQ(gated, 1);
+  EXPECT_EQ(initialized, 0);
+  EXPECT_TRUE(estimator.objects().empty());
+}
+
+TEST(FailureCounters, AnUpdateWithAnIndefiniteInnovationIsRefusedAndLeavesTheState) {
+  std::mt19937 random(4);
+  State state = testing::random_state(2, 1, random);
+  const State before = state;
+  const Eigen::MatrixXd H = Eigen::MatrixXd::Identity(2, state.dimension());
+  const Eigen::MatrixXd noise = -100.0 * Eigen::MatrixXd::Identity(2, 2);
+  EXPECT_FALSE(StateHelper::update(state, H, Eigen::VectorXd::Ones(2), noise));
+  EXPECT_TRUE(state.covariance.isApprox(before.covariance, 0.0));
+}
+
+TEST(Calibration, RecoversTheSimulatorsNoise) {
+  sim::SimulationOptions simulation;
+  simulation.robots = 1;
+  simulation.frames = 400;
+  simulation.points_per_frame = 20;
+  simulation.odometry_translation_noise = 0.02;
+  simulation.odometry_rotation_noise = 0.005;
+  simulation.pixel_noise = 0.01;
+  const dataset::Dataset data = sim::simulate(simulation);
+  calibration::CalibrationOptions options;
+  options.frames = 400;
+  const calibration::CalibrationReport report = calibration::calibrate(data, options);
+  for (int axis = 0; axis < 3; ++axis) {
+    EXPECT_NEAR(report.odometry_rms(axis), 0.02, 0.002) << axis;
+    EXPECT_NEAR(report.odometry_rms(3 + axis), 0.005, 0.0005) << axis;
+  }
+  EXPECT_NEAR(report.translation_scale, 1.0, 0.01);
+  // Independent noise of 0.01 per coordinate: common modes 0.0071, differences 0.0141.
+  EXPECT_NEAR(report.objects.horizontal, 0.01 / std::sqrt(2.0), 0.001);
+  EXPECT_NEAR(report.objects.disparity, 0.01 * std::sqrt(2.0), 0.002);
+  EXPECT_NEAR(report.features.vertical, 0.01 / std::sqrt(2.0), 0.001);
+  EXPECT_GT(report.features.observations, 1000);
+  // The suggested config loads.
+  const std::string yaml = calibration::to_yaml(report, options);
+  EXPECT_NO_THROW(config::parse_estimator_options(yaml, "calibration"));
+  options.frames = 5;
+  EXPECT_THROW(calibration::calibrate(data, options), std::invalid_argument);
+}
+
+TEST(ConfigOverrides, SetKeysOverTheConfigAndNameBadEntries) {
+  const EstimatorOptions options = config::apply_overrides(
+      EstimatorOptions{}, {"odometry_rotation_sigma=0.02", "object_noise.horizontal=7",
+                           "consensus.neighbour_chi2_probability=0.99"});
+  EXPECT_EQ(options.odometry_rotation_sigma, 0.02);
+  EXPECT_EQ(options.object_noise.horizontal, 7.0);
+  EXPECT_EQ(options.object_noise.vertical, EstimatorOptions{}.object_noise.vertical);
+  EXPECT_EQ(options.consensus.neighbour_chi2_probability, 0.99);
+  EXPECT_THROW(config::apply_overrides({}, {"window_size"}), config::ConfigError);
+  EXPECT_THROW(config::apply_overrides({}, {"window_size=1"}), config::ConfigError);
+  EXPECT_THROW(config::apply_overrides({}, {"no_such_key=1"}), config::ConfigError);
+}
+
+}  // namespace
+}  // namespace concord
