@@ -19,7 +19,9 @@ out=bench/out/consistency
 mkdir -p "$out"
 cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=Release >/dev/null
 cmake --build build --parallel 2 --target concord >/dev/null
-concord=./build/tools/concord
+# A copy of the binary: rebuilding during a long bench must not change or break it.
+cp build/tools/concord "$out/concord"
+concord="$out/concord"
 
 run() {  # name dataset args...
   local name=$1 dataset=$2

@@ -240,6 +240,8 @@ TEST(Calibration, RecoversTheSimulatorsNoise) {
   EXPECT_NEAR(report.objects.disparity, 0.01 * std::sqrt(2.0), 0.002);
   EXPECT_NEAR(report.features.vertical, 0.01 / std::sqrt(2.0), 0.001);
   EXPECT_GT(report.features.observations, 1000);
+  // White noise: no time-correlation inflation.
+  EXPECT_LT(report.objects.correlation_inflation.maxCoeff(), 1.2);
   // The suggested config loads.
   const std::string yaml = calibration::to_yaml(report, options);
   EXPECT_NO_THROW(config::parse_estimator_options(yaml, "calibration"));

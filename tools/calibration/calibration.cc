@@ -29,14 +29,16 @@ double robust_sigma(std::vector<double> values) {
   return 1.4826 * median_of(std::move(values));
 }
 
-/// Accumulates stereo errors (u_left, v_left, u_right, v_right), in image units, as components.
+/// Accumulates stereo errors (u_left, v_left, u_right, v_right), in image units, as components,
+/// with the landmark and frame of each (for the time correlation within tracks).
 class StereoErrors {
  public:
-  void add(const Eigen::Vector4d& error) {
+  void add(LandmarkId id, int frame, const Eigen::Vector4d& error) {
     horizontal_.push_back(0.5 * (error(0) + error(2)));
     vertical_.push_back(0.5 * (error(1) + error(3)));
     disparity_.push_back(error(0) - error(2));
     vertical_disparity_.push_back(error(1) - error(3));
+    index_[{id, frame}] = horizontal_.size() - 1;
   }
 
   StereoErrorSpread spread() const {
@@ -58,11 +60,46 @@ class StereoErrors {
       outliers += outlier;
     }
     out.outliers = static_cast<double>(outliers) / out.observations;
+    const std::vector<double>* components[4] = {&horizontal_, &vertical_, &disparity_,
+                                                &vertical_disparity_};
+    const double sigmas[4] = {out.horizontal, out.vertical, out.disparity,
+                              out.vertical_disparity};
+    for (int c = 0; c < 4; ++c) {
+      out.correlation_inflation(c) =
+          inflation(*components[c], out.median(c), sigmas[c]);
+    }
     return out;
   }
 
  private:
+  /// sqrt(1 + 2 sum_{lag 1..10} rho(lag)), at least 1, of one component's errors within tracks
+  /// (clipped at 3 robust sigmas around the median, so that outliers do not dominate).
+  double inflation(const std::vector<double>& values, double median, double sigma) const {
+    if (!(sigma > 0.0)) return 1.0;
+    const auto clipped = [&](std::size_t k) {
+      return std::clamp(values[k] - median, -3.0 * sigma, 3.0 * sigma);
+    };
+    double variance = 0.0;
+    for (std::size_t k = 0; k < values.size(); ++k) variance += clipped(k) * clipped(k);
+    variance /= static_cast<double>(values.size());
+    if (!(variance > 0.0)) return 1.0;
+    double sum = 0.0;
+    for (int lag = 1; lag <= 10; ++lag) {
+      double products = 0.0;
+      int pairs = 0;
+      for (const auto& [key, k] : index_) {
+        const auto later = index_.find({key.first, key.second + lag});
+        if (later == index_.end()) continue;
+        products += clipped(k) * clipped(later->second);
+        ++pairs;
+      }
+      if (pairs >= 10) sum += products / pairs / variance;
+    }
+    return std::sqrt(std::max(1.0, 1.0 + 2.0 * sum));
+  }
+
   std::vector<double> horizontal_, vertical_, disparity_, vertical_disparity_;
+  std::map<std::pair<LandmarkId, int>, std::size_t> index_;
 };
 
 std::string number(double value) {
@@ -124,7 +161,7 @@ CalibrationReport calibrate(const dataset::Dataset& dataset, const CalibrationOp
       const auto projection =
           UpdaterHelper::project(camera, robot.groundtruth[k], truth->second);
       if (!projection) continue;
-      objects.add(observation.uv - camera.denormalize(projection->xy));
+      objects.add(observation.id, k, observation.uv - camera.denormalize(projection->xy));
     }
   }
   report.objects = objects.spread();
@@ -153,7 +190,8 @@ CalibrationReport calibrate(const dataset::Dataset& dataset, const CalibrationOp
     for (std::size_t i = 0; i < track.size(); ++i) {
       const auto projection = UpdaterHelper::project(camera, poses[i], *point);
       if (!projection) continue;
-      features.add(deflation * (track[i].second - camera.denormalize(projection->xy)));
+      features.add(id, track[i].first,
+                   deflation * (track[i].second - camera.denormalize(projection->xy)));
     }
   }
   report.features = features.spread();
@@ -184,23 +222,29 @@ std::string to_yaml(const CalibrationReport& report, const CalibrationOptions& o
       text += "# " + key + ": nothing to measure on this segment\n";
       return;
     }
-    text += "# " + key + ": robust sigmas of " + std::to_string(spread.observations) +
-            " observations; " + number(100.0 * spread.outliers) +
-            " % lie beyond 3 sigma in some component (left to the chi-square gates); medians " +
-            number(spread.median(0)) + ", " + number(spread.median(1)) + ", " +
-            number(spread.median(2)) + ", " + number(spread.median(3)) + "\n";
+    const Eigen::Vector4d sigmas(spread.horizontal, spread.vertical, spread.disparity,
+                                 spread.vertical_disparity);
+    const Eigen::Vector4d& factor = spread.correlation_inflation;
+    text += "# " + key + ": " + std::to_string(spread.observations) + " observations; robust sigmas " +
+            number(sigmas(0)) + ", " + number(sigmas(1)) + ", " + number(sigmas(2)) + ", " +
+            number(sigmas(3)) + "; medians " + number(spread.median(0)) + ", " +
+            number(spread.median(1)) + ", " + number(spread.median(2)) + ", " +
+            number(spread.median(3)) + "; " + number(100.0 * spread.outliers) +
+            " % beyond 3 sigma in some component (left to the chi-square gates)\n";
+    text += "# time correlation within tracks: sigmas x " + number(factor(0)) + ", " +
+            number(factor(1)) + ", " + number(factor(2)) + ", " + number(factor(3)) +
+            " for their white-noise equivalent (the values below)\n";
     // A component that does not vary at all (v_left = v_right on rectified tracks) gets a floor
     // of 1 % of the largest one: the estimator needs a positive definite noise.
-    const double floor =
-        0.01 * std::max({spread.horizontal, spread.vertical, spread.disparity});
-    if (std::min({spread.horizontal, spread.vertical, spread.disparity,
-                  spread.vertical_disparity}) < floor) {
+    const Eigen::Vector4d equivalent = sigmas.cwiseProduct(factor);
+    const double floor = 0.01 * equivalent.head<3>().maxCoeff();
+    if (equivalent.minCoeff() < floor) {
       text += "# (components below 1 % of the largest are raised to that floor)\n";
     }
-    text += key + ": {horizontal: " + number(std::max(spread.horizontal, floor)) +
-            ", vertical: " + number(std::max(spread.vertical, floor)) +
-            ", disparity: " + number(std::max(spread.disparity, floor)) +
-            ", vertical_disparity: " + number(std::max(spread.vertical_disparity, floor)) + "}\n";
+    text += key + ": {horizontal: " + number(std::max(equivalent(0), floor)) +
+            ", vertical: " + number(std::max(equivalent(1), floor)) +
+            ", disparity: " + number(std::max(equivalent(2), floor)) +
+            ", vertical_disparity: " + number(std::max(equivalent(3), floor)) + "}\n";
   };
   noise("object_noise", report.objects);
   noise("feature_noise", report.features);

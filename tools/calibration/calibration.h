@@ -33,6 +33,12 @@ struct StereoErrorSpread {
   /// Medians of the four components (a systematic offset, e.g. a disparity bias from a wrong
   /// baseline, shows here).
   Eigen::Vector4d median = Eigen::Vector4d::Zero();
+  /// Time correlation within a landmark's track: sqrt(1 + 2 sum of the autocorrelations at lags
+  /// 1 to 10 frames), at least 1, per component. The filter treats observations as independent;
+  /// errors that persist from frame to frame (a box centre off the same way while the car is in
+  /// view) carry less information than that, and a white noise of sigma times this factor is
+  /// its equivalent over such a stretch (the effective sample size correction).
+  Eigen::Vector4d correlation_inflation = Eigen::Vector4d::Ones();
 };
 
 struct CalibrationReport {
