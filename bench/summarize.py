@@ -41,7 +41,7 @@ for dataset, runs in [
             f"{fmt(average['object_error'])} | {fmt(average['disagreement'])} | {wall:.2f} s |")
 
 print("# Estimator results on the shared datasets\n")
-print("Produced by `bench/estimator_bench.sh` (one config per dataset, `configs/datasets/`).")
+print("Produced by `bench/estimator_bench.sh` (one config per sensor, `configs/sensors/`).")
 print("Averages over robots; trajectory RMSE without alignment; wall time of one whole")
 print("`concord replay` process (reading, filtering, writing, plotting) on the 2-core machine.\n")
 print("| data | run | traj RMSE m | object err m | disagreement m | wall time |")

@@ -29,7 +29,7 @@ def gain(separate, consensus):
 print("# Concord on its own simulation: Table IV, Fig. 4 and beyond\n")
 print("Written by `bench/sim_bench.sh`. The data comes from `concord sim --robots N --seed 1` with")
 print("the defaults (420 frames, 210 objects, 10 point features a frame, see docs/simulator.md).")
-print("The runs are `concord replay` with `configs/datasets/sim.yaml`, on the complete graph unless")
+print("The runs are `concord replay` with `configs/sensors/sim.yaml`, on the complete graph unless")
 print("noted, with point features, one run at a time on the 2-core development machine. Errors are")
 print("averages over robots. Consensus time is the consensus step's wall time (taking the")
 print("marginals and fusing) per robot per step.\n")
