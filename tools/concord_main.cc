@@ -6,6 +6,7 @@
 ///   concord launch --dataset DIR --out DIR [--lockstep|--async|--separate] [--base-port P]
 ///                  [--http-base-port P] [--config FILE] [--robots R] [--frames N] [--rate HZ]
 ///   concord plot --input CHART.json --out CHART.png
+///   concord keygen --out FILE      (a new team key, mode 0600; never overwrites)
 ///   concord sim --robots N --out DIR [--seed S] [--frames F] [--objects M] [--points-per-frame P]
 ///               [--odometry-translation-noise T] [--odometry-rotation-noise R] [--pixel-noise S]
 ///               ... (camera, path and object-placement parameters: concord sim --help)
@@ -24,6 +25,7 @@
 #include "evaluation/metrics.h"
 #include "evaluation/line_plot.h"
 #include "evaluation/plot.h"
+#include "concord/net/team_key.h"
 #include "launch/launch.h"
 #include "replay/team_replay.h"
 #include "sim/simulator.h"
@@ -428,8 +430,20 @@ int main(int argc, char** argv) {
       ->check(CLI::ExistingFile);
   plot_command->add_option("--out", out_dir, "PNG file to write")->required();
 
+  auto* keygen_command = app.add_subcommand(
+      "keygen", "Write a new team key (32 random bytes) to a file readable by its owner only");
+  std::string key_file;
+  keygen_command->add_option("--out", key_file, "Key file to create (never overwritten)")
+      ->required();
+
   CLI11_PARSE(app, argc, argv);
   try {
+    if (keygen_command->parsed()) {
+      net::write_team_key(key_file, net::TeamKey::generate());
+      std::cout << "team key: " << key_file << " (mode 0600; copy it to every robot of the team "
+                << "and point team_key_file at it)\n";
+      return 0;
+    }
     if (plot_command->parsed()) {
       evaluation::write_line_plot_png(out_dir, evaluation::read_line_plot_json(plot_input));
       std::cout << "plot: " << out_dir << "\n";

@@ -19,7 +19,9 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "concord/net/log_limiter.h"
 #include "concord/net/reconnect_backoff.h"
+#include "concord/net/secure_channel.h"
 #include "concord/v1/concord.pb.h"
 
 namespace concord::net {
@@ -102,7 +104,15 @@ std::vector<std::string> PeerNetworkOptions::validate() const {
   auto count = [](std::chrono::milliseconds duration) {
     return std::to_string(duration.count()) + " ms";
   };
+  if (!team_key) problem("team_key: required (every connection proves the team key)");
   if (team.empty()) problem("team: must not be empty");
+  for (const int member : members)
+    if (member < 0) problem("members: robot id " + std::to_string(member) + " is negative");
+  if (max_pending_handshakes == 0) problem("max_pending_handshakes: must be at least 1");
+  if (receive_bytes_per_second < max_frame_bytes / 2)
+    problem("receive_bytes_per_second: " + std::to_string(receive_bytes_per_second) +
+            " is below half of max_frame_bytes (" + std::to_string(max_frame_bytes) + ")");
+  if (receive_messages_per_second == 0) problem("receive_messages_per_second: must be positive");
   if (robot_id < 0) problem("robot_id: " + std::to_string(robot_id) + " is negative");
   ErrorCode error;
   asio::ip::make_address(listen_address, error);
@@ -146,7 +156,11 @@ std::vector<std::string> PeerNetworkOptions::validate() const {
 
 std::string PeerNetworkOptions::describe() const {
   std::ostringstream out;
-  out << "team=" << team << " robot_id=" << robot_id << " listen=" << listen_address << ":"
+  out << "team=" << team << " robot_id=" << robot_id << " members=[";
+  for (std::size_t i = 0; i < members.size(); ++i) out << (i ? "," : "") << members[i];
+  out << "] max_pending_handshakes=" << max_pending_handshakes
+      << " receive_budget=" << receive_bytes_per_second << "B/s," << receive_messages_per_second
+      << "msg/s" << " listen=" << listen_address << ":"
       << listen_port;
   if (!advertised_address.empty()) out << " advertised_address=" << advertised_address;
   out << " peers=[";
@@ -200,6 +214,19 @@ class PeerNetwork::Impl : public std::enable_shared_from_this<PeerNetwork::Impl>
   void on_written(const Session& session, std::size_t bytes, std::size_t messages);
   void on_envelope(const std::shared_ptr<Session>& session, const v1::Envelope& envelope);
   void on_frame_error(const std::shared_ptr<Session>& session, const FrameError& error);
+  void on_channel_failed(const std::shared_ptr<Session>& session, const std::string& reason);
+  void count_budget_pause() {
+    update_counters([](NetworkCounters& counters) { ++counters.budget_pauses; });
+  }
+  /// A warning caused by a remote party, at most a few per key and period (see LogLimiter).
+  template <class... Args>
+  void warn_limited(const std::string& key, spdlog::format_string_t<Args...> format,
+                    Args&&... args) {
+    std::uint64_t suppressed = 0;
+    if (!log_limiter_.allow(key, suppressed)) return;
+    spdlog::warn("{}{}", fmt::format(format, std::forward<Args>(args)...),
+                 suppressed_note(suppressed));
+  }
   void on_session_closed(const std::shared_ptr<Session>& session, SessionState previous,
                          std::string_view reason);
 
@@ -304,6 +331,8 @@ class PeerNetwork::Impl : public std::enable_shared_from_this<PeerNetwork::Impl>
   std::map<int, Peer> peers_;
   std::map<std::string, std::unique_ptr<DialTarget>> targets_;
 
+  LogLimiter log_limiter_;  // thread-safe
+
   // Any thread, under stats_mutex_.
   mutable std::mutex stats_mutex_;
   std::map<int, PeerRecord> records_;
@@ -316,9 +345,10 @@ class PeerNetwork::Impl : public std::enable_shared_from_this<PeerNetwork::Impl>
 class PeerNetwork::Impl::Session : public std::enable_shared_from_this<Session> {
  public:
   struct Outgoing {
-    enum class Kind { kControl, kHeartbeat, kData };
+    enum class Kind { kChannel, kControl, kHeartbeat, kData };
     Kind kind;
     std::shared_ptr<const v1::Envelope> envelope;  // null for kHeartbeat (built when written)
+    std::string channel_payload;                   // kChannel: a handshake message, unencrypted
   };
 
   Session(std::shared_ptr<Impl> network, std::uint64_t id, Origin origin, std::string dial_key,
@@ -332,7 +362,14 @@ class PeerNetwork::Impl::Session : public std::enable_shared_from_this<Session> 
         network_(std::move(network)),
         socket_(std::move(socket)),
         decoder_(FrameDecoderOptions{network_->options_.max_frame_bytes, network_->options_.team}),
-        read_buffer_(kReadChunkBytes) {}
+        channel_(*network_->options_.team_key, origin == Origin::kDialed
+                                                   ? SecureChannel::Role::kInitiator
+                                                   : SecureChannel::Role::kResponder),
+        read_buffer_(kReadChunkBytes),
+        resume_timer_(socket_.get_executor()),
+        byte_tokens_(2.0 * static_cast<double>(network_->options_.receive_bytes_per_second)),
+        message_tokens_(2.0 * static_cast<double>(network_->options_.receive_messages_per_second)),
+        tokens_refilled_(created) {}
 
   /// Dialed sessions: connect, then begin().
   void connect(const HostPort& address) {
@@ -372,8 +409,8 @@ class PeerNetwork::Impl::Session : public std::enable_shared_from_this<Session> 
     remote = endpoint_string(endpoint.address(), endpoint.port());
     socket_.set_option(tcp::no_delay(true), error);
     set_state(SessionState::kHandshaking);
-    enqueue(
-        {Outgoing::Kind::kControl, std::make_shared<const v1::Envelope>(network_->make_hello())});
+    // 1. The channel handshake first: nothing about the team before the peer proved the key.
+    enqueue({Outgoing::Kind::kChannel, nullptr, channel_.hello()});
     do_read();
   }
 
@@ -430,7 +467,7 @@ class PeerNetwork::Impl::Session : public std::enable_shared_from_this<Session> 
   void finish(std::shared_ptr<const v1::Envelope> goodbye) {
     if (state != SessionState::kEstablished && state != SessionState::kHandshaking)
       return close("stopping");
-    queue_.push_back({Outgoing::Kind::kControl, std::move(goodbye)});
+    queue_.push_back({Outgoing::Kind::kControl, std::move(goodbye), {}});
     set_state(SessionState::kClosing);
     shutdown_after_flush_ = true;
     do_write();
@@ -443,6 +480,7 @@ class PeerNetwork::Impl::Session : public std::enable_shared_from_this<Session> 
     ErrorCode ignored;
     socket_.shutdown(tcp::socket::shutdown_both, ignored);
     socket_.close(ignored);
+    resume_timer_.cancel();
     if (resolver_) resolver_->cancel();
     queue_.clear();
     network_->on_session_closed(shared_from_this(), previous, reason);
@@ -488,14 +526,65 @@ class PeerNetwork::Impl::Session : public std::enable_shared_from_this<Session> 
     network_->on_bytes_in(*this, bytes);
     decoder_.feed(std::string_view(read_buffer_.data(), bytes));
     const auto self = shared_from_this();
+    std::size_t frames = 0;
     while (state != SessionState::kClosed) {
-      const FrameDecoder::Status status = decoder_.next(envelope_);
+      const FrameDecoder::Status status = decoder_.next_payload(payload_);
       if (status == FrameDecoder::Status::kNeedMore) break;
       if (status == FrameDecoder::Status::kError)
         return network_->on_frame_error(self, decoder_.error());
+      ++frames;
+      if (!channel_.established()) {
+        on_channel_message();
+        continue;
+      }
+      std::string error;
+      const std::optional<std::string> plaintext = channel_.open(payload_, error);
+      if (!plaintext)
+        return network_->on_frame_error(self, {FrameErrorKind::kUnauthenticated, error});
+      FrameError check = parse_envelope(*plaintext, network_->options_.team, envelope_);
+      if (check.kind != FrameErrorKind::kNone) return network_->on_frame_error(self, check);
       network_->on_envelope(self, envelope_);
     }
-    if (state != SessionState::kClosed) do_read();
+    if (state == SessionState::kClosed) return;
+    // 2. Receive budget: a connection over its bytes or messages per second pauses reading.
+    const auto pause = spend_budget(bytes, frames);
+    if (pause <= Clock::duration::zero()) return do_read();
+    network_->count_budget_pause();
+    resume_timer_.expires_after(pause);
+    resume_timer_.async_wait([self](const ErrorCode& error) {
+      if (!error && self->state != SessionState::kClosed) self->do_read();
+    });
+  }
+
+  /// Channel handshake messages (before the channel is established).
+  void on_channel_message() {
+    const auto self = shared_from_this();
+    std::string error;
+    if (channel_.stage() == SecureChannel::Stage::kAwaitingHello) {
+      std::optional<std::string> proof = channel_.accept_hello(payload_, error);
+      if (!proof) return network_->on_channel_failed(self, error);
+      enqueue({Outgoing::Kind::kChannel, nullptr, std::move(*proof)});
+      return;
+    }
+    if (!channel_.accept_proof(payload_, error)) return network_->on_channel_failed(self, error);
+    // 3. The peer proved the key: now the (encrypted) Hello.
+    enqueue(
+        {Outgoing::Kind::kControl, std::make_shared<const v1::Envelope>(network_->make_hello()), {}});
+  }
+
+  /// Takes `bytes` and `frames` from the token buckets; how long to pause reading (<= 0: none).
+  Clock::duration spend_budget(std::size_t bytes, std::size_t frames) {
+    const auto now = Clock::now();
+    const double elapsed = std::chrono::duration<double>(now - tokens_refilled_).count();
+    tokens_refilled_ = now;
+    const auto byte_rate = static_cast<double>(network_->options_.receive_bytes_per_second);
+    const auto message_rate = static_cast<double>(network_->options_.receive_messages_per_second);
+    byte_tokens_ = std::min(2.0 * byte_rate, byte_tokens_ + elapsed * byte_rate) -
+                   static_cast<double>(bytes);
+    message_tokens_ = std::min(2.0 * message_rate, message_tokens_ + elapsed * message_rate) -
+                      static_cast<double>(frames);
+    const double wait = std::max(-byte_tokens_ / byte_rate, -message_tokens_ / message_rate);
+    return std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(wait));
   }
 
   void do_write() {
@@ -510,9 +599,19 @@ class PeerNetwork::Impl::Session : public std::enable_shared_from_this<Session> 
     }
     write_buffer_.clear();
     std::size_t messages = 0;
+    if (queue_.empty()) return;
     while (!queue_.empty() && write_buffer_.size() < kWriteBatchBytes) {
       Outgoing item = std::move(queue_.front());
       queue_.pop_front();
+      if (item.kind == Outgoing::Kind::kChannel) {
+        append_raw_frame(item.channel_payload, write_buffer_);
+        continue;
+      }
+      if (!channel_.established()) {  // stop() during the handshake: nothing else may go out
+        if (item.kind == Outgoing::Kind::kData) --data_queued_;
+        if (item.kind == Outgoing::Kind::kHeartbeat) heartbeat_queued_ = false;
+        continue;
+      }
       if (item.kind == Outgoing::Kind::kHeartbeat) {
         heartbeat_queued_ = false;
         scratch_.Clear();
@@ -522,7 +621,8 @@ class PeerNetwork::Impl::Session : public std::enable_shared_from_this<Session> 
         scratch_ = *item.envelope;
       }
       scratch_.set_seq(++seq_out_);
-      append_frame(scratch_, write_buffer_);
+      scratch_.SerializeToString(&plaintext_);
+      append_raw_frame(channel_.seal(plaintext_), write_buffer_);
       ++messages;
     }
     writing_ = true;
@@ -552,7 +652,14 @@ class PeerNetwork::Impl::Session : public std::enable_shared_from_this<Session> 
   tcp::socket socket_;
   std::unique_ptr<tcp::resolver> resolver_;  // only for host names
   FrameDecoder decoder_;
+  SecureChannel channel_;
   std::vector<char> read_buffer_;
+  asio::steady_timer resume_timer_;  // reading paused over the receive budget
+  double byte_tokens_;
+  double message_tokens_;
+  Clock::time_point tokens_refilled_;
+  std::string payload_;    // last frame payload
+  std::string plaintext_;  // envelope being sealed
   v1::Envelope envelope_;  // last decoded
   std::deque<Outgoing> queue_;
   std::size_t data_queued_ = 0;
@@ -675,6 +782,22 @@ void PeerNetwork::Impl::do_accept() {
 
 void PeerNetwork::Impl::on_accepted(tcp::socket socket) {
   update_counters([](NetworkCounters& counters) { ++counters.connections_accepted; });
+  // Admission cap: connections that have not proven the key yet are few and short-lived.
+  const auto pending = std::count_if(sessions_.begin(), sessions_.end(), [](const auto& entry) {
+    const auto session = entry.second.lock();
+    return session && (session->state == SessionState::kHandshaking ||
+                       session->state == SessionState::kConnecting);
+  });
+  if (static_cast<std::size_t>(pending) >= options_.max_pending_handshakes) {
+    update_counters([](NetworkCounters& counters) { ++counters.rejected_admission; });
+    ErrorCode ignored;
+    const auto remote = socket.remote_endpoint(ignored);
+    warn_limited("admission " + remote.address().to_string(),
+                 "net: refused a connection from {}: {} connections in the handshake (limit {})",
+                 remote.address().to_string(), pending, options_.max_pending_handshakes);
+    socket.close(ignored);
+    return;
+  }
   const auto session = make_session(Origin::kAccepted, "", std::move(socket));
   session->begin();
   if (session->state != SessionState::kClosed)
@@ -859,7 +982,8 @@ void PeerNetwork::Impl::on_envelope(const std::shared_ptr<Session>& session,
   if (envelope.sender() != static_cast<std::uint32_t>(robot)) {
     update_counters([](NetworkCounters& counters) { ++counters.rejected_garbage; });
     update_record(robot, [](PeerRecord& record) { ++record.stats.protocol_errors; });
-    spdlog::warn("net: closing connection #{} to robot {} ({}): envelope from sender {}",
+    warn_limited("sender " + std::to_string(robot),
+                 "net: closing connection #{} to robot {} ({}): envelope from sender {}",
                  session->id, robot, session->remote, envelope.sender());
     return session->close("wrong sender");
   }
@@ -893,6 +1017,10 @@ void PeerNetwork::Impl::handle_hello(const std::shared_ptr<Session>& session,
     return reject_handshake(session,
                             "listen port " + std::to_string(hello.listen_port()) + " out of range");
   const int robot = static_cast<int>(hello.robot_id());
+  if (!options_.members.empty() &&
+      std::find(options_.members.begin(), options_.members.end(), robot) == options_.members.end())
+    return reject_handshake(session, "robot id " + std::to_string(robot) +
+                                         " is not in the membership list");
   if (robot == options_.robot_id) {
     if (hello.instance() == instance_ && session->origin == Origin::kDialed) {
       const auto target = targets_.find(session->dial_key);
@@ -1043,9 +1171,16 @@ void PeerNetwork::Impl::handle_goodbye(const std::shared_ptr<Session>& session,
 void PeerNetwork::Impl::reject_handshake(const std::shared_ptr<Session>& session,
                                          const std::string& reason) {
   update_counters([](NetworkCounters& counters) { ++counters.rejected_handshake; });
-  spdlog::warn("net: rejected {} connection #{} {}: {}", to_string(session->origin), session->id,
+  warn_limited("handshake " + session->remote_address.to_string(),
+               "net: rejected {} connection #{} {}: {}", to_string(session->origin), session->id,
                session->remote, reason);
   session->close(reason);
+}
+
+void PeerNetwork::Impl::on_channel_failed(const std::shared_ptr<Session>& session,
+                                          const std::string& reason) {
+  update_counters([](NetworkCounters& counters) { ++counters.rejected_unauthenticated; });
+  reject_handshake(session, "channel handshake failed: " + reason);
 }
 
 void PeerNetwork::Impl::on_frame_error(const std::shared_ptr<Session>& session,
@@ -1059,10 +1194,13 @@ void PeerNetwork::Impl::on_frame_error(const std::shared_ptr<Session>& session,
       ++counters.rejected_oversized;
     else
       ++counters.rejected_garbage;
+    if (error.kind == FrameErrorKind::kUnauthenticated) ++counters.rejected_unauthenticated;
   });
   if (session->robot >= 0)
     update_record(session->robot, [](PeerRecord& record) { ++record.stats.protocol_errors; });
-  spdlog::warn("net: closing {} connection #{} {} (robot {}): {} frame: {}",
+  warn_limited("frame " + session->remote_address.to_string() + " " +
+                   std::string(to_string(error.kind)),
+               "net: closing {} connection #{} {} (robot {}): {} frame: {}",
                to_string(session->origin), session->id, session->remote, session->robot,
                to_string(error.kind), error.reason);
   session->close(error.reason);
@@ -1127,7 +1265,7 @@ void PeerNetwork::Impl::enqueue_data(int robot,
   const auto session =
       peer != peers_.end() && peer->second.up ? peer->second.active.lock() : nullptr;
   if (!session || stopping_) return count_send_drop(robot);
-  if (session->enqueue({Session::Outgoing::Kind::kData, envelope}) == 0) return;
+  if (session->enqueue({Session::Outgoing::Kind::kData, envelope, {}}) == 0) return;
   count_send_drop(robot);
   Peer& overflowing = peer->second;
   ++overflowing.drops_since_log;
@@ -1180,7 +1318,7 @@ void PeerNetwork::Impl::on_tick() {
                        session->robot, milliseconds(now - session->write_progress), session->id);
           session->close("write stalled");
         } else {
-          session->enqueue({Session::Outgoing::Kind::kHeartbeat, nullptr});
+          session->enqueue({Session::Outgoing::Kind::kHeartbeat, nullptr, {}});
         }
         break;
       case SessionState::kRetiring:
@@ -1284,8 +1422,8 @@ void PeerNetwork::Impl::open_discovery() {
 void PeerNetwork::Impl::arm_beacon() {
   if (stopping_) return;
   if (!beacon_in_flight_) {
-    v1::Envelope beacon = make_hello();
-    beacon_out_ = encode_frame(beacon);
+    // Sealed with the team key: an outsider learns nothing from a beacon.
+    beacon_out_ = seal_beacon(*options_.team_key, make_hello().SerializeAsString());
     beacon_in_flight_ = true;
     discovery_socket_.async_send_to(
         asio::buffer(beacon_out_), beacon_destination_,
@@ -1316,19 +1454,22 @@ void PeerNetwork::Impl::do_receive_beacon() {
 }
 
 void PeerNetwork::Impl::on_beacon(std::size_t bytes) {
-  FrameDecoder decoder(FrameDecoderOptions{kMaxBeaconBytes, options_.team});
-  decoder.feed(std::string_view(beacon_in_.data(), bytes));
   v1::Envelope envelope;
+  const std::optional<std::string> plaintext =
+      open_beacon(*options_.team_key, std::string_view(beacon_in_.data(), bytes));
+  const FrameError error =
+      plaintext ? parse_envelope(*plaintext, options_.team, envelope)
+                : FrameError{FrameErrorKind::kUnauthenticated, "not sealed with the team key"};
   const bool valid =
-      decoder.next(envelope) == FrameDecoder::Status::kFrame &&
-      envelope.body_case() == v1::Envelope::kHello &&
+      error.kind == FrameErrorKind::kNone && envelope.body_case() == v1::Envelope::kHello &&
       envelope.hello().robot_id() == envelope.sender() && envelope.hello().listen_port() != 0 &&
       envelope.hello().listen_port() <= 65535 &&
       envelope.sender() <= static_cast<std::uint32_t>(std::numeric_limits<int>::max());
   if (!valid) {
     update_counters([](NetworkCounters& counters) { ++counters.beacons_rejected; });
     spdlog::debug("net: ignored beacon from {}: {}", beacon_sender_.address().to_string(),
-                  decoder.failed() ? decoder.error().reason : std::string("not a valid Hello"));
+                  error.kind != FrameErrorKind::kNone ? error.reason
+                                                      : std::string("not a valid Hello"));
     return;
   }
   const int robot = static_cast<int>(envelope.sender());
@@ -1371,8 +1512,13 @@ std::vector<PeerStats> PeerNetwork::Impl::peers() const {
 }
 
 NetworkCounters PeerNetwork::Impl::totals() const {
-  std::lock_guard lock(stats_mutex_);
-  return counters_;
+  NetworkCounters counters;
+  {
+    std::lock_guard lock(stats_mutex_);
+    counters = counters_;
+  }
+  counters.log_lines_suppressed = log_limiter_.suppressed_total();
+  return counters;
 }
 
 std::vector<int> PeerNetwork::Impl::live_peers() const {
