@@ -94,6 +94,8 @@ std::string daemon_config_yaml(const LaunchOptions& options, int robot, int robo
   yaml << YAML::Key << "consensus" << YAML::Value << YAML::BeginMap;
   yaml << YAML::Key << "mode" << YAML::Value << options.mode;
   yaml << YAML::Key << "wait_for_peers" << YAML::Value << (options.mode == "off" ? 0 : robots - 1);
+  if (options.round_deadline_ms > 0)
+    yaml << YAML::Key << "round_deadline_ms" << YAML::Value << options.round_deadline_ms;
   yaml << YAML::EndMap;
   yaml << YAML::Key << "http" << YAML::Value << YAML::BeginMap;
   yaml << YAML::Key << "address" << YAML::Value << "127.0.0.1";
@@ -102,6 +104,8 @@ std::string daemon_config_yaml(const LaunchOptions& options, int robot, int robo
   yaml << YAML::Key << "output" << YAML::Value << YAML::BeginMap;
   yaml << YAML::Key << "directory" << YAML::Value << YAML::DoubleQuoted
        << (out / dataset::robot_folder_name(robot)).string();
+  if (options.write_interval_ms >= 0)
+    yaml << YAML::Key << "write_interval_ms" << YAML::Value << options.write_interval_ms;
   yaml << YAML::EndMap;
   yaml << YAML::EndMap;
   return std::string(yaml.c_str()) + "\n";
@@ -128,9 +132,11 @@ LaunchResult launch_team(const LaunchOptions& options, int robots, std::ostream*
     dataset::write_file_atomically(config, daemon_config_yaml(options, robot, robots));
     const auto log = logs / (dataset::robot_folder_name(robot) + ".log");
     std::filesystem::remove(log);
-    daemons.emplace_back(std::vector<std::string>{options.concordd.string(), "--config",
-                                                  config.string()},
-                         log);
+    std::vector<std::string> argv{options.concordd.string(), "--config", config.string()};
+    if (const auto extra = options.extra_arguments.find(robot);
+        extra != options.extra_arguments.end())
+      argv.insert(argv.end(), extra->second.begin(), extra->second.end());
+    daemons.emplace_back(argv, log);
   }
 
   interrupted = 0;
