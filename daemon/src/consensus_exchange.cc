@@ -113,7 +113,12 @@ void ConsensusExchange::on_message(int robot, const v1::Envelope& envelope) {
         return;
       }
       if (config_.mode != ConsensusMode::kAsync && beyond_window(message.round())) {
+        // Not kept (bounded memory), but it tells where the peer is (a restarted robot
+        // rejoins there; a peer far ahead is not waited for).
         ++counters_.future_dropped;
+        peer.last_round = std::max<std::int64_t>(peer.last_round,
+                                                 static_cast<std::int64_t>(message.round()));
+        changed_.notify_all();
         return;
       }
       std::vector<LandmarkId> ids;
@@ -162,6 +167,9 @@ void ConsensusExchange::on_message(int robot, const v1::Envelope& envelope) {
       const bool lockstep = config_.mode != ConsensusMode::kAsync;
       if (lockstep && beyond_window(message.round())) {
         ++counters_.future_dropped;
+        peer.last_round = std::max<std::int64_t>(peer.last_round,
+                                                 static_cast<std::int64_t>(message.round()));
+        changed_.notify_all();
         return;
       }
       std::string error;

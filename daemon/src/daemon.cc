@@ -222,7 +222,10 @@ bool Daemon::Impl::load_source() {
 
 bool Daemon::Impl::start_services() {
   try {
-    if (!config_.team_key_file.empty()) {
+    const bool needs_key = config_.consensus.mode != ConsensusMode::kOff ||
+                           (config_.source.kind == SourceKind::kIngest &&
+                            config_.source.ingest_authenticated);
+    if (needs_key) {
       team_key_ = std::make_shared<const net::TeamKey>(net::load_team_key(config_.team_key_file));
       spdlog::info("team key read from {}", config_.team_key_file.string());  // never the key
     }
