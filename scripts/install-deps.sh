@@ -15,6 +15,7 @@ packages=(
   libspdlog-dev            # daemon logging, one event per line
   libsodium-dev            # team key and the authenticated peer channel (crypto_kx, secretstream)
   libgtest-dev libgmock-dev  # tests
+  clang libclang-rt-14-dev   # sanitizer builds and the libFuzzer targets (scripts/test.sh)
 )
 
 missing=()

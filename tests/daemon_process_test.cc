@@ -289,6 +289,7 @@ TEST(DaemonProcess, RejectsGarbageAndMalformedHttpAndStillAnswers) {
   ASSERT_TRUE(metrics);
   EXPECT_NE(metrics->find("concord_network_frames_rejected_total{robot=\"0\"} 2"), std::string::npos)
       << *metrics;
+  ASSERT_TRUE(eventually([&] { return get_json(http, "/pose").has_value(); }, 20s));
   const auto pose = get_json(http, "/pose");
   ASSERT_TRUE(pose);
   EXPECT_EQ((*pose)["covariance"].size(), 6u);

@@ -365,7 +365,8 @@ class Listener : public std::enable_shared_from_this<Listener> {
   /// closes it when as many are already being refused.
   void admit(tcp::socket socket) {
     const std::size_t limit = state_->options.max_connections;
-    const std::size_t client_limit = state_->options.max_connections_per_client;
+    const std::size_t client_limit =
+        std::min(state_->options.max_connections_per_client, state_->options.max_connections);
     error_code error;
     const tcp::endpoint remote = socket.remote_endpoint(error);
     const std::string client = error ? std::string("?") : remote.address().to_string();
@@ -430,9 +431,8 @@ void ServerOptions::validate() const {
     fail("request_timeout", std::to_string(request_timeout.count()) + " ms", "must be positive");
   }
   if (max_connections < 1) fail("max_connections", "0", "must be at least 1");
-  if (max_connections_per_client < 1 || max_connections_per_client > max_connections)
-    fail("max_connections_per_client", std::to_string(max_connections_per_client),
-         "must be between 1 and max_connections");
+  if (max_connections_per_client < 1)
+    fail("max_connections_per_client", "0", "must be at least 1");
 }
 
 struct HttpServer::Impl {

@@ -76,7 +76,8 @@ struct ServerOptions {
   /// Connections served at once; one more is answered with 503 and closed. At least 1.
   std::size_t max_connections = 64;
   /// Connections served at once for one client address; one more is answered with 503 and
-  /// closed, so one client cannot hold every slot. At least 1, at most max_connections.
+  /// closed, so one client cannot hold every slot. At least 1 (above max_connections it is
+  /// max_connections).
   std::size_t max_connections_per_client = 8;
   /// The Server header field.
   std::string server_name = "concordd";
