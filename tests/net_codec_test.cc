@@ -246,7 +246,7 @@ TEST(FrameCodec, ZeroLengthIsAnError) {
 
 TEST(FrameCodec, WrongVersionIsAnError) {
   v1::Envelope envelope = every_message_type()[1];
-  envelope.set_protocol_version(1)  // a v1 daemon;
+  envelope.set_protocol_version(1);  // a v1 daemon
   FrameDecoder decoder(alpha_options());
   decoder.feed(encode_frame(envelope));
   v1::Envelope decoded;
