@@ -5,6 +5,7 @@
 ///   concord slice --dataset DIR --out DIR --frames N [--robots R]
 ///   concord launch --dataset DIR --out DIR [--lockstep|--async|--separate] [--base-port P]
 ///                  [--http-base-port P] [--config FILE] [--robots R] [--frames N] [--rate HZ]
+///                  [--round-deadline-ms MS] [--failpoint ROBOT:NAME[=ARG] ...]
 ///   concord plot --input CHART.json --out CHART.png
 ///   concord keygen --out FILE      (a new team key, mode 0600; never overwrites)
 ///   concord sim --robots N --out DIR [--seed S] [--frames F] [--objects M] [--points-per-frame P]
@@ -421,6 +422,13 @@ int main(int argc, char** argv) {
                            "Ignore features.csv");
   launch_command->add_option("--concordd", concordd_path, "The concordd binary")
       ->check(CLI::ExistingFile);
+  std::vector<std::string> launch_failpoints;
+  launch_command->add_option("--failpoint", launch_failpoints,
+                             "Testing aid: ROBOT:NAME[=ARG] passes --failpoint NAME[=ARG] to "
+                             "robot ROBOT's concordd (repeatable)");
+  launch_command->add_option("--round-deadline-ms", launch_options.round_deadline_ms,
+                             "consensus.round_deadline_ms of the daemons (default: theirs)")
+      ->check(CLI::PositiveNumber);
 
   auto* plot_command =
       app.add_subcommand("plot", "Draw a line chart described in JSON as a PNG (bench charts)");
@@ -458,6 +466,22 @@ int main(int argc, char** argv) {
       launch_options.point_features = !no_point_features;
       if (!launch_config.empty()) launch_options.estimator_config = launch_config;
       if (!concordd_path.empty()) launch_options.concordd = concordd_path;
+      for (const std::string& failpoint : launch_failpoints) {
+        const std::size_t colon = failpoint.find(':');
+        int robot = -1;
+        try {
+          robot = colon == std::string::npos ? -1 : std::stoi(failpoint.substr(0, colon));
+        } catch (const std::exception&) {
+        }
+        if (robot < 0) {
+          std::cerr << "concord launch: --failpoint: expected ROBOT:NAME[=ARG], got '"
+                    << failpoint << "'\n";
+          return 1;
+        }
+        auto& arguments = launch_options.extra_arguments[robot];
+        arguments.push_back("--failpoint");
+        arguments.push_back(failpoint.substr(colon + 1));
+      }
       return run_launch(launch_options);
     }
     if (replay_command->parsed()) {
