@@ -45,7 +45,7 @@ TEST(DaemonConfig, InlineEstimatorOptions) {
 
 std::string problems_of(const std::string& yaml) {
   try {
-    parse_daemon_config(yaml, "robot.yaml", "/");
+    (void)parse_daemon_config(yaml, "robot.yaml", "/");
   } catch (const config::ConfigError& error) {
     return error.what();
   }
@@ -80,7 +80,7 @@ TEST(DaemonConfig, CrossFieldChecks) {
             std::string::npos);
   EXPECT_NE(problems_of("[1, 2]\n").find("expected a map"), std::string::npos);
   EXPECT_NE(problems_of("a: [\n").find("invalid YAML"), std::string::npos);
-  EXPECT_THROW(load_daemon_config("/nonexistent/robot.yaml"), config::ConfigError);
+  EXPECT_THROW((void)load_daemon_config("/nonexistent/robot.yaml"), config::ConfigError);
 }
 
 TEST(DaemonConfig, TrustAndBoundsAreChecked) {

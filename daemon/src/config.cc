@@ -246,6 +246,8 @@ std::vector<std::string> DaemonConfig::validate() const {
       problems.push_back("source.rate_hz: " + std::to_string(source.rate_hz) +
                          " is below 0.001 frames per second (one frame in 17 minutes)");
     if (source.max_frames < 0) problems.push_back("source.max_frames: expected >= 0");
+    if (!(source.frame_period_s > 0.0 && source.frame_period_s <= 3600.0))
+      problems.push_back("source.frame_period_s: expected a period in (0, 3600] seconds");
   } else {
     if (source.camera.empty()) problems.push_back("source.camera: required for ingest");
   }
@@ -314,6 +316,7 @@ DaemonConfig parse_daemon_config(const std::string& yaml_text, const std::string
   source.read("rate_hz", config.source.rate_hz);
   source.read("max_frames", config.source.max_frames);
   source.read("point_features", config.source.point_features);
+  source.read("frame_period_s", config.source.frame_period_s);
   source.read("ingest_address", config.source.ingest_address);
   source.read_port("ingest_port", config.source.ingest_port, true);
   source.read("camera", config.source.camera, base_directory);

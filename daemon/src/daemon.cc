@@ -333,7 +333,7 @@ void Daemon::Impl::replay_frames() {
       if (!wait_or_stop(next - Clock::now())) return;
       next += period;
     }
-    QueuedFrame item{robot_->frame_input(k), static_cast<double>(k), Clock::now()};
+    QueuedFrame item{robot_->frame_input(k), k * config_.source.frame_period_s, Clock::now()};
     if (k == first_replay_frame_ && first_replay_frame_ > 0) {
       // Resumed: the motion from the checkpoint's frame to this one, composed from the
       // odometry of the frames skipped (reported as a gap).
@@ -745,17 +745,8 @@ void Daemon::Impl::register_routes() {
                            dataset::format_trajectory_kitti(live_.poses), {}};
     }
     if (format == "tum") {
-      std::string text;
-      char line[256];
-      for (std::size_t i = 0; i < live_.poses.size(); ++i) {
-        const Eigen::Isometry3d& T = live_.poses[i];
-        const Eigen::Quaterniond q(T.rotation());
-        std::snprintf(line, sizeof line, "%.9f %.9g %.9g %.9g %.9g %.9g %.9g %.9g\n",
-                      live_.timestamps[i], T.translation().x(), T.translation().y(),
-                      T.translation().z(), q.x(), q.y(), q.z(), q.w());
-        text += line;
-      }
-      return web::Response{200, "text/plain; charset=utf-8", std::move(text), {}};
+      return web::Response{200, "text/plain; charset=utf-8",
+                           dataset::format_trajectory_tum(live_.timestamps, live_.poses), {}};
     }
     return web::error_response(400, "format: expected json, kitti or tum, got '" + format + "'");
   });

@@ -43,6 +43,9 @@ struct SourceConfig {
   int max_frames = 0;
   /// Replay: read features.csv (point features) where present.
   bool point_features = true;
+  /// Replay (source.frame_period_s): seconds between frames of the dataset, for the time stamps
+  /// of a replayed frame (TUM output); KITTI's 10 Hz by default.
+  double frame_period_s = 0.1;
   /// Ingest: where SensorFrame envelopes are accepted.
   std::string ingest_address = "127.0.0.1";
   std::uint16_t ingest_port = 7600;
@@ -145,13 +148,13 @@ struct DaemonConfig {
   Failpoints failpoints;
 
   /// Problems (cross-field checks), one per line; empty if the config is usable.
-  std::vector<std::string> validate() const;
+  [[nodiscard]] std::vector<std::string> validate() const;
 };
 
 /// Reads a daemon config file. Throws config::ConfigError on any problem.
-DaemonConfig load_daemon_config(const std::filesystem::path& file);
+[[nodiscard]] DaemonConfig load_daemon_config(const std::filesystem::path& file);
 /// As load_daemon_config, from YAML text; relative paths are resolved against base_directory.
-DaemonConfig parse_daemon_config(const std::string& yaml_text, const std::string& source_name,
+[[nodiscard]] DaemonConfig parse_daemon_config(const std::string& yaml_text, const std::string& source_name,
                                  const std::filesystem::path& base_directory);
 
 }  // namespace concord::daemon
