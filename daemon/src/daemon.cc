@@ -22,6 +22,7 @@
 #include "bounded_queue.h"
 #include "checkpoint.h"
 #include "output_files.h"
+#include "trajectory_history.h"
 #include "concord/daemon/consensus_exchange.h"
 #include "concord/daemon/wire.h"
 #include "concord/dataset/dataset.h"
@@ -105,9 +106,7 @@ double seconds_ago(Clock::time_point then, Clock::time_point now) {
 struct LiveState {
   mutable std::mutex mutex;
   std::string phase = "starting";
-  std::vector<int> frames;
-  std::vector<double> timestamps;
-  std::vector<Eigen::Isometry3d> poses;
+  TrajectoryHistory trajectory;  ///< processed frames (snapshots are cheap; see its header)
   Eigen::Matrix<double, 6, 6> pose_covariance = Eigen::Matrix<double, 6, 6>::Zero();
   std::vector<ObjectEstimate> objects;
   std::uint64_t frames_rejected = 0;
@@ -511,9 +510,7 @@ bool Daemon::Impl::process(QueuedFrame& item) {
   {
     std::lock_guard lock(live_.mutex);
     live_.phase = "running";
-    live_.frames.push_back(item.input.frame);
-    live_.timestamps.push_back(item.timestamp);
-    live_.poses.push_back(estimator_->current_pose());
+    live_.trajectory.push({item.input.frame, item.timestamp, estimator_->current_pose()});
     live_.pose_covariance = estimator_->current_pose_covariance();
     live_.objects = estimator_->objects();
     live_.objects_initialized += static_cast<std::uint64_t>(report.objects.initialized);
@@ -594,9 +591,9 @@ void Daemon::Impl::load_checkpoint() {
     return;
   }
   std::lock_guard lock(live_.mutex);
-  live_.frames = checkpoint->frames;
-  live_.timestamps = checkpoint->timestamps;
-  live_.poses = checkpoint->poses;
+  for (std::size_t i = 0; i < checkpoint->frames.size(); ++i)
+    live_.trajectory.push(
+        {checkpoint->frames[i], checkpoint->timestamps[i], checkpoint->poses[i]});
   live_.resumed_from_round = static_cast<std::int64_t>(checkpoint->round);
   spdlog::info("resume: checkpoint {} at round {} ({} frames processed before)", file.string(),
                checkpoint->round, checkpoint->frames.size());
@@ -611,13 +608,15 @@ bool Daemon::Impl::write_outputs(bool final) {
   if (durable) last_fsync_ = now;
   Checkpoint checkpoint;
   std::vector<ObjectEstimate> objects;
+  TrajectoryHistory::Snapshot trajectory;
   {
     std::lock_guard lock(live_.mutex);
-    checkpoint.frames = live_.frames;
-    checkpoint.timestamps = live_.timestamps;
-    checkpoint.poses = live_.poses;
+    trajectory = live_.trajectory.snapshot();
     objects = live_.objects;
   }
+  checkpoint.frames = trajectory.frames();
+  checkpoint.timestamps = trajectory.timestamps();
+  checkpoint.poses = trajectory.poses();
   try {
     if (config_.failpoints.output_fail)
       throw std::runtime_error("failpoint output.fail: writes to " +
@@ -657,7 +656,7 @@ json Daemon::Impl::stats_json() const {
   json stats = {
       {"robot_id", config_.robot_id},
       {"mode", to_string(config_.consensus.mode)},
-      {"frames", live_.frames.size()},
+      {"frames", live_.trajectory.size()},
       {"frames_rejected", live_.frames_rejected},
       {"frames_dropped", live_.frames_dropped},
       {"frames_gap", live_.frames_gap},
@@ -713,16 +712,17 @@ void Daemon::Impl::register_routes() {
     body["live_peers"] = exchange_ ? exchange_->live_peers() : std::vector<int>{};
     std::lock_guard lock(live_.mutex);
     body["phase"] = live_.phase;
-    body["frame"] = live_.frames.empty() ? json(nullptr) : json(live_.frames.back());
-    body["frames_processed"] = live_.frames.size();
+    body["frame"] =
+        live_.trajectory.empty() ? json(nullptr) : json(live_.trajectory.back().frame);
+    body["frames_processed"] = live_.trajectory.size();
     body["rounds"] = live_.rounds;
     return web::json_response(200, body);
   });
   http_->get("/pose", [this](const web::Request&) {
     std::lock_guard lock(live_.mutex);
-    if (live_.poses.empty()) return web::error_response(503, "no frame processed yet");
-    json body = pose_json(live_.poses.back());
-    body["frame"] = live_.frames.back();
+    if (live_.trajectory.empty()) return web::error_response(503, "no frame processed yet");
+    json body = pose_json(live_.trajectory.back().pose);
+    body["frame"] = live_.trajectory.back().frame;
     body["covariance"] = matrix_json(live_.pose_covariance);
     body["covariance_order"] = "rho_x rho_y rho_z phi_x phi_y phi_z (right perturbation)";
     return web::json_response(200, body);
@@ -730,25 +730,28 @@ void Daemon::Impl::register_routes() {
   http_->get("/trajectory", [this](const web::Request& request) {
     const auto it = request.query.find("format");
     const std::string format = it == request.query.end() ? "json" : it->second;
-    std::lock_guard lock(live_.mutex);
-    if (format == "json") {
-      json poses = json::array();
-      for (std::size_t i = 0; i < live_.poses.size(); ++i) {
-        json entry = pose_json(live_.poses[i]);
-        entry["frame"] = live_.frames[i];
-        poses.push_back(std::move(entry));
-      }
-      return web::json_response(200, {{"robot_id", config_.robot_id}, {"poses", poses}});
+    if (format != "json" && format != "kitti" && format != "tum")
+      return web::error_response(400, "format: expected json, kitti or tum, got '" + format + "'");
+    TrajectoryHistory::Snapshot trajectory;
+    {
+      // Only the snapshot under the estimator's lock; formatting happens outside it.
+      std::lock_guard lock(live_.mutex);
+      trajectory = live_.trajectory.snapshot();
     }
-    if (format == "kitti") {
+    if (format == "kitti")
       return web::Response{200, "text/plain; charset=utf-8",
-                           dataset::format_trajectory_kitti(live_.poses), {}};
-    }
-    if (format == "tum") {
-      return web::Response{200, "text/plain; charset=utf-8",
-                           dataset::format_trajectory_tum(live_.timestamps, live_.poses), {}};
-    }
-    return web::error_response(400, "format: expected json, kitti or tum, got '" + format + "'");
+                           dataset::format_trajectory_kitti(trajectory.poses()), {}};
+    if (format == "tum")
+      return web::Response{
+          200, "text/plain; charset=utf-8",
+          dataset::format_trajectory_tum(trajectory.timestamps(), trajectory.poses()), {}};
+    json poses = json::array();
+    trajectory.for_each([&](const TrajectoryPoint& point) {
+      json entry = pose_json(point.pose);
+      entry["frame"] = point.frame;
+      poses.push_back(std::move(entry));
+    });
+    return web::json_response(200, {{"robot_id", config_.robot_id}, {"poses", poses}});
   });
   http_->get("/objects", [this](const web::Request&) {
     std::lock_guard lock(live_.mutex);
@@ -791,7 +794,7 @@ void Daemon::Impl::register_routes() {
     {
       std::lock_guard lock(live_.mutex);
       text.counter("concord_frames_processed_total", "Frames processed by the estimator",
-                   robot, static_cast<double>(live_.frames.size()));
+                   robot, static_cast<double>(live_.trajectory.size()));
       text.counter("concord_frames_rejected_total", "Frames rejected (malformed or out of order)",
                    robot, static_cast<double>(live_.frames_rejected));
       text.counter("concord_frames_dropped_total", "Ingest frames dropped on a full queue", robot,
@@ -924,7 +927,8 @@ void Daemon::Impl::register_routes() {
 void Daemon::Impl::shutdown_services() {
   const std::uint64_t last_round = [&] {
     std::lock_guard lock(live_.mutex);
-    return live_.frames.empty() ? std::uint64_t{0} : static_cast<std::uint64_t>(live_.frames.back());
+    return live_.trajectory.empty() ? std::uint64_t{0}
+                                    : static_cast<std::uint64_t>(live_.trajectory.back().frame);
   }();
   if (exchange_) exchange_->stop();
   if (network_) network_->stop(stop_requested_ ? "stopped" : "finished", last_round);
@@ -975,11 +979,11 @@ int Daemon::Impl::run() {
   {
     std::lock_guard lock(live_.mutex);
     if (written)
-      spdlog::info("{}: {} frames, {} rounds; outputs in {}", live_.phase, live_.frames.size(),
+      spdlog::info("{}: {} frames, {} rounds; outputs in {}", live_.phase, live_.trajectory.size(),
                    live_.rounds, config_.output.directory.string());
     else
       spdlog::error("{}: {} frames, {} rounds; the outputs could NOT be written to {}",
-                    live_.phase, live_.frames.size(), live_.rounds,
+                    live_.phase, live_.trajectory.size(), live_.rounds,
                     config_.output.directory.string());
   }
   queue_.close_and_clear();
