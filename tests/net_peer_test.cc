@@ -859,7 +859,9 @@ TEST(PeerNetwork, SendQueueDropsTheOldestWhenThePeerDoesNotRead) {
       << " marginals received";
   const std::vector<std::uint64_t> received = rounds();
   EXPECT_TRUE(std::is_sorted(received.begin(), received.end()));
-  EXPECT_EQ(received.front(), 0u);
+  // The oldest rounds go out (or are dropped) depending on whether a write was in flight when
+  // they were queued; the newest always arrives, and what is missing was counted.
+  EXPECT_LT(received.front(), 10u);
   EXPECT_LT(received.size(), 300u);
   ASSERT_TRUE(a.stop());  // after the 300 queued sends: the counts are final
   EXPECT_EQ(a.stats(7)->drops, a.totals().send_drops);
