@@ -7,10 +7,9 @@
 /// key, data, output directory, port), 3 the final outputs could not be written.
 /// See docs/daemon.md and configs/team-kitti00/robot_00.yaml.
 
+#include <spdlog/fmt/ranges.h>
 #include <spdlog/sinks/stdout_sinks.h>
 #include <spdlog/spdlog.h>
-
-#include <spdlog/fmt/ranges.h>
 
 #include <CLI/CLI.hpp>
 #include <iostream>
@@ -104,8 +103,8 @@ int main(int argc, char** argv) {
   spdlog::set_pattern("%Y-%m-%dT%H:%M:%S.%e %l robot " + std::to_string(config.robot_id) + ": %v");
   spdlog::flush_on(spdlog::level::info);
 
-  if (config.failpoints.any()) spdlog::warn("failpoints switched on (testing aid): {}",
-                                           fmt::join(failpoints, ", "));
+  if (config.failpoints.any())
+    spdlog::warn("failpoints switched on (testing aid): {}", fmt::join(failpoints, ", "));
   daemon::Daemon instance(config);
   return instance.run();
 }

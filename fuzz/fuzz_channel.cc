@@ -19,8 +19,8 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   {
     // Responder: the fuzz input plays the dialer.
     concord::net::SecureChannel channel(key, concord::net::SecureChannel::Role::kResponder);
-    const auto proof = channel.accept_hello(bytes.substr(0, std::min<std::size_t>(size, 72)),
-                                            error);
+    const auto proof =
+        channel.accept_hello(bytes.substr(0, std::min<std::size_t>(size, 72)), error);
     if (proof && channel.accept_proof(bytes.substr(std::min(split, size)), error)) std::abort();
     (void)channel.open(bytes, error);
   }
@@ -30,7 +30,8 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     concord::net::SecureChannel b(key, concord::net::SecureChannel::Role::kResponder);
     const auto proof_a = a.accept_hello(b.hello(), error);
     const auto proof_b = b.accept_hello(a.hello(), error);
-    if (!proof_a || !proof_b || !b.accept_proof(*proof_a, error) || !a.accept_proof(*proof_b, error))
+    if (!proof_a || !proof_b || !b.accept_proof(*proof_a, error) ||
+        !a.accept_proof(*proof_b, error))
       std::abort();
     if (b.open(bytes, error)) std::abort();  // forged without the stream key: never opens
   }

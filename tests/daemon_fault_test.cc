@@ -108,8 +108,7 @@ std::vector<ChildProcess> start_team(const launch::LaunchOptions& options, int r
   launch::ensure_team_key(options);
   std::vector<ChildProcess> daemons;
   for (int robot = 0; robot < robots; ++robot) {
-    const fs::path config =
-        options.out / "configs" / (dataset::robot_folder_name(robot) + ".yaml");
+    const fs::path config = options.out / "configs" / (dataset::robot_folder_name(robot) + ".yaml");
     dataset::write_file_atomically(config, launch::daemon_config_yaml(options, robot, robots));
     if (configs) configs->push_back(config);
     std::vector<std::string> argv{kDaemon, "--config", config};
@@ -227,7 +226,8 @@ TEST(DaemonFault, IntrudersWithoutTheKeyChangeNothing) {
           Client other_key(port);
           if (other_key.connected()) (void)other_key.secure(wrong);
           Client garbage(port);
-          if (garbage.connected()) garbage.write(std::string("\x00\x00\x00\x48", 4) + std::string(72, 'x'));
+          if (garbage.connected())
+            garbage.write(std::string("\x00\x00\x00\x48", 4) + std::string(72, 'x'));
           ++attempts;
         }
       }
@@ -323,9 +323,8 @@ TEST(DaemonFault, FutureRoundFloodKeepsMemoryBounded) {
   ASSERT_TRUE(eventually(
       [&] {
         const auto metrics = launch::http_get("127.0.0.1", http, "/metrics", 1s);
-        return metrics &&
-               metrics->find("concord_consensus_future_dropped_total{robot=\"0\"} 0") ==
-                   std::string::npos;
+        return metrics && metrics->find("concord_consensus_future_dropped_total{robot=\"0\"} 0") ==
+                              std::string::npos;
       },
       20s));
   peak = std::max(peak, rss_kib(daemon.pid()));
@@ -363,10 +362,10 @@ TEST(DaemonFault, IngestBurstWithBadFramesNeverJamsAndHonoursLast) {
     envelope.set_team("ingest");
     daemon::to_wire(data.robots[0].frame_input(k), 0.1 * k, *envelope.mutable_sensor_frame());
     v1::SensorFrame& frame = *envelope.mutable_sensor_frame();
-    if (k == 50) frame.set_timestamp(std::nan(""));               // rejected: time stamp
-    if (k == 100) frame.mutable_odometry()->set_x(1e300);         // rejected: implausible
-    if (k == 150) frame.clear_odometry();                         // no odometry: a gap
-    if (k == 200) continue;                                       // missing: a gap
+    if (k == 50) frame.set_timestamp(std::nan(""));        // rejected: time stamp
+    if (k == 100) frame.mutable_odometry()->set_x(1e300);  // rejected: implausible
+    if (k == 150) frame.clear_odometry();                  // no odometry: a gap
+    if (k == 200) continue;                                // missing: a gap
     frame.set_last(k == frames - 1);
     stream += net::encode_frame(envelope);
   }

@@ -142,8 +142,8 @@ TEST(SecureChannel, BeaconsOpenOnlyWithTheTeamKey) {
 class TeamKeyFile : public ::testing::Test {
  protected:
   void SetUp() override {
-    folder_ = std::filesystem::temp_directory_path() /
-              ("concord-key-test-" + std::to_string(::getpid()));
+    folder_ =
+        std::filesystem::temp_directory_path() / ("concord-key-test-" + std::to_string(::getpid()));
     std::filesystem::remove_all(folder_);
     std::filesystem::create_directories(folder_);
   }

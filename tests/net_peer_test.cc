@@ -228,8 +228,9 @@ class RawClient {
                                   std::optional<std::string> plain =
                                       channel_ ? channel_->open(payload, error) : payload;
                                   v1::Envelope envelope;
-                                  if (plain && parse_envelope(*plain, std::nullopt, envelope).kind ==
-                                                   FrameErrorKind::kNone)
+                                  if (plain &&
+                                      parse_envelope(*plain, std::nullopt, envelope).kind ==
+                                          FrameErrorKind::kNone)
                                     frames_.push_back(envelope);
                                 }
                                 if (done && done()) {

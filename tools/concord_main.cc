@@ -23,10 +23,10 @@
 #include "concord/config/options_file.h"
 #include "concord/dataset/dataset.h"
 #include "concord/dataset/result_io.h"
-#include "evaluation/metrics.h"
-#include "evaluation/line_plot.h"
-#include "evaluation/plot.h"
 #include "concord/net/team_key.h"
+#include "evaluation/line_plot.h"
+#include "evaluation/metrics.h"
+#include "evaluation/plot.h"
 #include "launch/launch.h"
 #include "replay/team_replay.h"
 #include "sim/simulator.h"
@@ -426,8 +426,9 @@ int main(int argc, char** argv) {
   launch_command->add_option("--failpoint", launch_failpoints,
                              "Testing aid: ROBOT:NAME[=ARG] passes --failpoint NAME[=ARG] to "
                              "robot ROBOT's concordd (repeatable)");
-  launch_command->add_option("--round-deadline-ms", launch_options.round_deadline_ms,
-                             "consensus.round_deadline_ms of the daemons (default: theirs)")
+  launch_command
+      ->add_option("--round-deadline-ms", launch_options.round_deadline_ms,
+                   "consensus.round_deadline_ms of the daemons (default: theirs)")
       ->check(CLI::PositiveNumber);
 
   auto* plot_command =
@@ -474,8 +475,8 @@ int main(int argc, char** argv) {
         } catch (const std::exception&) {
         }
         if (robot < 0) {
-          std::cerr << "concord launch: --failpoint: expected ROBOT:NAME[=ARG], got '"
-                    << failpoint << "'\n";
+          std::cerr << "concord launch: --failpoint: expected ROBOT:NAME[=ARG], got '" << failpoint
+                    << "'\n";
           return 1;
         }
         auto& arguments = launch_options.extra_arguments[robot];

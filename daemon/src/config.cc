@@ -218,13 +218,15 @@ std::vector<std::string> DaemonConfig::validate() const {
     if (member < 0) problems.push_back("members: " + std::to_string(member) + " is negative");
   if (source.kind == SourceKind::kIngest) {
     const std::string& address = source.ingest_address;
-    const bool loopback = address.rfind("127.", 0) == 0 || address == "::1" || address == "localhost";
+    const bool loopback =
+        address.rfind("127.", 0) == 0 || address == "::1" || address == "localhost";
     if (!loopback && !source.ingest_authenticated)
       problems.push_back("source.ingest_address: " + address +
                          " is not a loopback address: set source.ingest_authenticated: true");
     if (!(source.max_translation_m > 0.0))
       problems.push_back("source.max_translation_m: expected > 0");
-    if (!(source.max_rotation_rad > 0.0)) problems.push_back("source.max_rotation_rad: expected > 0");
+    if (!(source.max_rotation_rad > 0.0))
+      problems.push_back("source.max_rotation_rad: expected > 0");
   }
   if (consensus.future_rounds < 1 || consensus.future_rounds > 1000)
     problems.push_back("consensus.future_rounds: expected 1-1000, got " +
@@ -240,8 +242,10 @@ std::vector<std::string> DaemonConfig::validate() const {
     if (source.dataset.empty()) problems.push_back("source.dataset: required for replay");
     if (source.robot < 0) problems.push_back("source.robot: expected >= 0");
     if (!(source.rate_hz >= 0.0 && source.rate_hz <= 10000.0))
-      problems.push_back("source.rate_hz: expected 0 (as fast as possible) or a rate up to 10000 "
-                         "frames per second, got " + std::to_string(source.rate_hz));
+      problems.push_back(
+          "source.rate_hz: expected 0 (as fast as possible) or a rate up to 10000 "
+          "frames per second, got " +
+          std::to_string(source.rate_hz));
     else if (source.rate_hz > 0.0 && source.rate_hz < 1e-3)
       problems.push_back("source.rate_hz: " + std::to_string(source.rate_hz) +
                          " is below 0.001 frames per second (one frame in 17 minutes)");

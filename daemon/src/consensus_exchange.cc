@@ -116,8 +116,8 @@ void ConsensusExchange::on_message(int robot, const v1::Envelope& envelope) {
         // Not kept (bounded memory), but it tells where the peer is (a restarted robot
         // rejoins there; a peer far ahead is not waited for).
         ++counters_.future_dropped;
-        peer.last_round = std::max<std::int64_t>(peer.last_round,
-                                                 static_cast<std::int64_t>(message.round()));
+        peer.last_round =
+            std::max<std::int64_t>(peer.last_round, static_cast<std::int64_t>(message.round()));
         changed_.notify_all();
         return;
       }
@@ -167,8 +167,8 @@ void ConsensusExchange::on_message(int robot, const v1::Envelope& envelope) {
       const bool lockstep = config_.mode != ConsensusMode::kAsync;
       if (lockstep && beyond_window(message.round())) {
         ++counters_.future_dropped;
-        peer.last_round = std::max<std::int64_t>(peer.last_round,
-                                                 static_cast<std::int64_t>(message.round()));
+        peer.last_round =
+            std::max<std::int64_t>(peer.last_round, static_cast<std::int64_t>(message.round()));
         changed_.notify_all();
         return;
       }
@@ -179,8 +179,8 @@ void ConsensusExchange::on_message(int robot, const v1::Envelope& envelope) {
                 " landmarks, above the limit of " + std::to_string(config_.max_marginal_landmarks);
       else
         marginal = from_wire(message, error);
-      peer.last_round = std::max<std::int64_t>(peer.last_round,
-                                               static_cast<std::int64_t>(message.round()));
+      peer.last_round =
+          std::max<std::int64_t>(peer.last_round, static_cast<std::int64_t>(message.round()));
       if (!marginal) {
         ++counters_.malformed;
         warn_limited(*log_limiter_, robot, "marginal", "consensus: robot {} round {}: {}", robot,

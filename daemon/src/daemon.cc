@@ -8,34 +8,34 @@
 #include <boost/asio/io_context.hpp>
 #include <boost/asio/signal_set.hpp>
 #include <cmath>
+#include <condition_variable>
 #include <cstdio>
+#include <fstream>
+#include <iterator>
 #include <mutex>
 #include <nlohmann/json.hpp>
 #include <optional>
 #include <random>
 #include <sstream>
-#include <condition_variable>
-#include <fstream>
-#include <iterator>
 #include <thread>
 
 #include "bounded_queue.h"
 #include "checkpoint.h"
-#include "output_files.h"
-#include "trajectory_history.h"
 #include "concord/daemon/consensus_exchange.h"
 #include "concord/daemon/wire.h"
 #include "concord/dataset/dataset.h"
 #include "concord/dataset/result_io.h"
 #include "concord/estimator/estimator.h"
 #include "concord/net/frame_listener.h"
-#include "concord/net/peer_network.h"
 #include "concord/net/log_limiter.h"
+#include "concord/net/peer_network.h"
 #include "concord/net/team_key.h"
 #include "concord/v1/concord.pb.h"
 #include "concord/web/http_server.h"
 #include "concord/web/json_response.h"
 #include "metrics_text.h"
+#include "output_files.h"
+#include "trajectory_history.h"
 
 namespace concord::daemon {
 
@@ -60,7 +60,8 @@ constexpr std::size_t kMaxSamples = 8192;
 
 template <typename T>
 void push_bounded(std::vector<T>& samples, T value) {
-  if (samples.size() >= kMaxSamples) samples.erase(samples.begin(), samples.begin() + kMaxSamples / 2);
+  if (samples.size() >= kMaxSamples)
+    samples.erase(samples.begin(), samples.begin() + kMaxSamples / 2);
   samples.push_back(value);
 }
 
@@ -221,9 +222,9 @@ bool Daemon::Impl::load_source() {
 
 bool Daemon::Impl::start_services() {
   try {
-    const bool needs_key = config_.consensus.mode != ConsensusMode::kOff ||
-                           (config_.source.kind == SourceKind::kIngest &&
-                            config_.source.ingest_authenticated);
+    const bool needs_key =
+        config_.consensus.mode != ConsensusMode::kOff ||
+        (config_.source.kind == SourceKind::kIngest && config_.source.ingest_authenticated);
     if (needs_key) {
       team_key_ = std::make_shared<const net::TeamKey>(net::load_team_key(config_.team_key_file));
       spdlog::info("team key read from {}", config_.team_key_file.string());  // never the key
@@ -362,8 +363,8 @@ bool Daemon::Impl::on_ingest(const v1::Envelope& envelope) {
   };
   if (ingest_ended_) return true;
   if (envelope.body_case() != v1::Envelope::kSensorFrame) {
-    limited("other", fmt::format("ignored a non-SensorFrame envelope from sender {}",
-                                 envelope.sender()));
+    limited("other",
+            fmt::format("ignored a non-SensorFrame envelope from sender {}", envelope.sender()));
     return true;
   }
   const v1::SensorFrame& message = envelope.sensor_frame();
@@ -382,7 +383,8 @@ bool Daemon::Impl::on_ingest(const v1::Envelope& envelope) {
       std::lock_guard lock(live_.mutex);
       ++live_.frames_rejected;
     }
-    limited("order", fmt::format("rejected frame {}: not after frame {}", index, last_ingest_frame_));
+    limited("order",
+            fmt::format("rejected frame {}: not after frame {}", index, last_ingest_frame_));
     end_if_last();
     return true;
   }
@@ -549,16 +551,17 @@ void Daemon::Impl::estimator_loop() {
       if (exchange_ && config_.consensus.mode == ConsensusMode::kLockstep)
         team_round = exchange_->wait_for_team_round(config_.consensus.round_deadline);
       const auto after_checkpoint = static_cast<std::int64_t>(checkpoint_->round) + 1;
-      first_replay_frame_ = static_cast<int>(std::min<std::int64_t>(
-          std::max(after_checkpoint, team_round), robot_->num_frames()));
+      first_replay_frame_ = static_cast<int>(
+          std::min<std::int64_t>(std::max(after_checkpoint, team_round), robot_->num_frames()));
       const std::int64_t skipped = first_replay_frame_ - after_checkpoint;
       {
         std::lock_guard lock(live_.mutex);
         live_.frames_gap += static_cast<std::uint64_t>(std::max<std::int64_t>(skipped, 0));
       }
-      spdlog::info("resume: checkpoint at round {}, team at round {}: continuing at frame {} ({} "
-                   "frames skipped, reported as a gap)",
-                   checkpoint_->round, team_round, first_replay_frame_, skipped);
+      spdlog::info(
+          "resume: checkpoint at round {}, team at round {}: continuing at frame {} ({} "
+          "frames skipped, reported as a gap)",
+          checkpoint_->round, team_round, first_replay_frame_, skipped);
       if (exchange_ && first_replay_frame_ > 0)
         exchange_->resume_at(static_cast<std::uint64_t>(first_replay_frame_ - 1));
     }
@@ -592,8 +595,7 @@ void Daemon::Impl::load_checkpoint() {
   }
   std::lock_guard lock(live_.mutex);
   for (std::size_t i = 0; i < checkpoint->frames.size(); ++i)
-    live_.trajectory.push(
-        {checkpoint->frames[i], checkpoint->timestamps[i], checkpoint->poses[i]});
+    live_.trajectory.push({checkpoint->frames[i], checkpoint->timestamps[i], checkpoint->poses[i]});
   live_.resumed_from_round = static_cast<std::int64_t>(checkpoint->round);
   spdlog::info("resume: checkpoint {} at round {} ({} frames processed before)", file.string(),
                checkpoint->round, checkpoint->frames.size());
@@ -671,11 +673,13 @@ json Daemon::Impl::stats_json() const {
       {"update_seconds", live_.update_seconds},
       {"consensus_seconds", live_.consensus_seconds},
       {"wait_seconds", live_.wait_seconds},
-      {"latency_ms", {{"p50", percentile(live_.latencies_ms, 50)},
-                      {"p99", percentile(live_.latencies_ms, 99)},
-                      {"max", percentile(live_.latencies_ms, 100)}}},
-      {"bytes_sent_per_round", {{"median", percentile(live_.bytes_per_round, 50)},
-                                {"max", percentile(live_.bytes_per_round, 100)}}},
+      {"latency_ms",
+       {{"p50", percentile(live_.latencies_ms, 50)},
+        {"p99", percentile(live_.latencies_ms, 99)},
+        {"max", percentile(live_.latencies_ms, 100)}}},
+      {"bytes_sent_per_round",
+       {{"median", percentile(live_.bytes_per_round, 50)},
+        {"max", percentile(live_.bytes_per_round, 100)}}},
   };
   if (exchange_) {
     const ExchangeCounters c = exchange_->counters();
@@ -686,8 +690,10 @@ json Daemon::Impl::stats_json() const {
   }
   if (network_) {
     const auto totals = network_->totals();
-    stats["network"] = {{"bytes_out", totals.bytes_out},   {"bytes_in", totals.bytes_in},
-                        {"messages_out", totals.messages_out}, {"messages_in", totals.messages_in},
+    stats["network"] = {{"bytes_out", totals.bytes_out},
+                        {"bytes_in", totals.bytes_in},
+                        {"messages_out", totals.messages_out},
+                        {"messages_in", totals.messages_in},
                         {"send_drops", totals.send_drops},
                         {"rejected_oversized", totals.rejected_oversized},
                         {"rejected_garbage", totals.rejected_garbage},
@@ -712,8 +718,7 @@ void Daemon::Impl::register_routes() {
     body["live_peers"] = exchange_ ? exchange_->live_peers() : std::vector<int>{};
     std::lock_guard lock(live_.mutex);
     body["phase"] = live_.phase;
-    body["frame"] =
-        live_.trajectory.empty() ? json(nullptr) : json(live_.trajectory.back().frame);
+    body["frame"] = live_.trajectory.empty() ? json(nullptr) : json(live_.trajectory.back().frame);
     body["frames_processed"] = live_.trajectory.size();
     body["rounds"] = live_.rounds;
     return web::json_response(200, body);
@@ -739,12 +744,16 @@ void Daemon::Impl::register_routes() {
       trajectory = live_.trajectory.snapshot();
     }
     if (format == "kitti")
-      return web::Response{200, "text/plain; charset=utf-8",
-                           dataset::format_trajectory_kitti(trajectory.poses()), {}};
+      return web::Response{200,
+                           "text/plain; charset=utf-8",
+                           dataset::format_trajectory_kitti(trajectory.poses()),
+                           {}};
     if (format == "tum")
       return web::Response{
-          200, "text/plain; charset=utf-8",
-          dataset::format_trajectory_tum(trajectory.timestamps(), trajectory.poses()), {}};
+          200,
+          "text/plain; charset=utf-8",
+          dataset::format_trajectory_tum(trajectory.timestamps(), trajectory.poses()),
+          {}};
     json poses = json::array();
     trajectory.for_each([&](const TrajectoryPoint& point) {
       json entry = pose_json(point.pose);
@@ -793,8 +802,8 @@ void Daemon::Impl::register_routes() {
     std::uint64_t suppressed = ingest_limiter_.suppressed_total();
     {
       std::lock_guard lock(live_.mutex);
-      text.counter("concord_frames_processed_total", "Frames processed by the estimator",
-                   robot, static_cast<double>(live_.trajectory.size()));
+      text.counter("concord_frames_processed_total", "Frames processed by the estimator", robot,
+                   static_cast<double>(live_.trajectory.size()));
       text.counter("concord_frames_rejected_total", "Frames rejected (malformed or out of order)",
                    robot, static_cast<double>(live_.frames_rejected));
       text.counter("concord_frames_dropped_total", "Ingest frames dropped on a full queue", robot,
@@ -904,8 +913,10 @@ void Daemon::Impl::register_routes() {
                      static_cast<double>(peer.drops));
       });
       per_peer([&](const net::PeerStats& peer, const std::string& labels) {
-        text.counter("concord_peer_protocol_errors_total", "Connections of a peer closed for a "
-                     "protocol violation", labels, static_cast<double>(peer.protocol_errors));
+        text.counter("concord_peer_protocol_errors_total",
+                     "Connections of a peer closed for a "
+                     "protocol violation",
+                     labels, static_cast<double>(peer.protocol_errors));
       });
       per_peer([&](const net::PeerStats& peer, const std::string& labels) {
         text.gauge("concord_peer_rtt_seconds", "Last heartbeat round trip", labels,
@@ -982,9 +993,8 @@ int Daemon::Impl::run() {
       spdlog::info("{}: {} frames, {} rounds; outputs in {}", live_.phase, live_.trajectory.size(),
                    live_.rounds, config_.output.directory.string());
     else
-      spdlog::error("{}: {} frames, {} rounds; the outputs could NOT be written to {}",
-                    live_.phase, live_.trajectory.size(), live_.rounds,
-                    config_.output.directory.string());
+      spdlog::error("{}: {} frames, {} rounds; the outputs could NOT be written to {}", live_.phase,
+                    live_.trajectory.size(), live_.rounds, config_.output.directory.string());
   }
   queue_.close_and_clear();
   {

@@ -62,20 +62,19 @@ void check_output_folder(const std::filesystem::path& folder) {
   std::error_code error;
   std::filesystem::create_directories(folder, error);
   if (error)
-    throw std::runtime_error("output directory " + folder.string() + ": cannot create: " +
-                             error.message());
+    throw std::runtime_error("output directory " + folder.string() +
+                             ": cannot create: " + error.message());
   const std::filesystem::path probe = folder / (".write-probe." + std::to_string(::getpid()));
   const int fd = ::open(probe.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
   if (fd < 0)
-    throw std::runtime_error("output directory " + folder.string() + " is not writable: " +
-                             errno_text());
+    throw std::runtime_error("output directory " + folder.string() +
+                             " is not writable: " + errno_text());
   const bool ok = ::write(fd, "x", 1) == 1 && ::fsync(fd) == 0;
   const std::string reason = errno_text();
   ::close(fd);
   ::unlink(probe.c_str());
   if (!ok)
-    throw std::runtime_error("output directory " + folder.string() + " is not writable: " +
-                             reason);
+    throw std::runtime_error("output directory " + folder.string() + " is not writable: " + reason);
 }
 
 int remove_stale_temporaries(const std::filesystem::path& folder) {
@@ -83,9 +82,9 @@ int remove_stale_temporaries(const std::filesystem::path& folder) {
   std::error_code error;
   for (const auto& entry : std::filesystem::directory_iterator(folder, error)) {
     const std::string name = entry.path().filename().string();
-    const bool temporary = name.size() > 1 && name[0] == '.' &&
-                           (name.find(".tmp.") != std::string::npos ||
-                            name.rfind(".write-probe.", 0) == 0);
+    const bool temporary =
+        name.size() > 1 && name[0] == '.' &&
+        (name.find(".tmp.") != std::string::npos || name.rfind(".write-probe.", 0) == 0);
     if (!temporary || !entry.is_regular_file(error)) continue;
     if (std::filesystem::remove(entry.path(), error)) ++removed;
   }

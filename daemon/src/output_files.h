@@ -12,8 +12,7 @@ namespace concord::daemon {
 /// Writes `content` to `file` atomically: a temporary file in the same folder is written (and,
 /// if `durable`, fsync'ed), renamed over `file`, and (if `durable`) the folder is fsync'ed so
 /// the rename survives a power loss. Throws std::runtime_error naming the file.
-void write_output_file(const std::filesystem::path& file, const std::string& content,
-                       bool durable);
+void write_output_file(const std::filesystem::path& file, const std::string& content, bool durable);
 
 /// Creates `folder` if needed and proves it is writable (creates, fsyncs and removes a probe
 /// file). Throws std::runtime_error naming the folder and the reason.

@@ -13,8 +13,8 @@
 namespace concord::daemon {
 
 struct TrajectoryPoint {
-  int frame = 0;           ///< the source's frame index (the round)
-  double timestamp = 0.0;  ///< seconds
+  int frame = 0;                                           ///< the source's frame index (the round)
+  double timestamp = 0.0;                                  ///< seconds
   Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();  ///< T_world_body
 };
 
@@ -66,7 +66,9 @@ class TrajectoryHistory {
   std::size_t size() const { return sealed_.size() * kChunkPoints + open_.size(); }
   bool empty() const { return size() == 0; }
   /// The newest point; the history must not be empty.
-  const TrajectoryPoint& back() const { return open_.empty() ? sealed_.back()->back() : open_.back(); }
+  const TrajectoryPoint& back() const {
+    return open_.empty() ? sealed_.back()->back() : open_.back();
+  }
   /// O(size / kChunkPoints + kChunkPoints): cheap enough under a lock.
   Snapshot snapshot() const { return Snapshot{sealed_, open_}; }
 

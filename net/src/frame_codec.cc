@@ -1,8 +1,8 @@
 #include "concord/net/frame_codec.h"
 
 #include <cassert>
-#include <stdexcept>
 #include <limits>
+#include <stdexcept>
 #include <utility>
 
 #include "concord/v1/concord.pb.h"

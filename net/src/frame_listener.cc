@@ -3,8 +3,8 @@
 #include <spdlog/spdlog.h>
 
 #include <atomic>
-#include <deque>
 #include <boost/asio.hpp>
+#include <deque>
 #include <map>
 #include <mutex>
 #include <stdexcept>

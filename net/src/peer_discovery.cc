@@ -83,9 +83,9 @@ void PeerNetwork::Impl::on_beacon(std::size_t bytes) {
       envelope.sender() <= static_cast<std::uint32_t>(std::numeric_limits<int>::max());
   if (!valid) {
     update_counters([](NetworkCounters& counters) { ++counters.beacons_rejected; });
-    spdlog::debug("net: ignored beacon from {}: {}", beacon_sender_.address().to_string(),
-                  error.kind != FrameErrorKind::kNone ? error.reason
-                                                      : std::string("not a valid Hello"));
+    spdlog::debug(
+        "net: ignored beacon from {}: {}", beacon_sender_.address().to_string(),
+        error.kind != FrameErrorKind::kNone ? error.reason : std::string("not a valid Hello"));
     return;
   }
   const int robot = static_cast<int>(envelope.sender());

@@ -264,8 +264,8 @@ void PeerNetwork::Impl::handle_hello(const std::shared_ptr<Session>& session,
   const int robot = static_cast<int>(hello.robot_id());
   if (!options_.members.empty() &&
       std::find(options_.members.begin(), options_.members.end(), robot) == options_.members.end())
-    return reject_handshake(session, "robot id " + std::to_string(robot) +
-                                         " is not in the membership list");
+    return reject_handshake(session,
+                            "robot id " + std::to_string(robot) + " is not in the membership list");
   if (robot == options_.robot_id) {
     if (hello.instance() == instance_ && session->origin == Origin::kDialed) {
       const auto target = targets_.find(session->dial_key);
@@ -443,11 +443,10 @@ void PeerNetwork::Impl::on_frame_error(const std::shared_ptr<Session>& session,
   });
   if (session->robot >= 0)
     update_record(session->robot, [](PeerRecord& record) { ++record.stats.protocol_errors; });
-  warn_limited("frame " + session->remote_address.to_string() + " " +
-                   std::string(to_string(error.kind)),
-               "net: closing {} connection #{} {} (robot {}): {} frame: {}",
-               to_string(session->origin), session->id, session->remote, session->robot,
-               to_string(error.kind), error.reason);
+  warn_limited(
+      "frame " + session->remote_address.to_string() + " " + std::string(to_string(error.kind)),
+      "net: closing {} connection #{} {} (robot {}): {} frame: {}", to_string(session->origin),
+      session->id, session->remote, session->robot, to_string(error.kind), error.reason);
   session->close(error.reason);
 }
 

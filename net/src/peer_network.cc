@@ -72,8 +72,8 @@ std::string PeerNetworkOptions::describe() const {
   for (std::size_t i = 0; i < members.size(); ++i) out << (i ? "," : "") << members[i];
   out << "] max_pending_handshakes=" << max_pending_handshakes
       << " receive_budget=" << receive_bytes_per_second << "B/s," << receive_messages_per_second
-      << "msg/s" << " listen=" << listen_address << ":"
-      << listen_port;
+      << "msg/s"
+      << " listen=" << listen_address << ":" << listen_port;
   if (!advertised_address.empty()) out << " advertised_address=" << advertised_address;
   out << " peers=[";
   for (std::size_t i = 0; i < peers.size(); ++i) out << (i ? "," : "") << peers[i];

@@ -3,8 +3,6 @@
 // seams: peer_network.cc (options, setup, sending, watchdog, stop, snapshots, the public API),
 // peer_handshake.cc (connections, the Hello handshake and the peer table), peer_discovery.cc
 // (UDP beacons). The Session class (one TCP connection) is defined here.
-#include "concord/net/peer_network.h"
-
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
@@ -20,6 +18,7 @@
 #include <stdexcept>
 
 #include "concord/net/log_limiter.h"
+#include "concord/net/peer_network.h"
 #include "concord/net/reconnect_backoff.h"
 #include "concord/net/secure_channel.h"
 #include "concord/v1/concord.pb.h"
@@ -485,8 +484,9 @@ class PeerNetwork::Impl::Session : public std::enable_shared_from_this<Session> 
     }
     if (!channel_.accept_proof(payload_, error)) return network_->on_channel_failed(self, error);
     // 3. The peer proved the key: now the (encrypted) Hello.
-    enqueue(
-        {Outgoing::Kind::kControl, std::make_shared<const v1::Envelope>(network_->make_hello()), {}});
+    enqueue({Outgoing::Kind::kControl,
+             std::make_shared<const v1::Envelope>(network_->make_hello()),
+             {}});
   }
 
   /// Takes `bytes` and `frames` from the token buckets; how long to pause reading (<= 0: none).
@@ -496,8 +496,8 @@ class PeerNetwork::Impl::Session : public std::enable_shared_from_this<Session> 
     tokens_refilled_ = now;
     const auto byte_rate = static_cast<double>(network_->options_.receive_bytes_per_second);
     const auto message_rate = static_cast<double>(network_->options_.receive_messages_per_second);
-    byte_tokens_ = std::min(2.0 * byte_rate, byte_tokens_ + elapsed * byte_rate) -
-                   static_cast<double>(bytes);
+    byte_tokens_ =
+        std::min(2.0 * byte_rate, byte_tokens_ + elapsed * byte_rate) - static_cast<double>(bytes);
     message_tokens_ = std::min(2.0 * message_rate, message_tokens_ + elapsed * message_rate) -
                       static_cast<double>(frames);
     const double wait = std::max(-byte_tokens_ / byte_rate, -message_tokens_ / message_rate);
@@ -602,6 +602,5 @@ void PeerNetwork::Impl::update_counters(Function&& function) {
   std::lock_guard lock(stats_mutex_);
   function(counters_);
 }
-
 
 }  // namespace concord::net

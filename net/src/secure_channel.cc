@@ -169,7 +169,8 @@ bool SecureChannel::accept_proof(std::string_view peer_proof, std::string& error
 }
 
 std::string SecureChannel::seal(std::string_view plaintext) {
-  if (stage_ != Stage::kEstablished) throw std::logic_error("SecureChannel::seal before established");
+  if (stage_ != Stage::kEstablished)
+    throw std::logic_error("SecureChannel::seal before established");
   std::string out(plaintext.size() + kChannelOverheadBytes, '\0');
   unsigned long long length = 0;
   crypto_secretstream_xchacha20poly1305_push(
@@ -225,10 +226,9 @@ std::optional<std::string> open_beacon(const TeamKey& key, std::string_view ciph
   const unsigned char* nonce = bytes(ciphertext);
   const std::size_t sealed = ciphertext.size() - crypto_secretbox_NONCEBYTES;
   std::string out(sealed - crypto_secretbox_MACBYTES, '\0');
-  const int result =
-      crypto_secretbox_open_easy(reinterpret_cast<unsigned char*>(out.data()),
-                                 nonce + crypto_secretbox_NONCEBYTES, sealed, nonce,
-                                 beacon_key.data());
+  const int result = crypto_secretbox_open_easy(reinterpret_cast<unsigned char*>(out.data()),
+                                                nonce + crypto_secretbox_NONCEBYTES, sealed, nonce,
+                                                beacon_key.data());
   sodium_memzero(beacon_key.data(), beacon_key.size());
   if (result != 0) return std::nullopt;
   return out;

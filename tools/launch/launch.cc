@@ -1,6 +1,8 @@
 #include "launch/launch.h"
 
 #include <signal.h>
+#include <unistd.h>
+#include <yaml-cpp/yaml.h>
 
 #include <atomic>
 #include <chrono>
@@ -11,9 +13,6 @@
 #include <sstream>
 #include <stdexcept>
 #include <thread>
-#include <unistd.h>
-
-#include <yaml-cpp/yaml.h>
 
 #include "concord/dataset/result_io.h"
 #include "concord/net/team_key.h"

@@ -7,7 +7,8 @@
 ///     OUT/team.key                the team key (generated if missing; mode 0600)
 ///     OUT/configs/robot_NN.yaml   the generated daemon configs
 ///     OUT/logs/robot_NN.log       each daemon's log
-///     OUT/robot_NN/               each daemon's outputs (trajectory.kitti, objects.csv, stats.json)
+///     OUT/robot_NN/               each daemon's outputs (trajectory.kitti, objects.csv,
+///     stats.json)
 
 #include <cstdint>
 #include <filesystem>

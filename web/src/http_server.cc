@@ -204,7 +204,7 @@ class Session : public std::enable_shared_from_this<Session> {
       ++state_->requests_rejected;
       const bool header = error == http::error::header_limit;
       spdlog::debug("HTTP: request from {} larger than {} bytes ({} too large)", peer_,
-                   state_->options.max_request_bytes, header ? "header" : "body");
+                    state_->options.max_request_bytes, header ? "header" : "body");
       return send_error(header ? 431 : 413,
                         std::string(header ? "request header" : "request") + " larger than " +
                             std::to_string(state_->options.max_request_bytes) + " bytes");
@@ -431,8 +431,7 @@ void ServerOptions::validate() const {
     fail("request_timeout", std::to_string(request_timeout.count()) + " ms", "must be positive");
   }
   if (max_connections < 1) fail("max_connections", "0", "must be at least 1");
-  if (max_connections_per_client < 1)
-    fail("max_connections_per_client", "0", "must be at least 1");
+  if (max_connections_per_client < 1) fail("max_connections_per_client", "0", "must be at least 1");
 }
 
 struct HttpServer::Impl {

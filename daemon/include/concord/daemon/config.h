@@ -154,7 +154,8 @@ struct DaemonConfig {
 /// Reads a daemon config file. Throws config::ConfigError on any problem.
 [[nodiscard]] DaemonConfig load_daemon_config(const std::filesystem::path& file);
 /// As load_daemon_config, from YAML text; relative paths are resolved against base_directory.
-[[nodiscard]] DaemonConfig parse_daemon_config(const std::string& yaml_text, const std::string& source_name,
-                                 const std::filesystem::path& base_directory);
+[[nodiscard]] DaemonConfig parse_daemon_config(const std::string& yaml_text,
+                                               const std::string& source_name,
+                                               const std::filesystem::path& base_directory);
 
 }  // namespace concord::daemon

@@ -32,11 +32,11 @@ inline constexpr std::size_t kDefaultMaxFrameBytes = std::size_t{16} << 20;
 /// Why a frame was rejected.
 enum class FrameErrorKind {
   kNone,
-  kZeroLength,    ///< length prefix 0 (an Envelope with protocol_version set is never empty)
-  kOversized,     ///< length prefix above the maximum
-  kGarbage,       ///< payload is not a parsable Envelope
-  kWrongVersion,  ///< Envelope.protocol_version differs from kProtocolVersion
-  kWrongTeam,     ///< Envelope.team differs from the expected team
+  kZeroLength,       ///< length prefix 0 (an Envelope with protocol_version set is never empty)
+  kOversized,        ///< length prefix above the maximum
+  kGarbage,          ///< payload is not a parsable Envelope
+  kWrongVersion,     ///< Envelope.protocol_version differs from kProtocolVersion
+  kWrongTeam,        ///< Envelope.team differs from the expected team
   kUnauthenticated,  ///< the channel handshake failed or a message failed authentication
 };
 

@@ -5,9 +5,10 @@
 /// the same authenticated channel as peer connections (the sender dials, so it initiates), and
 /// otherwise plaintext (loopback only: the daemon refuses plaintext on another address).
 /// Backpressure: when the handler cannot take an envelope, that connection stops reading until
-/// it can, so a sender that outruns the daemon is slowed down by TCP, never silently dropped. Each connection is read frame by frame and every valid envelope goes to one handler;
-/// a bad frame closes only that connection. Runs on a caller-owned io_context (one strand), like
-/// PeerNetwork. This header includes neither Asio nor protobuf.
+/// it can, so a sender that outruns the daemon is slowed down by TCP, never silently dropped. Each
+/// connection is read frame by frame and every valid envelope goes to one handler; a bad frame
+/// closes only that connection. Runs on a caller-owned io_context (one strand), like PeerNetwork.
+/// This header includes neither Asio nor protobuf.
 
 #include <chrono>
 #include <cstdint>

@@ -20,9 +20,9 @@ class LogLimiter {
   using Clock = std::chrono::steady_clock;
 
   struct Options {
-    int burst = 5;                             ///< lines allowed at once per key
-    std::chrono::milliseconds period{10000};   ///< then one more line per period per key
-    std::size_t max_keys = 512;                ///< keys tracked; the rest share one bucket
+    int burst = 5;                            ///< lines allowed at once per key
+    std::chrono::milliseconds period{10000};  ///< then one more line per period per key
+    std::size_t max_keys = 512;               ///< keys tracked; the rest share one bucket
   };
 
   LogLimiter();
