@@ -32,7 +32,7 @@ echo "bench: fault tests" >&2
 fuzz_seconds="${FUZZ_SECONDS:-60}"
 if [ ! -x build-asan/fuzz/fuzz_http_target ]; then
   cmake -S . -B build-asan -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
-    -DCMAKE_CXX_COMPILER=clang++ "-DCMAKE_CXX_FLAGS_RELWITHDEBINFO=-O1 -g" \
+    -DCMAKE_CXX_COMPILER=clang++ "-DCMAKE_CXX_FLAGS_RELWITHDEBINFO=-O1 -gline-tables-only" \
     -DCONCORD_SANITIZE=address,undefined -DCONCORD_BUILD_FUZZERS=ON >/dev/null
 fi
 cmake --build build-asan --parallel 2 --target fuzz_frame_decoder fuzz_channel fuzz_marginal \
