@@ -871,7 +871,10 @@ TEST(PeerNetwork, SendQueueDropsTheOldestWhenThePeerDoesNotRead) {
 
 TEST(PeerNetwork, AWriteWithoutProgressClosesTheConnection) {
   Waiter waiter;
-  Node a(test_options(1), waiter);
+  PeerNetworkOptions options = test_options(1);
+  // Room for the talking client to be descheduled on a loaded machine without looking silent.
+  options.heartbeat_timeout = 1s;
+  Node a(options, waiter);
   a.start();
   RawClient alive_but_not_reading(a.port());
   ASSERT_TRUE(alive_but_not_reading.secure(*test_key()));
