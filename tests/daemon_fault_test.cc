@@ -344,8 +344,9 @@ TEST(DaemonFault, FutureRoundFloodKeepsMemoryBounded) {
   peak = std::max(peak, rss_kib(daemon.pid()));
   RecordProperty("rss_before_kib", static_cast<int>(before));
   RecordProperty("rss_peak_kib", static_cast<int>(peak));
-  if (!kSanitized)
+  if (!kSanitized) {
     EXPECT_LE(peak, before + 20 * 1024) << "RSS grew from " << before << " to " << peak << " KiB";
+  }
   daemon.signal(SIGTERM);
   ASSERT_TRUE(daemon.wait_for(10s));
   EXPECT_EQ(daemon.exit_code(), 0);
