@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""Writes docs/results-reliability.md from bench/out/reliability (bench/reliability_bench.sh)."""
+"""Writes docs/results-reliability.md from bench/out/reliability (bench/reliability_bench.sh).
+An optional ci.md there (the CI time measured on a fresh clone) is included as it is."""
 import json
 import os
 import re
@@ -123,6 +124,10 @@ fault, what the daemons did, and the figures. The multi-process tests behind the
 | attack or fault | outcome | figures |
 |---|---|---|""")
 print("\n".join(rows))
+ci_notes = os.path.join(out, "ci.md")
+if os.path.exists(ci_notes):
+    print()
+    print(open(ci_notes).read().rstrip())
 print("""
 Before this work (issue 10, measured on main): a fake peer moved robot 0's RMSE from 3.06 to
 73.8 m; a silent peer made 300 frames take 77 s instead of 15; a future-round flood grew a daemon

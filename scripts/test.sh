@@ -50,6 +50,6 @@ cmake -S . -B build-tsan "${sanitizer_flags[@]}" -DCONCORD_SANITIZE=thread \
   "-DCONCORD_TEST_GLOB=net_*_test.cc;http_*_test.cc;daemon_*_test.cc"  # concordd under TSan too
 cmake --build build-tsan --parallel 2 --target concord_tests concordd
 stage "TSan tests"
-TSAN_OPTIONS=halt_on_error=1:second_deadlock_stack=1 \
+TSAN_OPTIONS="halt_on_error=1:second_deadlock_stack=1:suppressions=$PWD/scripts/tsan.supp" \
   ctest --test-dir build-tsan --output-on-failure --parallel 2
 stage "all passed"
