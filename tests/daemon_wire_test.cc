@@ -2,6 +2,8 @@
 // reason instead of crashing or producing garbage estimates.
 #include <gtest/gtest.h>
 
+#include <cmath>
+
 #include <random>
 
 #include "concord/daemon/wire.h"
@@ -119,6 +121,22 @@ TEST(DaemonWire, MalformedSensorFramesAreRejected) {
   auto* observation = not_finite.add_objects();
   observation->set_u_left(std::numeric_limits<double>::infinity());
   EXPECT_FALSE(from_wire(not_finite, error));
+
+  // odometry_covariance: none, or 21 values of a positive definite 6x6 matrix.
+  v1::SensorFrame covariance;
+  covariance.set_frame(1);
+  for (int row = 0; row < 6; ++row)
+    for (int column = row; column < 6; ++column)
+      covariance.add_odometry_covariance(row == column ? 0.01 : 0.0);
+  EXPECT_TRUE(from_wire(covariance, error)) << error;
+  covariance.set_odometry_covariance(0, -1.0);
+  EXPECT_FALSE(from_wire(covariance, error));
+  EXPECT_NE(error.find("positive definite"), std::string::npos) << error;
+  covariance.set_odometry_covariance(0, std::nan(""));
+  EXPECT_FALSE(from_wire(covariance, error));
+  covariance.add_odometry_covariance(1.0);
+  EXPECT_FALSE(from_wire(covariance, error));
+  EXPECT_NE(error.find("expected 21"), std::string::npos) << error;
 }
 
 }  // namespace
