@@ -231,6 +231,15 @@ std::vector<std::string> DaemonConfig::validate() const {
   if (consensus.future_rounds < 1 || consensus.future_rounds > 1000)
     problems.push_back("consensus.future_rounds: expected 1-1000, got " +
                        std::to_string(consensus.future_rounds));
+  if (!(consensus.suspicious_refusal_fraction >= 0.0 && consensus.suspicious_refusal_fraction < 1.0))
+    problems.push_back("consensus.suspicious_refusal_fraction: expected a fraction in [0, 1), got " +
+                       std::to_string(consensus.suspicious_refusal_fraction));
+  if (consensus.quarantine_after < 1)
+    problems.push_back("consensus.quarantine_after: expected >= 1, got " +
+                       std::to_string(consensus.quarantine_after));
+  if (consensus.quarantine_rounds < 0)
+    problems.push_back("consensus.quarantine_rounds: expected >= 0, got " +
+                       std::to_string(consensus.quarantine_rounds));
   if (consensus.miss_limit < 1)
     problems.push_back("consensus.miss_limit: expected >= 1, got " +
                        std::to_string(consensus.miss_limit));
@@ -371,6 +380,9 @@ DaemonConfig parse_daemon_config(const std::string& yaml_text, const std::string
   consensus.read_milliseconds("startup_timeout_ms", config.consensus.startup_timeout, true);
   consensus.read("future_rounds", config.consensus.future_rounds);
   consensus.read("miss_limit", config.consensus.miss_limit);
+  consensus.read("suspicious_refusal_fraction", config.consensus.suspicious_refusal_fraction);
+  consensus.read("quarantine_after", config.consensus.quarantine_after);
+  consensus.read("quarantine_rounds", config.consensus.quarantine_rounds);
   consensus.read("max_marginal_landmarks", config.consensus.max_marginal_landmarks);
   consensus.finish();
 

@@ -68,6 +68,10 @@ struct ConsensusExchange::Peer {
   /// independently).
   std::optional<Received> latest;
   std::int64_t latest_received_at = -1;
+  /// Poisoning defence: suspicious rounds in a row, and the round its quarantine ends (-1: none).
+  int suspicious_in_a_row = 0;
+  std::int64_t quarantined_until = -1;
+  PeerTrust trust;
 };
 
 ConsensusExchange::ConsensusExchange(ConsensusConfig config, Send send,
@@ -394,6 +398,7 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
 
   // Phase 2: every waited-for neighbour's Marginal(k) (a rejected one is its answer too).
   std::vector<WeightedMarginal> inbox;
+  std::vector<int> senders;  // robot of each inbox entry
   {
     std::unique_lock lock(mutex_);
     auto settled = [&](int robot) {
@@ -424,9 +429,10 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
         ++report.bad_messages;
         continue;
       }
-      if (it->second.marginal.ids.empty()) continue;
+      if (it->second.marginal.ids.empty() || quarantined(robot, peer, round)) continue;
       inbox.push_back({Consensus::metropolis_weight(degree, it->second.degree),
                        std::move(it->second.marginal)});
+      senders.push_back(robot);
     }
     // Liveness bookkeeping: a waited-for peer that missed the deadline; a peer (waited for or
     // not) whose LandmarkSet and Marginal were both there in time answered.
@@ -446,6 +452,7 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
   if (!inbox.empty()) {
     report.consensus = estimator.fuse(inbox);
     report.fused = static_cast<int>(inbox.size());
+    judge(round, senders, report.consensus);
   }
   forget_rounds_up_to(round);
   return report;
@@ -475,6 +482,7 @@ RoundReport ConsensusExchange::async_round(std::uint64_t round, Estimator& estim
     }
   }
   std::vector<WeightedMarginal> inbox;
+  std::vector<int> senders;
   {
     std::lock_guard lock(mutex_);
     for (int robot : live) {
@@ -486,17 +494,75 @@ RoundReport ConsensusExchange::async_round(std::uint64_t round, Estimator& estim
         continue;
       }
       peer.latest->used = true;
-      if (!peer.latest->marginal.ids.empty()) {
+      if (!peer.latest->marginal.ids.empty() && !quarantined(robot, peer, round)) {
         inbox.push_back({Consensus::metropolis_weight(degree, peer.latest->degree),
                          std::move(peer.latest->marginal)});
+        senders.push_back(robot);
       }
     }
   }
   if (!inbox.empty()) {
     report.consensus = estimator.fuse(inbox);
     report.fused = static_cast<int>(inbox.size());
+    judge(round, senders, report.consensus);
   }
   return report;
+}
+
+bool ConsensusExchange::quarantined(int robot, Peer& peer, std::uint64_t round) {
+  if (peer.quarantined_until < 0) return false;
+  if (static_cast<std::int64_t>(round) > peer.quarantined_until) {
+    peer.quarantined_until = -1;
+    peer.trust.quarantined = false;
+    --counters_.quarantined_peers;
+    spdlog::info("consensus: robot {} leaves quarantine at round {}", robot, round);
+    return false;
+  }
+  ++counters_.quarantined_dropped;
+  return true;
+}
+
+void ConsensusExchange::judge(std::uint64_t round, const std::vector<int>& senders,
+                              const ConsensusReport& report) {
+  std::lock_guard lock(mutex_);
+  for (std::size_t j = 0; j < senders.size(); ++j) {
+    const auto found = peers_.find(senders[j]);
+    if (found == peers_.end() || j >= report.refused_per_neighbour.size()) continue;
+    Peer& peer = *found->second;
+    const int refused = report.refused_per_neighbour[j];
+    const int tested = report.tested_per_neighbour[j];
+    peer.trust.landmarks_refused += static_cast<std::uint64_t>(refused);
+    peer.trust.landmarks_tested += static_cast<std::uint64_t>(tested);
+    counters_.landmarks_refused += static_cast<std::uint64_t>(refused);
+    const bool suspicious =
+        refused >= 2 && refused > config_.suspicious_refusal_fraction * tested;
+    peer.suspicious_in_a_row = suspicious ? peer.suspicious_in_a_row + 1 : 0;
+    if (suspicious) {
+      warn_limited(*log_limiter_, senders[j], "refused",
+                   "consensus: round {}: {} of {} landmarks from robot {} refused (they disagree "
+                   "with this robot's beyond the chi-square bound)",
+                   round, refused, tested, senders[j]);
+    }
+    if (peer.suspicious_in_a_row >= config_.quarantine_after && config_.quarantine_rounds > 0 &&
+        peer.quarantined_until < 0) {
+      peer.quarantined_until = static_cast<std::int64_t>(round) + config_.quarantine_rounds;
+      peer.suspicious_in_a_row = 0;
+      peer.trust.quarantined = true;
+      ++peer.trust.quarantines;
+      ++counters_.quarantines;
+      ++counters_.quarantined_peers;
+      spdlog::warn("consensus: robot {} quarantined until round {}: its marginals disagreed with "
+                   "this robot's in {} rounds in a row",
+                   senders[j], peer.quarantined_until, config_.quarantine_after);
+    }
+  }
+}
+
+std::map<int, PeerTrust> ConsensusExchange::peer_trust() const {
+  std::lock_guard lock(mutex_);
+  std::map<int, PeerTrust> out;
+  for (const auto& [robot, peer] : peers_) out[robot] = peer->trust;
+  return out;
 }
 
 void ConsensusExchange::forget_rounds_up_to(std::uint64_t round) {

@@ -122,6 +122,13 @@ struct LiveState {
   std::uint64_t marginals_fused = 0;
   std::uint64_t landmarks_fused = 0;
   std::uint64_t objects_initialized = 0;
+  /// The estimator's refusals: object observations rejected by its gates, new objects whose
+  /// initialization failed its chi-square test, point-feature tracks rejected, and Kalman updates
+  /// refused (innovation not positive definite).
+  std::uint64_t object_observations_rejected = 0;
+  std::uint64_t object_initializations_gated = 0;
+  std::uint64_t feature_tracks_rejected = 0;
+  std::uint64_t update_failures = 0;
   double update_seconds = 0.0;
   double consensus_seconds = 0.0;  ///< whole rounds, waiting included
   double wait_seconds = 0.0;
@@ -583,6 +590,11 @@ bool Daemon::Impl::process(QueuedFrame& item) {
     live_.pose_covariance = estimator_->current_pose_covariance();
     live_.objects = estimator_->objects();
     live_.objects_initialized += static_cast<std::uint64_t>(report.objects.initialized);
+    live_.object_observations_rejected += static_cast<std::uint64_t>(report.objects.rejected);
+    live_.object_initializations_gated += static_cast<std::uint64_t>(report.objects.init_gated);
+    live_.feature_tracks_rejected += static_cast<std::uint64_t>(report.features.tracks_rejected);
+    live_.update_failures += static_cast<std::uint64_t>(report.objects.update_failures +
+                                                        report.features.update_failures);
     live_.update_seconds += seconds_between(popped, updated);
     if (exchange_) {
       ++live_.rounds;
@@ -758,7 +770,10 @@ json Daemon::Impl::stats_json() const {
     stats["consensus"] = {{"deadline_misses", c.deadline_misses},
                           {"exclusions", c.exclusions},
                           {"future_dropped", c.future_dropped},
-                          {"malformed", c.malformed}};
+                          {"malformed", c.malformed},
+                          {"landmarks_refused", c.landmarks_refused},
+                          {"quarantines", c.quarantines},
+                          {"quarantined_dropped", c.quarantined_dropped}};
   }
   if (network_) {
     const auto totals = network_->totals();
@@ -850,7 +865,11 @@ void Daemon::Impl::register_routes() {
     json peers = json::array();
     if (network_) {
       const auto now = Clock::now();
+      const std::map<int, PeerTrust> trust =
+          exchange_ ? exchange_->peer_trust() : std::map<int, PeerTrust>{};
       for (const net::PeerStats& peer : network_->peers()) {
+        const auto found = trust.find(peer.robot);
+        const PeerTrust peer_trust = found != trust.end() ? found->second : PeerTrust{};
         peers.push_back({{"robot", peer.robot},
                          {"address", peer.address},
                          {"up", peer.up},
@@ -865,6 +884,10 @@ void Daemon::Impl::register_routes() {
                          {"rtt_mean_ms", 1e-6 * static_cast<double>(peer.rtt_mean.count())},
                          {"reconnects", peer.reconnects},
                          {"protocol_errors", peer.protocol_errors},
+                         {"landmarks_refused", peer_trust.landmarks_refused},
+                         {"landmarks_tested", peer_trust.landmarks_tested},
+                         {"quarantines", peer_trust.quarantines},
+                         {"quarantined", peer_trust.quarantined},
                          {"degree", peer.degree}});
       }
     }
@@ -902,6 +925,18 @@ void Daemon::Impl::register_routes() {
                    static_cast<double>(live_.marginals_fused));
       text.gauge("concord_objects", "Objects in the map", robot,
                  static_cast<double>(live_.objects.size()));
+      text.counter("concord_object_observations_rejected_total",
+                   "Object observations rejected by the chi-square gate", robot,
+                   static_cast<double>(live_.object_observations_rejected));
+      text.counter("concord_object_initializations_gated_total",
+                   "New objects whose initialization failed the chi-square test", robot,
+                   static_cast<double>(live_.object_initializations_gated));
+      text.counter("concord_feature_tracks_rejected_total",
+                   "Point-feature tracks rejected (triangulation, depth or chi-square)", robot,
+                   static_cast<double>(live_.feature_tracks_rejected));
+      text.counter("concord_update_failures_total",
+                   "Kalman updates refused (innovation covariance not positive definite)", robot,
+                   static_cast<double>(live_.update_failures));
       text.gauge("concord_frame_latency_p50_seconds", "Median frame latency (update + round)",
                  robot, 1e-3 * percentile(live_.latencies_ms, 50));
       text.gauge("concord_frame_latency_p99_seconds", "99th percentile frame latency", robot,
@@ -924,6 +959,17 @@ void Daemon::Impl::register_routes() {
                    static_cast<double>(c.exclusions));
       text.gauge("concord_consensus_excluded_peers", "Peers out of the lockstep waits", robot,
                  static_cast<double>(c.excluded_peers));
+      text.counter("concord_consensus_landmarks_refused_total",
+                   "Neighbours' landmarks refused by the chi-square test against this robot's",
+                   robot, static_cast<double>(c.landmarks_refused));
+      text.counter("concord_consensus_quarantines_total",
+                   "Times a peer was quarantined for repeatedly refused marginals", robot,
+                   static_cast<double>(c.quarantines));
+      text.counter("concord_consensus_quarantined_dropped_total",
+                   "Marginals not fused because their sender was in quarantine", robot,
+                   static_cast<double>(c.quarantined_dropped));
+      text.gauge("concord_consensus_quarantined_peers", "Peers in quarantine", robot,
+                 static_cast<double>(c.quarantined_peers));
       suppressed += c.log_lines_suppressed;
     }
     if (ingest_) {
@@ -996,6 +1042,22 @@ void Daemon::Impl::register_routes() {
         text.gauge("concord_peer_rtt_seconds", "Last heartbeat round trip", labels,
                    1e-9 * static_cast<double>(peer.rtt_last.count()));
       });
+      if (exchange_) {
+        const std::map<int, PeerTrust> trust = exchange_->peer_trust();
+        auto trust_of = [&](int robot_id) {
+          const auto found = trust.find(robot_id);
+          return found != trust.end() ? found->second : PeerTrust{};
+        };
+        per_peer([&](const net::PeerStats& peer, const std::string& labels) {
+          text.counter("concord_peer_landmarks_refused_total",
+                       "A peer's landmarks refused by the chi-square test", labels,
+                       static_cast<double>(trust_of(peer.robot).landmarks_refused));
+        });
+        per_peer([&](const net::PeerStats& peer, const std::string& labels) {
+          text.gauge("concord_peer_quarantined", "Whether a peer is in quarantine", labels,
+                     trust_of(peer.robot).quarantined ? 1.0 : 0.0);
+        });
+      }
     }
     text.counter("concord_log_lines_suppressed_total",
                  "Log lines about peers and clients held back by the rate limit", robot,

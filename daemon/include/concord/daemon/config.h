@@ -107,6 +107,16 @@ struct ConsensusConfig {
   int miss_limit = 1;
   /// consensus.max_marginal_landmarks: larger marginals and landmark sets are rejected.
   int max_marginal_landmarks = 5000;
+  /// consensus.suspicious_refusal_fraction: a round in which the estimator refuses more than
+  /// this fraction (and at least 2) of the landmarks a peer's marginal offered (they disagree
+  /// with the robot's own beyond the chi-square bound, estimator.consensus.
+  /// neighbour_chi2_probability) counts against the peer. An honest peer with consistent
+  /// covariances has about 0.1 % refused.
+  double suspicious_refusal_fraction = 0.2;
+  /// consensus.quarantine_after: that many suspicious rounds in a row quarantine the peer: its
+  /// marginals are not fused (counted) for consensus.quarantine_rounds of the robot's rounds.
+  int quarantine_after = 3;
+  int quarantine_rounds = 50;
 };
 
 struct HttpConfig {

@@ -72,6 +72,21 @@ struct ExchangeCounters {
   std::uint64_t exclusions = 0;       ///< times a peer left the lockstep waits
   std::uint64_t excluded_peers = 0;   ///< peers out of the lockstep waits now (a gauge)
   std::uint64_t log_lines_suppressed = 0;
+  /// Poisoning defence: neighbours' landmarks refused by the estimator's chi-square test,
+  /// quarantines started, marginals not fused because their sender was in quarantine, and the
+  /// peers in quarantine now (a gauge).
+  std::uint64_t landmarks_refused = 0;
+  std::uint64_t quarantines = 0;
+  std::uint64_t quarantined_dropped = 0;
+  std::uint64_t quarantined_peers = 0;
+};
+
+/// Per-peer poisoning-defence counters (for /metrics and /peers).
+struct PeerTrust {
+  std::uint64_t landmarks_tested = 0;
+  std::uint64_t landmarks_refused = 0;
+  std::uint64_t quarantines = 0;
+  bool quarantined = false;
 };
 
 /// Fault injection for tests (concordd --failpoint, docs/daemon.md).
@@ -105,6 +120,8 @@ class ConsensusExchange {
 
   std::vector<int> live_peers() const;
   ExchangeCounters counters() const;
+  /// Poisoning-defence counters of every peer heard from, by robot id.
+  std::map<int, PeerTrust> peer_trust() const;
 
   /// The highest round any live peer announced, waiting up to `timeout` until one announced a
   /// round (-1 if none did): where a restarted robot rejoins the lockstep.
@@ -129,6 +146,11 @@ class ConsensusExchange {
   void count_miss(int robot, Peer& peer, std::uint64_t round);
   /// A peer answered round `round` in time (mutex held).
   void count_answer(int robot, Peer& peer, std::uint64_t round);
+  /// Whether `robot` is in quarantine at `round` (mutex held); counts the dropped marginal.
+  bool quarantined(int robot, Peer& peer, std::uint64_t round);
+  /// After a fuse: the estimator's refusals of each sender's landmarks (inbox order), towards
+  /// quarantine.
+  void judge(std::uint64_t round, const std::vector<int>& senders, const ConsensusReport& report);
 
   ConsensusConfig config_;
   Send send_;
