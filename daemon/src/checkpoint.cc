@@ -8,7 +8,7 @@ namespace concord::daemon {
 
 namespace {
 
-constexpr char kMagic[] = "CONCORD-CHECKPOINT-3\n";
+constexpr char kMagic[] = "CONCORD-CHECKPOINT-4\n";
 constexpr std::size_t kMagicBytes = sizeof(kMagic) - 1;
 
 std::uint64_t fnv1a(const char* data, std::size_t size) {
@@ -101,6 +101,15 @@ std::string serialize_checkpoint(const Checkpoint& checkpoint) {
     const auto last = state.archived_last_observed.find(id);
     w.put<std::int32_t>(last == state.archived_last_observed.end() ? -1 : last->second);
   }
+  w.put<std::uint32_t>(static_cast<std::uint32_t>(checkpoint.pending.size()));
+  for (const auto& [id, track] : checkpoint.pending) {
+    w.put<std::int64_t>(id);
+    w.put<std::uint32_t>(static_cast<std::uint32_t>(track.size()));
+    for (const TrackObservation& observation : track) {
+      w.put<std::int32_t>(observation.frame);
+      for (int i = 0; i < 4; ++i) w.put<double>(observation.xy[i]);
+    }
+  }
   const auto dimension = static_cast<std::uint32_t>(state.covariance.rows());
   w.put<std::uint32_t>(dimension);
   for (Eigen::Index i = 0; i < state.covariance.size(); ++i)
@@ -169,6 +178,21 @@ std::optional<Checkpoint> parse_checkpoint(const std::string& bytes, std::string
     if (!ok || !r.get(last)) return fail("bad archived object " + std::to_string(i));
     if (last >= 0) state.archived_last_observed[object.id] = last;
     state.archived[object.id] = object;
+  }
+  if (!r.count(n, 8 + 4)) return fail("bad pending object count");
+  for (std::uint32_t i = 0; i < n; ++i) {
+    LandmarkId id = 0;
+    std::uint32_t observations = 0;
+    if (!r.get(id) || !r.count(observations, 4 + 32) || checkpoint.pending.count(id) != 0)
+      return fail("bad pending object " + std::to_string(i));
+    std::vector<TrackObservation>& track = checkpoint.pending[id];
+    for (std::uint32_t j = 0; j < observations; ++j) {
+      TrackObservation observation;
+      bool ok = r.get(observation.frame);
+      for (int k = 0; ok && k < 4; ++k) ok = r.get(observation.xy[k]);
+      if (!ok) return fail("bad pending observation of object " + std::to_string(id));
+      track.push_back(observation);
+    }
   }
   std::uint32_t dimension = 0;
   if (!r.get(dimension) || dimension != static_cast<std::uint32_t>(state.dimension()) ||

@@ -12,6 +12,7 @@
 #include <string>
 #include <vector>
 
+#include "concord/estimator/object_updater.h"
 #include "concord/estimator/state.h"
 
 namespace concord::daemon {
@@ -24,8 +25,10 @@ struct Checkpoint {
   std::vector<int> frames;
   std::vector<double> timestamps;
   std::vector<Eigen::Isometry3d> poses;
-  /// The estimator's filter state after that round.
+  /// The estimator's filter state after that round, and the object observations waiting for an
+  /// initialization: with both the restored filter continues exactly.
   State state;
+  PendingObjects pending;
 };
 
 /// The checkpoint as bytes.

@@ -547,9 +547,22 @@ bool Daemon::Impl::process(QueuedFrame& item) {
       return false;
   }
   const auto popped = Clock::now();
+  if (!estimator_ && checkpoint_ && item.input.T_previous_current) {
+    // Resume: the filter continues from the checkpoint's state (poses, objects and their
+    // covariance); the first frame's odometry spans the frames skipped.
+    try {
+      estimator_.emplace(config_.estimator, camera_, checkpoint_->state, checkpoint_->pending);
+      spdlog::info("resume: filter state restored ({} poses, {} objects)",
+                   checkpoint_->state.num_poses(), estimator_->objects().size());
+    } catch (const std::invalid_argument& error) {
+      spdlog::warn("resume: the checkpoint's filter state is unusable ({}); restarting the filter "
+                   "at its newest pose",
+                   error.what());
+    }
+  }
   if (!estimator_) {
-    // The first frame is the known start (after a resume: the checkpoint's pose moved by the
-    // odometry of the frames skipped).
+    // The first frame is the known start (after a resume without a usable state: the
+    // checkpoint's pose moved by the odometry of the frames skipped).
     Eigen::Isometry3d start = start_pose_;
     if (checkpoint_) start = checkpoint_->state.newest_pose().T_world_body;
     if (item.input.T_previous_current &&
@@ -716,6 +729,7 @@ bool Daemon::Impl::write_outputs(bool final) {
       checkpoint.robot_id = config_.robot_id;
       checkpoint.round = static_cast<std::uint64_t>(checkpoint.frames.back());
       checkpoint.state = estimator_->state();
+      checkpoint.pending = estimator_->pending_objects();
       write_output_file(folder / "checkpoint.bin", serialize_checkpoint(checkpoint), durable);
     }
     if (final) write_output_file(folder / "stats.json", stats_json().dump(2) + "\n", true);

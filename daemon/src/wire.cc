@@ -132,6 +132,11 @@ void to_wire(const FrameInput& frame, double timestamp, v1::SensorFrame& out) {
   out.set_frame(frame.frame);
   out.set_timestamp(timestamp);
   if (frame.T_previous_current) to_wire(*frame.T_previous_current, *out.mutable_odometry());
+  if (frame.odometry_covariance) {
+    for (int row = 0; row < 6; ++row)
+      for (int column = row; column < 6; ++column)
+        out.add_odometry_covariance((*frame.odometry_covariance)(row, column));
+  }
   for (const auto& observation : frame.objects) to_wire(observation, *out.add_objects());
   for (const auto& observation : frame.features) to_wire(observation, *out.add_features());
 }
@@ -153,7 +158,7 @@ std::optional<FrameInput> from_wire(const v1::SensorFrame& message, std::string&
   }
   if (message.odometry_covariance_size() != 0) {
     // 6x6 on [rho; phi], upper triangle row by row: validated (finite, symmetric positive
-    // definite). Not used yet: the estimator's FrameInput has no per-frame covariance.
+    // definite), then it replaces the configured odometry noise for this frame.
     if (message.odometry_covariance_size() != 21) {
       error = "sensor frame " + std::to_string(frame.frame) + ": odometry_covariance has " +
               std::to_string(message.odometry_covariance_size()) + " values, expected 21 or none";
@@ -170,6 +175,7 @@ std::optional<FrameInput> from_wire(const v1::SensorFrame& message, std::string&
               ": odometry_covariance is not finite and positive definite";
       return std::nullopt;
     }
+    frame.odometry_covariance = covariance;
   }
   if (!from_wire(message.objects(), frame.objects, "object", error) ||
       !from_wire(message.features(), frame.features, "feature", error)) {
