@@ -286,6 +286,40 @@ TEST(OdometryCovariance, APerFrameCovarianceReplacesTheConfiguredNoise) {
   EXPECT_THROW(grown(indefinite), std::invalid_argument);
 }
 
+TEST(ComposedMotion, ItsCovarianceMatchesTheSpreadOfComposedNoisySteps) {
+  // Three steps with different noise, composed 20000 times with sampled noise: the sample
+  // covariance of the composed motion's right perturbation matches the first-order formula.
+  std::mt19937 random(21);
+  std::vector<Eigen::Isometry3d> steps(3, Eigen::Isometry3d::Identity());
+  std::vector<lie::Matrix6d> covariances;
+  for (int j = 0; j < 3; ++j) {
+    steps[j] =
+        lie::se3_exp((lie::Vector6d() << 1.0 + j, 0.2, -0.1, 0.05, -0.1, 0.3 * j).finished());
+    covariances.push_back(1e-4 * testing::random_spd(6, random, 0.2, 2.0));
+  }
+  ComposedMotion composed;
+  for (int j = 0; j < 3; ++j) composed.then(steps[j], covariances[j]);
+  const int samples = 20000;
+  lie::Matrix6d spread = lie::Matrix6d::Zero();
+  for (int i = 0; i < samples; ++i) {
+    Eigen::Isometry3d motion = Eigen::Isometry3d::Identity();
+    for (int j = 0; j < 3; ++j) {
+      const Eigen::LLT<lie::Matrix6d> llt(covariances[j]);
+      const lie::Vector6d w = llt.matrixL() * testing::random_vector(6, random);
+      motion = motion * steps[j] * lie::se3_exp(-w);
+    }
+    const lie::Vector6d error = lie::se3_log(composed.motion.inverse() * motion);
+    spread += error * error.transpose() / samples;
+  }
+  EXPECT_EQ(composed.steps, 3);
+  // Relative Frobenius error: sampling (about 1 %) plus second-order terms.
+  EXPECT_LT((spread - composed.covariance).norm() / composed.covariance.norm(), 0.05);
+  // The naive sum of the step covariances is measurably wrong (the rotations move them).
+  lie::Matrix6d sum = lie::Matrix6d::Zero();
+  for (const auto& covariance : covariances) sum += covariance;
+  EXPECT_GT((spread - sum).norm() / sum.norm(), 0.2);
+}
+
 TEST(Calibration, RecoversTheSimulatorsNoise) {
   sim::SimulationOptions simulation;
   simulation.robots = 1;

@@ -11,6 +11,7 @@
 #include <sys/socket.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <cmath>
 #include <fstream>
@@ -399,6 +400,16 @@ TEST(DaemonFault, IngestBurstWithBadFramesNeverJamsAndHonoursLast) {
   EXPECT_EQ(processed, frames - 3);  // 50, 100 rejected; 200 missing; 150 bridged
   EXPECT_EQ(stats["frames_dropped"], 0);
   EXPECT_EQ(line_count(out / "robot_00" / "trajectory.kitti"), static_cast<std::size_t>(processed));
+  // Frame 150 came without odometry: its motion is unknown, and its pose covariance says so
+  // (any motion within the plausibility limits), instead of the per-frame odometry noise.
+  const auto covariances =
+      dataset::read_pose_covariances_csv(out / "robot_00" / "pose_covariance.csv");
+  const auto at = [&](int frame) {
+    const auto found = std::find_if(covariances.begin(), covariances.end(),
+                                    [&](const auto& entry) { return entry.frame == frame; });
+    return found == covariances.end() ? std::nan("") : found->covariance.trace();
+  };
+  EXPECT_GT(at(150), 20.0 * at(149)) << at(150) << " vs " << at(149);
 }
 
 TEST(DaemonFault, AKilledRobotResumesFromItsCheckpointInLockstep) {

@@ -68,6 +68,15 @@ void push_bounded(std::vector<T>& samples, T value) {
 }
 
 /// Rotation angle of a rotation matrix, radians.
+/// The covariance of one frame's motion when it is unknown: uniform within the ingest
+/// plausibility limits on each axis (sigma = limit / sqrt(3)).
+Eigen::Matrix<double, 6, 6> unknown_motion_noise(const SourceConfig& source) {
+  Eigen::Matrix<double, 6, 6> noise = Eigen::Matrix<double, 6, 6>::Zero();
+  noise.diagonal().head<3>().setConstant(source.max_translation_m * source.max_translation_m / 3.0);
+  noise.diagonal().tail<3>().setConstant(source.max_rotation_rad * source.max_rotation_rad / 3.0);
+  return noise;
+}
+
 double rotation_angle(const Eigen::Matrix3d& R) {
   return std::acos(std::clamp((R.trace() - 1.0) / 2.0, -1.0, 1.0));
 }
@@ -138,7 +147,11 @@ struct LiveState {
 
 class Daemon::Impl {
  public:
-  explicit Impl(DaemonConfig config) : config_(std::move(config)), queue_(config_.queue_capacity) {}
+  explicit Impl(DaemonConfig config)
+      : config_(std::move(config)),
+        queue_(config_.queue_capacity),
+        odometry_noise_(Propagator(config_.estimator).odometry_noise()),
+        unknown_motion_noise_(unknown_motion_noise(config_.source)) {}
 
   int run();
   void request_stop();
@@ -167,6 +180,10 @@ class Daemon::Impl {
   std::optional<dataset::RobotData> robot_;
   std::unique_ptr<frontend::StereoFrontend> frontend_;
   StereoCamera camera_;
+  // The configured per-frame odometry noise, and that of a frame whose motion is unknown: any
+  // motion within the plausibility limits (uniform: sigma = limit / sqrt(3) per axis).
+  Eigen::Matrix<double, 6, 6> odometry_noise_;
+  Eigen::Matrix<double, 6, 6> unknown_motion_noise_;
   Eigen::Isometry3d start_pose_ = Eigen::Isometry3d::Identity();
   std::optional<Estimator> estimator_;
 
@@ -194,7 +211,7 @@ class Daemon::Impl {
   net::LogLimiter ingest_limiter_;
   std::int64_t last_ingest_frame_ = -1;
   double last_ingest_timestamp_ = -std::numeric_limits<double>::infinity();
-  Eigen::Isometry3d carried_motion_ = Eigen::Isometry3d::Identity();  // over skipped frames
+  ComposedMotion carried_;  // over rejected frames, not yet given to the estimator
   bool ingest_started_ = false;
   bool ingest_ended_ = false;
 
@@ -377,11 +394,19 @@ void Daemon::Impl::replay_frames() {
     QueuedFrame item{robot_->frame_input(k), k * config_.source.frame_period_s, Clock::now()};
     if (k == first_replay_frame_ && first_replay_frame_ > 0) {
       // Resumed: the motion from the checkpoint's frame to this one, composed from the
-      // odometry of the frames skipped (reported as a gap).
-      Eigen::Isometry3d motion = Eigen::Isometry3d::Identity();
-      for (int j = static_cast<int>(checkpoint_->round) + 1; j <= k; ++j)
-        if (const auto step = robot_->frame_input(j).T_previous_current) motion = motion * *step;
-      item.input.T_previous_current = motion;
+      // odometry of the frames skipped (reported as a gap), with its covariance.
+      ComposedMotion composed;
+      for (int j = static_cast<int>(checkpoint_->round) + 1; j <= k; ++j) {
+        const FrameInput skipped = robot_->frame_input(j);
+        if (skipped.T_previous_current) {
+          composed.then(*skipped.T_previous_current,
+                        skipped.odometry_covariance.value_or(odometry_noise_));
+        } else {
+          composed.then(Eigen::Isometry3d::Identity(), unknown_motion_noise_);
+        }
+      }
+      item.input.T_previous_current = composed.motion;
+      item.input.odometry_covariance = composed.covariance;
     }
     if (!queue_.push(std::move(item))) return;
   }
@@ -491,12 +516,20 @@ bool Daemon::Impl::on_ingest(const v1::Envelope& envelope) {
   if (!frame) {
     limited("rejected", fmt::format("rejected frame {}: {}", index, error));
     std::string pose_error;
+    std::optional<Eigen::Isometry3d> pose;
     if (message.has_odometry() && missing == 0) {
-      if (const auto pose = from_wire(message.odometry(), pose_error);
-          pose && pose->translation().norm() <= config_.source.max_translation_m &&
-          rotation_angle(pose->linear()) <= config_.source.max_rotation_rad)
-        carried_motion_ = carried_motion_ * *pose;
+      pose = from_wire(message.odometry(), pose_error);
+      if (pose && (pose->translation().norm() > config_.source.max_translation_m ||
+                   rotation_angle(pose->linear()) > config_.source.max_rotation_rad))
+        pose.reset();
+    }
+    if (pose) {
+      carried_.then(*pose, odometry_noise_);
     } else if (ingest_started_) {
+      // Its motion (and that of the frames missing before it) is unknown: within the
+      // plausibility limits, with the covariance that says so.
+      carried_.then(Eigen::Isometry3d::Identity(),
+                    static_cast<double>(1 + missing) * unknown_motion_noise_);
       std::lock_guard lock(live_.mutex);
       ++live_.motion_unknown;
     }
@@ -511,13 +544,25 @@ bool Daemon::Impl::on_ingest(const v1::Envelope& envelope) {
   if (ingest_started_) {
     if (missing > 0 || !item.input.T_previous_current) {
       limited("gap", fmt::format("frames {}..{} missing or without odometry: motion over the gap "
-                                 "unknown, assumed none",
+                                 "unknown (none, with the covariance of the plausibility limits)",
                                  last_ingest_frame_ + 1, index));
     }
-    const Eigen::Isometry3d step = item.input.T_previous_current && missing == 0
-                                       ? *item.input.T_previous_current
-                                       : Eigen::Isometry3d::Identity();
-    item.input.T_previous_current = carried_motion_ * step;
+    if (carried_.steps > 0 || missing > 0 || !item.input.T_previous_current) {
+      // Composed on a copy: a full queue refuses this frame, which is then offered again.
+      ComposedMotion composed = carried_;
+      if (missing > 0) {
+        composed.then(Eigen::Isometry3d::Identity(),
+                      static_cast<double>(missing) * unknown_motion_noise_);
+      }
+      if (item.input.T_previous_current) {
+        composed.then(*item.input.T_previous_current,
+                      item.input.odometry_covariance.value_or(odometry_noise_));
+      } else {
+        composed.then(Eigen::Isometry3d::Identity(), unknown_motion_noise_);
+      }
+      item.input.T_previous_current = composed.motion;
+      item.input.odometry_covariance = composed.covariance;
+    }
   }
   if (!queue_.try_push(std::move(item))) {
     if (queue_.closed()) return true;
@@ -529,7 +574,7 @@ bool Daemon::Impl::on_ingest(const v1::Envelope& envelope) {
     if (ingest_started_ && (missing > 0 || !message.has_odometry())) ++live_.motion_unknown;
   }
   ingest_started_ = true;
-  carried_motion_ = Eigen::Isometry3d::Identity();
+  carried_ = ComposedMotion{};
   last_ingest_frame_ = index;
   last_ingest_timestamp_ = message.timestamp();
   end_if_last();

@@ -5,6 +5,15 @@
 
 namespace concord {
 
+void ComposedMotion::then(const Eigen::Isometry3d& step,
+                          const Eigen::Matrix<double, 6, 6>& step_covariance) {
+  // The perturbations so far are moved past the new step: exp(-w^) S = S exp(-(Ad(S^-1) w)^).
+  const lie::Matrix6d moved = lie::adjoint(step.inverse());
+  covariance = moved * covariance * moved.transpose() + step_covariance;
+  motion = motion * step;
+  ++steps;
+}
+
 Propagator::Propagator(const EstimatorOptions& options) : window_size_(options.window_size) {
   odometry_noise_.setZero();
   odometry_noise_.diagonal().head<3>().setConstant(options.odometry_translation_sigma *

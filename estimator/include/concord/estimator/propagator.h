@@ -9,6 +9,18 @@
 
 namespace concord {
 
+/// Odometry composed over several frames (a gap, skipped or rejected frames) with the covariance
+/// of the composed motion's right perturbation: for M = S_1 ... S_n with S_j = S_j_hat exp(-w_j^),
+/// M = M_hat exp(-w^) with w = sum_j Ad((S_j+1 ... S_n)^-1) w_j to first order.
+struct ComposedMotion {
+  Eigen::Isometry3d motion = Eigen::Isometry3d::Identity();
+  Eigen::Matrix<double, 6, 6> covariance = Eigen::Matrix<double, 6, 6>::Zero();
+  int steps = 0;
+
+  /// Appends one step with the covariance of its right perturbation.
+  void then(const Eigen::Isometry3d& step, const Eigen::Matrix<double, 6, 6>& step_covariance);
+};
+
 class Propagator {
  public:
   explicit Propagator(const EstimatorOptions& options);
