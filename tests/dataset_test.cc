@@ -624,6 +624,44 @@ TEST_F(DatasetFilesTest, WriteThenReadIsExact) {
   }
 }
 
+/// An odometry_covariance.csv with one row for `frame`: a diagonal covariance with `diagonal`.
+std::string odometry_covariance_file(const std::string& frame, double diagonal) {
+  std::string text = "frame";
+  for (int row = 0; row < 6; ++row)
+    for (int column = row; column < 6; ++column)
+      text += ",c" + std::to_string(row) + std::to_string(column);
+  text += "\n" + frame;
+  for (int row = 0; row < 6; ++row)
+    for (int column = row; column < 6; ++column)
+      text += row == column ? "," + std::to_string(diagonal) : ",0";
+  return text + "\n";
+}
+
+TEST_F(DatasetTest, OdometryCovarianceIsReadIntoTheFrameInputsAndChecked) {
+  write_text(robot_folder(1) / "odometry_covariance.csv", odometry_covariance_file("1", 0.25));
+  const Dataset dataset = read_dataset(dataset_folder_);
+  const RobotData& robot = dataset.robots[1];
+  ASSERT_EQ(robot.odometry_covariance.size(), 1u);
+  ASSERT_TRUE(robot.frame_input(1).odometry_covariance);
+  EXPECT_EQ(*robot.frame_input(1).odometry_covariance,
+            (0.25 * Eigen::Matrix<double, 6, 6>::Identity()).eval());
+  EXPECT_FALSE(dataset.robots[0].frame_input(1).odometry_covariance);  // no file: configured
+  // Written back with the dataset.
+  write_dataset(dataset, folder_ / "copy");
+  EXPECT_EQ(read_dataset(folder_ / "copy").robots[1].odometry_covariance, robot.odometry_covariance);
+
+  const std::string file = "robot_01/odometry_covariance.csv";
+  EXPECT_THAT(error_reading_with(file, odometry_covariance_file("0", 0.25)),
+              HasSubstr("frame 0 outside [1, 2)"));
+  EXPECT_THAT(error_reading_with(file, odometry_covariance_file("2", 0.25)),
+              HasSubstr("frame 2 outside [1, 2)"));
+  EXPECT_THAT(error_reading_with(file, odometry_covariance_file("1", -1.0)),
+              HasSubstr("not finite and positive definite"));
+  const std::string once = odometry_covariance_file("1", 0.25);
+  EXPECT_THAT(error_reading_with(file, once + once.substr(once.find('\n') + 1)),
+              HasSubstr("frame 1 given twice"));
+}
+
 TEST_F(DatasetTest, WriteThenReadTheFixtureIsExact) {
   const Dataset original = read_dataset(dataset_folder_);
   write_dataset(original, folder_ / "copy");

@@ -295,11 +295,15 @@ TEST(FrontendRendered, RunWritesADatasetThatReadsBack) {
   EXPECT_TRUE(data.robots[0].has_features);
   EXPECT_EQ(data.camera.K, rendered_sequence().camera.K);
   EXPECT_FALSE(data.objects_groundtruth.empty());  // copied from the team folder
-  const auto covariances = read_odometry_covariances(out / "robot_00" / "odometry_covariance.csv");
+  // Every motion's covariance is read back with the dataset (and the estimator uses it).
+  const auto& covariances = data.robots[0].odometry_covariance;
   ASSERT_EQ(covariances.size(), 5u);
-  for (const Matrix6d& covariance : covariances) {
-    EXPECT_GT(covariance.llt().matrixL().determinant(), 0.0);
+  for (const auto& covariance : covariances) {
+    ASSERT_TRUE(covariance);
+    EXPECT_GT(covariance->llt().matrixL().determinant(), 0.0);
   }
+  ASSERT_TRUE(data.robots[0].frame_input(3).odometry_covariance);
+  EXPECT_EQ(*data.robots[0].frame_input(3).odometry_covariance, *covariances[2]);
   EXPECT_TRUE(fs::exists(out / "frontend.json"));
   // Detections and odometry files belong to a single sequence, not to a team.
   options.detections = rendered_sequence().sequence / "detections.csv";

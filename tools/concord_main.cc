@@ -347,10 +347,13 @@ int run_frontend_eval(const fs::path& dataset_dir, const fs::path& world_file) {
   };
   nlohmann::json robots = nlohmann::json::array();
   for (const dataset::RobotData& robot : data.robots) {
-    const fs::path folder = dataset_dir / dataset::robot_folder_name(robot.index);
     std::vector<Eigen::Matrix<double, 6, 6>> covariances;
-    if (fs::exists(folder / "odometry_covariance.csv")) {
-      covariances = frontend::read_odometry_covariances(folder / "odometry_covariance.csv");
+    for (const auto& covariance : robot.odometry_covariance) {
+      if (!covariance) {
+        covariances.clear();  // not every motion has one: no NEES
+        break;
+      }
+      covariances.push_back(*covariance);
     }
     const auto odometry =
         evaluation::odometry_accuracy(robot.groundtruth, robot.odometry, covariances);

@@ -1,5 +1,7 @@
 #include "concord/dataset/dataset.h"
 
+#include <Eigen/Cholesky>
+
 #include <algorithm>
 #include <array>
 #include <charconv>
@@ -26,6 +28,7 @@ constexpr std::string_view kGroundtruthFile = "groundtruth.kitti";
 constexpr std::string_view kOdometryFile = "odometry.kitti";
 constexpr std::string_view kObjectsFile = "objects.csv";
 constexpr std::string_view kFeaturesFile = "features.csv";
+constexpr std::string_view kOdometryCovarianceFile = "odometry_covariance.csv";
 constexpr std::string_view kRobotFolderPrefix = "robot_";
 
 constexpr std::array<std::string_view, 4> kObjectsGroundtruthColumns{"id", "x", "y", "z"};
@@ -180,6 +183,38 @@ std::vector<std::vector<StereoObservation>> read_observations(const std::filesys
   return per_frame;
 }
 
+/// odometry_covariance.csv: one row per odometry entry at most, frame in [1, num_frames), each
+/// covariance finite, symmetric positive definite.
+std::vector<std::optional<Eigen::Matrix<double, 6, 6>>> read_odometry_covariance(
+    const std::filesystem::path& file, int num_frames) {
+  std::vector<std::optional<Eigen::Matrix<double, 6, 6>>> covariances(
+      static_cast<std::size_t>(std::max(num_frames - 1, 0)));
+  for (const PoseCovariance& entry : read_pose_covariances_csv(file)) {
+    if (entry.frame < 1 || entry.frame >= num_frames) {
+      fail_in_file(file, "frame " + std::to_string(entry.frame) + " outside [1, " +
+                             std::to_string(num_frames) + "): row k is the motion k-1 -> k");
+    }
+    auto& slot = covariances[static_cast<std::size_t>(entry.frame - 1)];
+    if (slot) fail_in_file(file, "frame " + std::to_string(entry.frame) + " given twice");
+    const Eigen::LLT<Eigen::Matrix<double, 6, 6>> llt(entry.covariance);
+    if (!entry.covariance.allFinite() || llt.info() != Eigen::Success) {
+      fail_in_file(file, "frame " + std::to_string(entry.frame) +
+                             ": covariance is not finite and positive definite");
+    }
+    slot = entry.covariance;
+  }
+  return covariances;
+}
+
+std::string format_odometry_covariance(
+    const std::vector<std::optional<Eigen::Matrix<double, 6, 6>>>& covariances) {
+  std::vector<PoseCovariance> entries;
+  for (std::size_t index = 0; index < covariances.size(); ++index) {
+    if (covariances[index]) entries.push_back({static_cast<int>(index + 1), *covariances[index]});
+  }
+  return format_pose_covariances_csv(entries);
+}
+
 /// Keeps the first `frames` frames (all if there are fewer).
 void cut_to_frames(RobotData& robot, int frames) {
   if (frames >= robot.num_frames()) return;
@@ -187,6 +222,7 @@ void cut_to_frames(RobotData& robot, int frames) {
   robot.odometry.resize(std::max(frames - 1, 0));
   robot.objects.resize(frames);
   robot.features.resize(frames);
+  if (!robot.odometry_covariance.empty()) robot.odometry_covariance.resize(std::max(frames - 1, 0));
 }
 
 RobotData read_robot(const std::filesystem::path& folder, int index, const ReadOptions& options) {
@@ -211,6 +247,10 @@ RobotData read_robot(const std::filesystem::path& folder, int index, const ReadO
     robot.features = read_observations(features_file, num_frames);
   } else {
     robot.features.assign(num_frames, {});
+  }
+  const std::filesystem::path covariance_file = folder / kOdometryCovarianceFile;
+  if (options.load_odometry_covariance && std::filesystem::exists(covariance_file)) {
+    robot.odometry_covariance = read_odometry_covariance(covariance_file, num_frames);
   }
   if (options.max_frames) cut_to_frames(robot, *options.max_frames);
   return robot;
@@ -299,7 +339,11 @@ FrameInput RobotData::frame_input(int frame) const {
   }
   FrameInput input;
   input.frame = frame;
-  if (frame > 0) input.T_previous_current = odometry.at(frame - 1);
+  if (frame > 0) {
+    input.T_previous_current = odometry.at(frame - 1);
+    if (static_cast<std::size_t>(frame - 1) < odometry_covariance.size())
+      input.odometry_covariance = odometry_covariance[static_cast<std::size_t>(frame - 1)];
+  }
   input.objects = objects.at(frame);
   if (frame < static_cast<int>(features.size())) input.features = features[frame];
   return input;
@@ -407,6 +451,12 @@ void write_dataset(const Dataset& dataset, const std::filesystem::path& director
       write_file_atomically(folder / kFeaturesFile, format_observations(robot.features));
     } else {
       std::filesystem::remove(folder / kFeaturesFile);
+    }
+    if (!robot.odometry_covariance.empty()) {
+      write_file_atomically(folder / kOdometryCovarianceFile,
+                            format_odometry_covariance(robot.odometry_covariance));
+    } else {
+      std::filesystem::remove(folder / kOdometryCovarianceFile);
     }
   }
 }

@@ -50,29 +50,6 @@ void append_number(std::string& out, double value) {
   out.append(buffer, result.ptr);
 }
 
-/// odometry_covariance.csv: frame,valid,inliers and the upper triangle of each covariance.
-std::string format_covariances(const std::vector<MotionEstimate>& motions) {
-  std::string out = "frame,valid,inliers";
-  for (int row = 0; row < 6; ++row) {
-    for (int column = row; column < 6; ++column) {
-      out += ",c" + std::to_string(row) + std::to_string(column);
-    }
-  }
-  out += '\n';
-  for (std::size_t index = 0; index < motions.size(); ++index) {
-    const MotionEstimate& motion = motions[index];
-    out += std::to_string(index + 1) + "," + (motion.valid ? "1" : "0") + "," +
-           std::to_string(motion.inliers);
-    for (int row = 0; row < 6; ++row) {
-      for (int column = row; column < 6; ++column) {
-        out += ',';
-        append_number(out, motion.covariance(row, column));
-      }
-    }
-    out += '\n';
-  }
-  return out;
-}
 
 nlohmann::ordered_json percentiles_json(const Percentiles& p) {
   return {{"p50", p.p50}, {"p90", p.p90}, {"p99", p.p99}, {"max", p.max}, {"mean", p.mean}};
@@ -269,31 +246,6 @@ EstimatorOptions suggested_estimator_options(const FrontendRunSummary& summary,
   return estimator;
 }
 
-std::vector<Eigen::Matrix<double, 6, 6>> read_odometry_covariances(const fs::path& file) {
-  text::LineReader reader(file);
-  std::string_view line;
-  if (!reader.next_line(line) || !line.starts_with("frame,valid,inliers")) {
-    reader.fail("expected the header 'frame,valid,inliers,c00,...'");
-  }
-  std::vector<Eigen::Matrix<double, 6, 6>> covariances;
-  while (reader.next_line(line)) {
-    const auto fields = text::split(line, ',');
-    if (fields.size() != 24) {
-      reader.fail("expected 24 fields (frame, valid, inliers, 21 covariance entries)");
-    }
-    Eigen::Matrix<double, 6, 6> covariance;
-    std::size_t field = 3;
-    for (int row = 0; row < 6; ++row) {
-      for (int column = row; column < 6; ++column) {
-        covariance(row, column) = covariance(column, row) =
-            reader.number(fields[field++], "covariance entry");
-      }
-    }
-    covariances.push_back(covariance);
-  }
-  return covariances;
-}
-
 std::vector<fs::path> list_sequences(const fs::path& input) {
   if (!fs::is_directory(input)) throw FrontendError(input.string() + ": input folder not found");
   if (is_stereo_sequence(input)) return {input};
@@ -330,7 +282,6 @@ FrontendRunSummary run_frontend(const fs::path& input, const fs::path& out,
   dataset::Dataset data;
   data.name = options.name;
   FrontendRunSummary summary;
-  std::vector<std::vector<MotionEstimate>> motions;
   for (std::size_t robot = 0; robot < sequences.size(); ++robot) {
     RobotRun run = run_sequence(sequences[robot], static_cast<int>(robot), single, options);
     if (robot == 0) {
@@ -340,8 +291,12 @@ FrontendRunSummary run_frontend(const fs::path& input, const fs::path& out,
                           ": its rectified camera differs from robot_00's; a dataset has one "
                           "camera, so every robot must share the calibration");
     }
+    // The odometry's own covariance of every motion (failures included: their covariance is
+    // the failure sigmas), written as odometry_covariance.csv and used by the estimator.
+    run.data.odometry_covariance.clear();
+    for (const MotionEstimate& motion : run.motions)
+      run.data.odometry_covariance.emplace_back(motion.covariance);
     data.robots.push_back(std::move(run.data));
-    motions.push_back(std::move(run.motions));
     summary.robots.push_back(std::move(run.summary));
   }
 
@@ -349,11 +304,6 @@ FrontendRunSummary run_frontend(const fs::path& input, const fs::path& out,
   if (!single && fs::exists(input / "objects_gt.csv")) {
     fs::copy_file(input / "objects_gt.csv", out / "objects_gt.csv",
                   fs::copy_options::overwrite_existing);
-  }
-  for (std::size_t robot = 0; robot < motions.size(); ++robot) {
-    dataset::write_file_atomically(
-        out / dataset::robot_folder_name(static_cast<int>(robot)) / "odometry_covariance.csv",
-        format_covariances(motions[robot]));
   }
   std::string estimator_yaml =
       "# Estimator options for this dataset, written by `concord frontend`: the noise values are\n"

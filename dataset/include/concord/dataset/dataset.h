@@ -45,6 +45,11 @@ struct RobotData {
   std::vector<std::vector<StereoObservation>> features;
   /// Whether features.csv was present (and loaded).
   bool has_features = false;
+  /// Covariance of each odometry entry's right perturbation [rho; phi] where the odometry
+  /// reported one (optional odometry_covariance.csv, the columns of pose_covariance.csv; row
+  /// `frame` k is the motion k-1 -> k): N-1 entries, or empty without the file. Frames without
+  /// a row use the estimator's configured odometry noise.
+  std::vector<std::optional<Eigen::Matrix<double, 6, 6>>> odometry_covariance;
 
   /// N, the number of frames (ground-truth poses).
   int num_frames() const;
@@ -80,6 +85,8 @@ struct ReadOptions {
   std::optional<int> max_robots;
   /// Read features.csv where present.
   bool load_features = true;
+  /// Read odometry_covariance.csv where present.
+  bool load_odometry_covariance = true;
   /// Read only robot_<only_robot> (a daemon replaying its own folder): Dataset::robots then holds
   /// that one robot, with RobotData::index = only_robot. DatasetError if the folder does not
   /// exist; std::invalid_argument if negative. max_robots is ignored when set.

@@ -112,11 +112,6 @@ EstimatorOptions suggested_estimator_options(const FrontendRunSummary& summary,
                                              const StereoCamera& camera,
                                              const FrontendOptions& options);
 
-/// The covariances of an odometry_covariance.csv (one per motion, in file order). Throws
-/// FrontendError naming the file and line on bad input.
-[[nodiscard]] std::vector<Eigen::Matrix<double, 6, 6>> read_odometry_covariances(
-    const std::filesystem::path& file);
-
 /// The sequence folders of an input: the input itself if it is a sequence, else its robot_NN
 /// sub-folders in order. Throws FrontendError if there are none.
 [[nodiscard]] std::vector<std::filesystem::path> list_sequences(const std::filesystem::path& input);
