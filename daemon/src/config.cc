@@ -299,6 +299,7 @@ DaemonConfig parse_daemon_config(const std::string& yaml_text, const std::string
   top.read("robot_id", config.robot_id);
   top.read("team", config.team);
   top.read("log_level", config.log_level);
+  top.read("log_file", config.log_file, base_directory);
   top.read_size("queue_capacity", config.queue_capacity);
   top.read("team_key_file", config.team_key_file, base_directory);
   top.read_ints("members", config.members);
