@@ -243,6 +243,16 @@ std::vector<std::string> DaemonConfig::validate() const {
   if (consensus.miss_limit < 1)
     problems.push_back("consensus.miss_limit: expected >= 1, got " +
                        std::to_string(consensus.miss_limit));
+  if (!(consensus.link_budget_bytes_per_second >= 0.0 &&
+        consensus.link_budget_bytes_per_second <= 1e10))
+    problems.push_back("consensus.link_budget_bytes_per_second: expected 0 (unlimited) or a rate "
+                       "in bytes per second, got " +
+                       std::to_string(consensus.link_budget_bytes_per_second));
+  else if (consensus.link_budget_bytes_per_second > 0.0 &&
+           consensus.link_budget_bytes_per_second < 1000.0)
+    problems.push_back("consensus.link_budget_bytes_per_second: " +
+                       std::to_string(consensus.link_budget_bytes_per_second) +
+                       " is below 1000 bytes per second (not even a landmark set per round)");
   if (consensus.max_marginal_landmarks < 1)
     problems.push_back("consensus.max_marginal_landmarks: expected >= 1");
   if (http.max_connections_per_client > http.max_connections)
@@ -385,6 +395,7 @@ DaemonConfig parse_daemon_config(const std::string& yaml_text, const std::string
   consensus.read("quarantine_after", config.consensus.quarantine_after);
   consensus.read("quarantine_rounds", config.consensus.quarantine_rounds);
   consensus.read("max_marginal_landmarks", config.consensus.max_marginal_landmarks);
+  consensus.read("link_budget_bytes_per_second", config.consensus.link_budget_bytes_per_second);
   consensus.finish();
 
   Section http(top.child("http"), "http.", problems);

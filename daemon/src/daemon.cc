@@ -871,7 +871,11 @@ json Daemon::Impl::stats_json() const {
                           {"malformed", c.malformed},
                           {"landmarks_refused", c.landmarks_refused},
                           {"quarantines", c.quarantines},
-                          {"quarantined_dropped", c.quarantined_dropped}};
+                          {"quarantined_dropped", c.quarantined_dropped},
+                          {"bytes_sent", c.bytes_sent},
+                          {"budget_marginals_trimmed", c.budget_marginals_trimmed},
+                          {"budget_marginals_empty", c.budget_marginals_empty},
+                          {"budget_landmarks_dropped", c.budget_landmarks_dropped}};
   }
   if (network_) {
     const auto totals = network_->totals();
@@ -1068,6 +1072,21 @@ void Daemon::Impl::register_routes() {
                    static_cast<double>(c.quarantined_dropped));
       text.gauge("concord_consensus_quarantined_peers", "Peers in quarantine", robot,
                  static_cast<double>(c.quarantined_peers));
+      text.counter("concord_consensus_bytes_sent_total",
+                   "Bytes of landmark sets and marginals sent (framing and encryption included)",
+                   robot, static_cast<double>(c.bytes_sent));
+      text.gauge("concord_consensus_link_budget_bytes_per_second",
+                 "consensus.link_budget_bytes_per_second (0: unlimited)", robot,
+                 config_.consensus.link_budget_bytes_per_second);
+      text.counter("concord_consensus_budget_marginals_trimmed_total",
+                   "Marginals trimmed to fit the link budget (least valuable landmarks left out)",
+                   robot, static_cast<double>(c.budget_marginals_trimmed));
+      text.counter("concord_consensus_budget_marginals_empty_total",
+                   "Marginals sent empty: no landmark fitted the link budget", robot,
+                   static_cast<double>(c.budget_marginals_empty));
+      text.counter("concord_consensus_budget_landmarks_dropped_total",
+                   "Landmarks left out of marginals by the link budget", robot,
+                   static_cast<double>(c.budget_landmarks_dropped));
       suppressed += c.log_lines_suppressed;
     }
     if (ingest_) {

@@ -117,6 +117,11 @@ struct ConsensusConfig {
   /// marginals are not fused (counted) for consensus.quarantine_rounds of the robot's rounds.
   int quarantine_after = 3;
   int quarantine_rounds = 50;
+  /// consensus.link_budget_bytes_per_second: what consensus may send per second over all links
+  /// together (0: unlimited). Set it below this robot's share of the radio: marginals that do
+  /// not fit are trimmed on purpose (least valuable landmarks first) instead of queueing
+  /// (docs/field.md). Counted in /metrics (concord_consensus_budget_*).
+  double link_budget_bytes_per_second = 0.0;
 };
 
 struct HttpConfig {
