@@ -102,13 +102,13 @@ TEST(DaemonSupervision, ReadyThenWatchdogPingsStopWhileTheEstimatorHangsAndResum
   const fs::path out = fresh_folder("supervision-watchdog");
   write_text(out / "robot.yaml", replay_config(out, 10.0));
   FakeServiceManager manager;
-  constexpr auto kWatchdog = 500ms;  // WatchdogSec=0.5s: a ping every 250 ms
+  constexpr auto kWatchdog = 1000ms;  // WatchdogSec=1s: a ping every 500 ms
   std::optional<ChildProcess> daemon;
   {
     ScopedEnvironment environment({{"NOTIFY_SOCKET", manager.notify_socket()},
                                    {"WATCHDOG_USEC", std::to_string(kWatchdog.count() * 1000)}});
     daemon.emplace(std::vector<std::string>{kDaemon, "--config", out / "robot.yaml", "--failpoint",
-                                            "estimator.hang=3"},
+                                            "estimator.hang=4"},
                    out / "robot.log");
   }
   // 1. READY=1 once it listens, with the bound HTTP port in its status.
@@ -122,7 +122,7 @@ TEST(DaemonSupervision, ReadyThenWatchdogPingsStopWhileTheEstimatorHangsAndResum
   const auto stalled =
       manager.wait_for([](const auto& m) { return m.contains("unresponsive"); }, 30s);
   ASSERT_TRUE(stalled) << read_text(out / "robot.log");
-  // 3. The hang ends (3 s): it checks in again and the pings resume.
+  // 3. The hang ends (4 s): it checks in again and the pings resume.
   const auto recovered =
       manager.wait_for([](const auto& m) { return m.contains("recovered"); }, 30s);
   ASSERT_TRUE(recovered) << read_text(out / "robot.log");
@@ -147,7 +147,7 @@ TEST(DaemonSupervision, ReadyThenWatchdogPingsStopWhileTheEstimatorHangsAndResum
   EXPECT_GE(pings_before, 1);
   EXPECT_EQ(pings_during, 0);
   ASSERT_TRUE(last_ping_before && first_ping_after);
-  // systemd would have killed it: no ping for longer than WatchdogSec (the hang is 3 s).
+  // systemd would have killed it: no ping for longer than WatchdogSec (the hang is 4 s).
   EXPECT_GT(*first_ping_after - *last_ping_before, 2 * kWatchdog);
 
   const auto metrics = launch::http_get("127.0.0.1", *http, "/metrics", 1000ms);
