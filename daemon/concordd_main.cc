@@ -3,6 +3,7 @@
 ///            [--mode off|lockstep|async] [--peer host:port ...] [--dataset DIR] [--robot N]
 ///            [--max-frames N] [--rate HZ] [--wait-for-peers N] [--log-level LEVEL]
 ///            [--failpoint NAME[=ARG] ...]
+///   concordd --check-config robot.yaml [overrides]   validate, start nothing (exit 0 or 2)
 /// Exit codes: 0 normal end (also after SIGTERM/SIGINT), 2 cannot start (command line, config,
 /// key, data, output directory, port), 3 the final outputs could not be written.
 /// See docs/daemon.md and configs/team-kitti00/robot_00.yaml.
@@ -17,6 +18,7 @@
 #include "concord/config/options_file.h"
 #include "concord/daemon/config.h"
 #include "concord/daemon/daemon.h"
+#include "concord/daemon/log_file_sink.h"
 
 using namespace concord;
 
@@ -24,7 +26,15 @@ int main(int argc, char** argv) {
   CLI::App app{"concordd: one robot's multi-robot object SLAM daemon (estimator, peer-to-peer "
                "consensus, HTTP state endpoint)"};
   std::string config_file;
-  app.add_option("--config", config_file, "Daemon config (YAML)")->required()->check(CLI::ExistingFile);
+  std::string check_file;
+  auto* config_option =
+      app.add_option("--config", config_file, "Daemon config (YAML)")->check(CLI::ExistingFile);
+  auto* check_option = app.add_option(
+      "--check-config", check_file,
+      "Validate this config and the files it names (team key, data, output folder), start "
+      "nothing; exit 0 if the daemon could start with it, else 2 with every problem");
+  config_option->excludes(check_option);
+  check_option->excludes(config_option);
   std::optional<int> robot_id, robot, max_frames, wait_for_peers;
   std::optional<int> listen_port, http_port;
   std::optional<double> rate;
@@ -57,13 +67,26 @@ int main(int argc, char** argv) {
     return daemon::kExitCannotStart;
   }
 
+  if (config_file.empty() && check_file.empty()) {
+    std::cerr << "concordd: --config FILE (or --check-config FILE) is required\n" << app.help();
+    return daemon::kExitCannotStart;
+  }
+  const bool check_only = !check_file.empty();
+  if (check_only) config_file = check_file;
+
   auto logger = spdlog::stderr_logger_mt("concordd");
   spdlog::set_default_logger(logger);
   spdlog::set_pattern("%Y-%m-%dT%H:%M:%S.%e %l %v");
 
+  // The config file, then the command-line overrides (also on a SIGHUP reload of the peers).
+  auto load = [&] {
+    daemon::DaemonConfig loaded = daemon::load_daemon_config(config_file);
+    if (!peers.empty()) loaded.network.peers = peers;
+    return loaded;
+  };
   daemon::DaemonConfig config;
   try {
-    config = daemon::load_daemon_config(config_file);
+    config = load();
     if (robot_id) config.robot_id = *robot_id;
     if (listen_port) config.network.listen_port = static_cast<std::uint16_t>(*listen_port);
     if (http_port) config.http.port = static_cast<std::uint16_t>(*http_port);
@@ -73,7 +96,6 @@ int main(int argc, char** argv) {
       if (!parsed) throw config::ConfigError("--mode: expected off, lockstep or async, got '" + *mode + "'");
       config.consensus.mode = *parsed;
     }
-    if (!peers.empty()) config.network.peers = peers;
     if (dataset) config.source.dataset = *dataset;
     if (robot) config.source.robot = *robot;
     if (max_frames) config.source.max_frames = *max_frames;
@@ -94,10 +116,30 @@ int main(int argc, char** argv) {
     std::cerr << "concordd: " << error.what() << "\n";
     return daemon::kExitCannotStart;
   }
+  if (check_only) {
+    const std::vector<std::string> problems = daemon::check_config_files(config);
+    if (!problems.empty()) {
+      std::cerr << "concordd: " << config_file << ": the daemon could not start with it:\n";
+      for (const std::string& problem : problems) std::cerr << "  " << problem << "\n";
+      return daemon::kExitCannotStart;
+    }
+    std::cout << "concordd: " << config_file << ": OK: " << daemon::describe(config) << "\n";
+    return daemon::kExitOk;
+  }
   const auto level = spdlog::level::from_str(config.log_level);
   if (level == spdlog::level::off && config.log_level != "off") {
     std::cerr << "concordd: log_level: unknown level '" << config.log_level << "'\n";
     return daemon::kExitCannotStart;
+  }
+  std::shared_ptr<daemon::LogFileSink> log_file;
+  if (!config.log_file.empty()) {
+    try {
+      log_file = std::make_shared<daemon::LogFileSink>(config.log_file);
+    } catch (const std::exception& error) {
+      std::cerr << "concordd: " << error.what() << "\n";
+      return daemon::kExitCannotStart;
+    }
+    logger->sinks() = {log_file};
   }
   spdlog::set_level(level);
   spdlog::set_pattern("%Y-%m-%dT%H:%M:%S.%e %l robot " + std::to_string(config.robot_id) + ": %v");
@@ -105,6 +147,10 @@ int main(int argc, char** argv) {
 
   if (config.failpoints.any())
     spdlog::warn("failpoints switched on (testing aid): {}", fmt::join(failpoints, ", "));
-  daemon::Daemon instance(config);
+  spdlog::info("config {}: {}", config_file, daemon::describe(config));
+  daemon::DaemonHooks hooks;
+  hooks.reload_peers = [&load] { return load().network.peers; };
+  if (log_file) hooks.reopen_logs = [log_file] { return log_file->reopen(); };
+  daemon::Daemon instance(config, hooks);
   return instance.run();
 }

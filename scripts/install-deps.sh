@@ -15,7 +15,9 @@ packages=(
   libprotobuf-dev protobuf-compiler  # wire schema (proto/)
   libspdlog-dev            # daemon logging, one event per line
   libsodium-dev            # team key and the authenticated peer channel (crypto_kx, secretstream)
+  libsystemd-dev           # sd_notify: readiness and the watchdog under systemd (Type=notify)
   libgtest-dev libgmock-dev  # tests
+  iproute2                 # ip, tc: the network-namespace team tests (skipped without root)
   clang libclang-rt-14-dev   # sanitizer builds and the libFuzzer targets (scripts/test.sh)
 )
 

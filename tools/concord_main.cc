@@ -48,13 +48,25 @@ using namespace concord;
 
 namespace {
 
+/// A path compiled in for the build tree or, in an installed copy (the .deb: /usr/bin/concord),
+/// the same file relative to the executable (../share/concord/..., or concordd beside it).
+fs::path build_or_installed(const fs::path& build_path, const fs::path& relative_to_executable) {
+  if (fs::exists(build_path)) return build_path;
+  std::error_code error;
+  const fs::path executable = fs::read_symlink("/proc/self/exe", error);
+  if (error) return build_path;
+  const fs::path installed = (executable.parent_path() / relative_to_executable).lexically_normal();
+  return fs::exists(installed) ? installed : build_path;
+}
+
 /// The config of a dataset: its own estimator.yaml (written by `concord frontend` from the
 /// front-end's noise), else the checked-in config of the sensor that recorded it (one config per
 /// sensor, not per dataset): configs/sensors/<sensor>.yaml, the sensor from dataset.json's
 /// "sensor" or, for the shared sets that have none, from configs/sensors/datasets.yaml.
 std::optional<fs::path> dataset_config(const dataset::Dataset& data) {
   if (fs::exists(data.root / "estimator.yaml")) return data.root / "estimator.yaml";
-  const fs::path sensors = fs::path(CONCORD_CONFIG_DIR) / "sensors";
+  const fs::path sensors =
+      build_or_installed(fs::path(CONCORD_CONFIG_DIR) / "sensors", "../share/concord/sensors");
   std::string sensor = data.sensor;
   if (sensor.empty()) {
     const YAML::Node known = YAML::LoadFile((sensors / "datasets.yaml").string());
@@ -640,7 +652,7 @@ int main(int argc, char** argv) {
   auto* launch_command = app.add_subcommand(
       "launch", "Run one concordd per robot of a dataset on loopback and score the outputs");
   launch::LaunchOptions launch_options;
-  launch_options.concordd = CONCORD_DAEMON_PATH;
+  launch_options.concordd = build_or_installed(CONCORD_DAEMON_PATH, "concordd");
   bool launch_lockstep = false, launch_async = false, launch_separate = false;
   std::string launch_config, concordd_path;
   launch_command->add_option("--dataset", launch_options.dataset, "Dataset folder")

@@ -47,6 +47,20 @@ class BoundedQueue {
     return item;
   }
 
+  /// As pop(), waiting at most `timeout`: std::nullopt with `closed` false when it passed with
+  /// nothing queued (the estimator thread checks in with the watchdog between waits).
+  template <typename Rep, typename Period>
+  std::optional<T> pop_for(std::chrono::duration<Rep, Period> timeout, bool& closed) {
+    std::unique_lock lock(mutex_);
+    not_empty_.wait_for(lock, timeout, [&] { return closed_ || !items_.empty(); });
+    closed = closed_ && items_.empty();
+    if (items_.empty()) return std::nullopt;
+    T item = std::move(items_.front());
+    items_.pop_front();
+    not_full_.notify_one();
+    return item;
+  }
+
   /// No more pushes; pop() drains what is queued, then returns std::nullopt.
   void close() {
     std::lock_guard lock(mutex_);

@@ -243,6 +243,16 @@ std::vector<std::string> DaemonConfig::validate() const {
   if (consensus.miss_limit < 1)
     problems.push_back("consensus.miss_limit: expected >= 1, got " +
                        std::to_string(consensus.miss_limit));
+  if (!(consensus.link_budget_bytes_per_second >= 0.0 &&
+        consensus.link_budget_bytes_per_second <= 1e10))
+    problems.push_back("consensus.link_budget_bytes_per_second: expected 0 (unlimited) or a rate "
+                       "in bytes per second, got " +
+                       std::to_string(consensus.link_budget_bytes_per_second));
+  else if (consensus.link_budget_bytes_per_second > 0.0 &&
+           consensus.link_budget_bytes_per_second < 1000.0)
+    problems.push_back("consensus.link_budget_bytes_per_second: " +
+                       std::to_string(consensus.link_budget_bytes_per_second) +
+                       " is below 1000 bytes per second (not even a landmark set per round)");
   if (consensus.max_marginal_landmarks < 1)
     problems.push_back("consensus.max_marginal_landmarks: expected >= 1");
   if (http.max_connections_per_client > http.max_connections)
@@ -299,6 +309,7 @@ DaemonConfig parse_daemon_config(const std::string& yaml_text, const std::string
   top.read("robot_id", config.robot_id);
   top.read("team", config.team);
   top.read("log_level", config.log_level);
+  top.read("log_file", config.log_file, base_directory);
   top.read_size("queue_capacity", config.queue_capacity);
   top.read("team_key_file", config.team_key_file, base_directory);
   top.read_ints("members", config.members);
@@ -384,6 +395,7 @@ DaemonConfig parse_daemon_config(const std::string& yaml_text, const std::string
   consensus.read("quarantine_after", config.consensus.quarantine_after);
   consensus.read("quarantine_rounds", config.consensus.quarantine_rounds);
   consensus.read("max_marginal_landmarks", config.consensus.max_marginal_landmarks);
+  consensus.read("link_budget_bytes_per_second", config.consensus.link_budget_bytes_per_second);
   consensus.finish();
 
   Section http(top.child("http"), "http.", problems);

@@ -11,6 +11,7 @@
 #include "concord/estimator/estimator.h"
 #include "concord/net/log_limiter.h"
 #include "concord/v1/concord.pb.h"
+#include "link_budget.h"
 
 namespace concord::daemon {
 
@@ -79,7 +80,8 @@ ConsensusExchange::ConsensusExchange(ConsensusConfig config, Send send,
     : config_(std::move(config)),
       send_(std::move(send)),
       failpoints_(failpoints),
-      log_limiter_(std::make_unique<net::LogLimiter>()) {}
+      log_limiter_(std::make_unique<net::LogLimiter>()),
+      budget_(std::make_unique<LinkBudget>(config_.link_budget_bytes_per_second)) {}
 
 ConsensusExchange::~ConsensusExchange() = default;
 
@@ -315,25 +317,59 @@ void ConsensusExchange::send_landmark_set(int robot, std::uint64_t round,
   v1::LandmarkSet* message = envelope.mutable_landmark_set();
   message->set_round(round);
   message->mutable_ids()->Assign(ids.begin(), ids.end());
-  send_(robot, envelope);
+  send_counted(robot, envelope);
+}
+
+void ConsensusExchange::send_counted(int robot, const v1::Envelope& envelope) {
+  // Encryption (secretstream) and the length prefix come on top of the envelope.
+  const std::size_t bytes = envelope.ByteSizeLong() + 21;
+  if (send_(robot, envelope)) {
+    budget_->spend(bytes);
+    std::lock_guard lock(mutex_);
+    counters_.bytes_sent += bytes;
+  }
 }
 
 void ConsensusExchange::send_marginal(int robot, std::uint64_t round, const Estimator& estimator,
                                       const std::vector<LandmarkId>& own_ids,
-                                      const std::vector<LandmarkId>& peer_ids, int degree) {
+                                      const std::vector<LandmarkId>& peer_ids, int degree,
+                                      int links_left) {
   v1::Envelope envelope;
   envelope.set_round(round);
   v1::Marginal* message = envelope.mutable_marginal();
   message->set_round(round);
   message->set_degree(static_cast<std::uint32_t>(degree));
   if (failpoints_.marginal_silence) return;  // failpoint: heartbeats and LandmarkSets only
-  const std::vector<LandmarkId> common = intersection(own_ids, peer_ids);
+  std::vector<LandmarkId> common = intersection(own_ids, peer_ids);
+  if (!budget_->unlimited() && !common.empty()) {
+    // Under the link budget: what fits in this neighbour's share, least valuable left out.
+    const double allowance = budget_->share(links_left);
+    if (static_cast<double>(estimated_marginal_bytes(common.size(), 0)) > allowance) {
+      std::vector<std::pair<LandmarkId, bool>> candidates;
+      candidates.reserve(common.size());
+      for (const LandmarkId id : common)
+        candidates.emplace_back(id, estimator.state().landmark_slot(id) >= 0);
+      std::map<LandmarkId, std::uint64_t>& sent = last_sent_[robot];
+      std::vector<LandmarkId> chosen = choose_within_budget(candidates, sent, allowance);
+      {
+        std::lock_guard lock(mutex_);
+        ++(chosen.empty() ? counters_.budget_marginals_empty : counters_.budget_marginals_trimmed);
+        counters_.budget_landmarks_dropped += common.size() - chosen.size();
+      }
+      // Forget ids no longer shared (bounded memory), then remember what goes out now.
+      for (auto it = sent.begin(); it != sent.end();)
+        it = std::binary_search(common.begin(), common.end(), it->first) ? std::next(it)
+                                                                          : sent.erase(it);
+      common = std::move(chosen);
+    }
+    for (const LandmarkId id : common) last_sent_[robot][id] = round;
+  }
   if (!common.empty()) to_wire(estimator.marginal(common), *message);
   if (failpoints_.marginal_garbage) {  // failpoint: one mean value too many
     message->add_landmark_ids(1);
     message->add_mean(0.0);
   }
-  send_(robot, envelope);
+  send_counted(robot, envelope);
 }
 
 RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& estimator) {
@@ -392,8 +428,10 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
   }
   const int degree = static_cast<int>(neighbours.size());
   report.neighbours = degree;
+  budget_->refill(Clock::now());
+  int links_left = degree;
   for (int robot : neighbours) {
-    send_marginal(robot, round, estimator, ids, neighbour_ids[robot], degree);
+    send_marginal(robot, round, estimator, ids, neighbour_ids[robot], degree, links_left--);
   }
 
   // Phase 2: every waited-for neighbour's Marginal(k) (a rejected one is its answer too).
@@ -475,10 +513,12 @@ RoundReport ConsensusExchange::async_round(std::uint64_t round, Estimator& estim
   }
   const int degree = static_cast<int>(live.size());
   report.live = report.neighbours = degree;
+  budget_->refill(Clock::now());
+  for (int robot : live) send_landmark_set(robot, round, ids);
+  auto links_left = static_cast<int>(known_ids.size());
   for (int robot : live) {
-    send_landmark_set(robot, round, ids);
     if (const auto it = known_ids.find(robot); it != known_ids.end()) {
-      send_marginal(robot, round, estimator, ids, it->second, degree);
+      send_marginal(robot, round, estimator, ids, it->second, degree, links_left--);
     }
   }
   std::vector<WeightedMarginal> inbox;

@@ -37,6 +37,7 @@
 #include "concord/web/json_response.h"
 #include "metrics_text.h"
 #include "output_files.h"
+#include "service_notifier.h"
 #include "trajectory_history.h"
 
 namespace concord::daemon {
@@ -147,11 +148,13 @@ struct LiveState {
 
 class Daemon::Impl {
  public:
-  explicit Impl(DaemonConfig config)
+  Impl(DaemonConfig config, DaemonHooks hooks)
       : config_(std::move(config)),
+        hooks_(std::move(hooks)),
         queue_(config_.queue_capacity),
         odometry_noise_(Propagator(config_.estimator).odometry_noise()),
-        unknown_motion_noise_(unknown_motion_noise(config_.source)) {}
+        unknown_motion_noise_(unknown_motion_noise(config_.source)),
+        notifier_(std::make_unique<ServiceNotifier>(io_)) {}
 
   int run();
   void request_stop();
@@ -170,8 +173,14 @@ class Daemon::Impl {
   [[nodiscard]] bool wait_or_stop(Clock::duration duration);
   json stats_json() const;
   void shutdown_services();
+  void arm_reload();
+  void reload();
+  std::string status_line() const;
+  /// The longest a frame's processing may legitimately take: its consensus round's two waits.
+  Clock::duration frame_budget() const;
 
   DaemonConfig config_;
+  DaemonHooks hooks_;
   BoundedQueue<QueuedFrame> queue_;
   std::atomic<bool> stop_requested_{false};
   Clock::time_point started_ = Clock::now();
@@ -196,6 +205,9 @@ class Daemon::Impl {
   std::unique_ptr<web::HttpServer> http_;
   std::unique_ptr<net::FrameListener> ingest_;
   std::unique_ptr<boost::asio::signal_set> signals_;
+  std::unique_ptr<boost::asio::signal_set> reload_signals_;  // SIGHUP
+  std::unique_ptr<ServiceNotifier> notifier_;                // after io_: its timer runs there
+  std::atomic<std::uint64_t> reloads_{0};
   std::thread io_thread_;
   std::thread source_thread_;
 
@@ -365,7 +377,62 @@ bool Daemon::Impl::start_services() {
     spdlog::info("signal {}: finishing the current frame and writing outputs", signal);
     request_stop();
   });
+  reload_signals_ = std::make_unique<boost::asio::signal_set>(io_, SIGHUP);
+  arm_reload();
   return true;
+}
+
+void Daemon::Impl::arm_reload() {
+  reload_signals_->async_wait([this](const boost::system::error_code& error, int) {
+    if (error) return;
+    reload();
+    arm_reload();
+  });
+}
+
+/// SIGHUP (network thread): reopen the log file, re-read the static peer list. A bad config file
+/// changes nothing (logged); the daemon goes on either way.
+void Daemon::Impl::reload() {
+  notifier_->reloading();
+  ++reloads_;
+  if (hooks_.reopen_logs) {
+    const std::string problem = hooks_.reopen_logs();
+    if (problem.empty())
+      spdlog::info("SIGHUP: log file reopened");
+    else
+      spdlog::error("SIGHUP: {} (logging goes on to the old file)", problem);
+  }
+  if (hooks_.reload_peers && network_) {
+    try {
+      std::vector<net::HostPort> addresses;
+      for (const std::string& text : hooks_.reload_peers()) {
+        const auto address = net::parse_host_port(text);
+        if (!address)
+          throw std::runtime_error("network.peers: '" + text + "' is not host:port");
+        addresses.push_back(*address);
+      }
+      spdlog::info("SIGHUP: peer list re-read ({} static peers)", addresses.size());
+      network_->set_static_peers(std::move(addresses));
+    } catch (const std::exception& error) {
+      std::string reason = error.what();  // one event per line
+      std::replace(reason.begin(), reason.end(), '\n', ' ');
+      spdlog::error("SIGHUP: peer list unchanged: {}", reason);
+    }
+  }
+  notifier_->reloaded(status_line());
+}
+
+std::string Daemon::Impl::status_line() const {
+  std::string line = "robot " + std::to_string(config_.robot_id) + " of team '" + config_.team + "'";
+  if (network_) line += ", peers on port " + std::to_string(network_->listen_port());
+  if (ingest_) line += ", ingest on port " + std::to_string(ingest_->port());
+  if (http_) line += ", http on port " + std::to_string(http_->port());
+  return line;
+}
+
+Clock::duration Daemon::Impl::frame_budget() const {
+  if (!exchange_ || config_.consensus.mode != ConsensusMode::kLockstep) return Clock::duration::zero();
+  return 2 * config_.consensus.round_deadline;  // landmark sets, then marginals
 }
 
 void Daemon::Impl::request_stop() {
@@ -675,6 +742,7 @@ void Daemon::Impl::estimator_loop() {
     }
     spdlog::info("waiting up to {} ms for {} peers", config_.consensus.startup_timeout.count(),
                  config_.consensus.wait_for_peers);
+    notifier_->check_in(config_.consensus.startup_timeout);
     const int live = exchange_->wait_for_peers(config_.consensus.wait_for_peers,
                                                config_.consensus.startup_timeout);
     if (live < config_.consensus.wait_for_peers && !stop_requested_) {
@@ -685,8 +753,10 @@ void Daemon::Impl::estimator_loop() {
     if (checkpoint_) {
       // Resume: rejoin at the team's current round (the frames in between are a gap).
       std::int64_t team_round = -1;
-      if (exchange_ && config_.consensus.mode == ConsensusMode::kLockstep)
+      if (exchange_ && config_.consensus.mode == ConsensusMode::kLockstep) {
+        notifier_->check_in(config_.consensus.round_deadline);
         team_round = exchange_->wait_for_team_round(config_.consensus.round_deadline);
+      }
       const auto after_checkpoint = static_cast<std::int64_t>(checkpoint_->round) + 1;
       first_replay_frame_ = static_cast<int>(
           std::min<std::int64_t>(std::max(after_checkpoint, team_round), robot_->num_frames()));
@@ -705,8 +775,20 @@ void Daemon::Impl::estimator_loop() {
     source_thread_ = std::thread([this] { replay_frames(); });
   }
   if (frontend_) source_thread_ = std::thread([this] { image_frames(); });
-  while (auto item = queue_.pop()) {
+  // The watchdog is fed while this thread checks in: between waits for a frame (at least every
+  // half interval), and before each frame with the bound of its consensus round.
+  const auto idle_wait = notifier_->watchdog_enabled()
+                             ? std::chrono::duration_cast<Clock::duration>(
+                                   notifier_->watchdog_interval() / 2)
+                             : Clock::duration(std::chrono::seconds(1));
+  while (true) {
+    notifier_->check_in();
+    bool closed = false;
+    auto item = queue_.pop_for(idle_wait, closed);
+    if (closed) break;
+    if (!item) continue;
     if (stop_requested_) break;
+    notifier_->check_in(frame_budget());
     process(*item);
     if (config_.output.write_interval.count() > 0 &&
         Clock::now() - last_write_ >= config_.output.write_interval) {
@@ -832,7 +914,11 @@ json Daemon::Impl::stats_json() const {
                           {"malformed", c.malformed},
                           {"landmarks_refused", c.landmarks_refused},
                           {"quarantines", c.quarantines},
-                          {"quarantined_dropped", c.quarantined_dropped}};
+                          {"quarantined_dropped", c.quarantined_dropped},
+                          {"bytes_sent", c.bytes_sent},
+                          {"budget_marginals_trimmed", c.budget_marginals_trimmed},
+                          {"budget_marginals_empty", c.budget_marginals_empty},
+                          {"budget_landmarks_dropped", c.budget_landmarks_dropped}};
   }
   if (network_) {
     const auto totals = network_->totals();
@@ -1029,6 +1115,21 @@ void Daemon::Impl::register_routes() {
                    static_cast<double>(c.quarantined_dropped));
       text.gauge("concord_consensus_quarantined_peers", "Peers in quarantine", robot,
                  static_cast<double>(c.quarantined_peers));
+      text.counter("concord_consensus_bytes_sent_total",
+                   "Bytes of landmark sets and marginals sent (framing and encryption included)",
+                   robot, static_cast<double>(c.bytes_sent));
+      text.gauge("concord_consensus_link_budget_bytes_per_second",
+                 "consensus.link_budget_bytes_per_second (0: unlimited)", robot,
+                 config_.consensus.link_budget_bytes_per_second);
+      text.counter("concord_consensus_budget_marginals_trimmed_total",
+                   "Marginals trimmed to fit the link budget (least valuable landmarks left out)",
+                   robot, static_cast<double>(c.budget_marginals_trimmed));
+      text.counter("concord_consensus_budget_marginals_empty_total",
+                   "Marginals sent empty: no landmark fitted the link budget", robot,
+                   static_cast<double>(c.budget_marginals_empty));
+      text.counter("concord_consensus_budget_landmarks_dropped_total",
+                   "Landmarks left out of marginals by the link budget", robot,
+                   static_cast<double>(c.budget_landmarks_dropped));
       suppressed += c.log_lines_suppressed;
     }
     if (ingest_) {
@@ -1118,6 +1219,13 @@ void Daemon::Impl::register_routes() {
         });
       }
     }
+    text.counter("concord_watchdog_pings_total", "WATCHDOG=1 messages sent to the service manager",
+                 robot, static_cast<double>(notifier_->pings_sent()));
+    text.counter("concord_watchdog_stalls_total",
+                 "Times the estimator thread missed its watchdog check-in (pings stopped)", robot,
+                 static_cast<double>(notifier_->stalls()));
+    text.counter("concord_reloads_total", "SIGHUP reloads (log file, peer list)", robot,
+                 static_cast<double>(reloads_.load()));
     text.counter("concord_log_lines_suppressed_total",
                  "Log lines about peers and clients held back by the rate limit", robot,
                  static_cast<double>(suppressed));
@@ -1144,6 +1252,11 @@ void Daemon::Impl::shutdown_services() {
     boost::system::error_code ignored;
     signals_->cancel(ignored);
   }
+  if (reload_signals_) {
+    boost::system::error_code ignored;
+    reload_signals_->cancel(ignored);
+  }
+  notifier_->stop_watchdog();
 }
 
 int Daemon::Impl::run() {
@@ -1164,6 +1277,9 @@ int Daemon::Impl::run() {
     http_io_.run();
     return kExitCannotStart;
   }
+  // Listening (peers, ingest, HTTP): ready for the service manager.
+  notifier_->ready(status_line());
+  notifier_->start_watchdog();
   auto run_context = [this](boost::asio::io_context& context, const char* name) {
     try {
       context.run();
@@ -1181,6 +1297,8 @@ int Daemon::Impl::run() {
     std::lock_guard lock(live_.mutex);
     live_.phase = stop_requested_ ? "stopped" : "finished";
   }
+  notifier_->stopping();
+  notifier_->stop_watchdog();
   const bool written = write_outputs(true);
   {
     std::lock_guard lock(live_.mutex);
@@ -1204,7 +1322,8 @@ int Daemon::Impl::run() {
   return written ? kExitOk : kExitOutputFailed;
 }
 
-Daemon::Daemon(DaemonConfig config) : impl_(std::make_unique<Impl>(std::move(config))) {}
+Daemon::Daemon(DaemonConfig config, DaemonHooks hooks)
+    : impl_(std::make_unique<Impl>(std::move(config), std::move(hooks))) {}
 Daemon::~Daemon() = default;
 int Daemon::run() { return impl_->run(); }
 void Daemon::request_stop() { impl_->request_stop(); }

@@ -111,6 +111,7 @@ void PeerNetwork::Impl::on_beacon(std::size_t bytes) {
     if (peer != peers_.end()) peer->second.dial_key = key;
   }
   DialTarget& target = *targets_.at(key);
+  target.retired = false;  // found by its beacon: dialed again even if no longer a static peer
   if (target.timer_armed || !wants_dial(key, target)) return;
   spdlog::info("net: beacon from robot {}: dialing {}", robot, key);
   dial(key);

@@ -67,11 +67,13 @@ PeerNetwork::Impl::DialTarget& PeerNetwork::Impl::ensure_target(const HostPort& 
     target =
         std::make_unique<DialTarget>(address, configured, backoff_options_, random_(), strand_);
   target->configured = target->configured || configured;
+  target->retired = false;  // listed or learned again
   return *target;
 }
 
 bool PeerNetwork::Impl::wants_dial(const std::string& key, const DialTarget& target) const {
-  if (!running_ || stopping_ || target.is_self || target.session_id != 0) return false;
+  if (!running_ || stopping_ || target.is_self || target.retired || target.session_id != 0)
+    return false;
   if (target.robot < 0) return true;
   const auto peer = peers_.find(target.robot);
   if (peer == peers_.end()) return true;

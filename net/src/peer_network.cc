@@ -5,6 +5,8 @@
 // peer_discovery.cc, the shared declarations in peer_network_impl.h.
 #include "peer_network_impl.h"
 
+#include <set>
+
 namespace concord::net {
 
 // ---------------------------------------------------------------------------------------------
@@ -162,6 +164,31 @@ void PeerNetwork::Impl::add_peer(HostPort address) {
     if (self->stopping_) return;
     self->ensure_target(address, true);
     self->dial(address.to_string());
+  });
+}
+
+void PeerNetwork::Impl::set_static_peers(std::vector<HostPort> addresses) {
+  asio::post(strand_, [self = shared_from_this(), addresses = std::move(addresses)] {
+    if (self->stopping_) return;
+    std::set<std::string> wanted;
+    for (const HostPort& address : addresses) wanted.insert(address.to_string());
+    int removed = 0;
+    int added = 0;
+    for (auto& [key, target] : self->targets_) {
+      if (!target->configured || wanted.count(key)) continue;
+      target->configured = false;
+      target->retired = true;
+      target->timer.cancel();
+      ++removed;
+    }
+    for (const HostPort& address : addresses) {
+      const auto known = self->targets_.find(address.to_string());
+      if (known == self->targets_.end() || !known->second->configured) ++added;
+      self->ensure_target(address, true);
+      self->dial(address.to_string());
+    }
+    spdlog::info("net: static peers replaced: {} listed, {} new, {} no longer dialed",
+                 addresses.size(), added, removed);
   });
 }
 
@@ -390,6 +417,9 @@ void PeerNetwork::stop(std::string reason, std::uint64_t last_round) {
 }
 
 void PeerNetwork::add_peer(HostPort address) { impl_->add_peer(std::move(address)); }
+void PeerNetwork::set_static_peers(std::vector<HostPort> addresses) {
+  impl_->set_static_peers(std::move(addresses));
+}
 
 std::uint16_t PeerNetwork::listen_port() const { return impl_->listen_port(); }
 

@@ -111,6 +111,7 @@ class PeerNetwork::Impl : public std::enable_shared_from_this<PeerNetwork::Impl>
   /// From the destructor: no callback runs any more, then stop().
   void detach_and_stop();
   void add_peer(HostPort address);
+  void set_static_peers(std::vector<HostPort> addresses);
   std::uint16_t listen_port() const { return listen_port_.load(); }
   bool send(int robot, const v1::Envelope& envelope);
   int broadcast(const v1::Envelope& envelope);
@@ -173,6 +174,7 @@ class PeerNetwork::Impl : public std::enable_shared_from_this<PeerNetwork::Impl>
     bool configured;
     int robot = -1;        // learned from the first handshake
     bool is_self = false;  // we dialed ourselves: never again
+    bool retired = false;  // removed from the static list (SIGHUP): not dialed until learned again
     ReconnectBackoff backoff;
     asio::steady_timer timer;
     bool timer_armed = false;

@@ -117,6 +117,11 @@ struct ConsensusConfig {
   /// marginals are not fused (counted) for consensus.quarantine_rounds of the robot's rounds.
   int quarantine_after = 3;
   int quarantine_rounds = 50;
+  /// consensus.link_budget_bytes_per_second: what consensus may send per second over all links
+  /// together (0: unlimited). Set it below this robot's share of the radio: marginals that do
+  /// not fit are trimmed on purpose (least valuable landmarks first) instead of queueing
+  /// (docs/field.md). Counted in /metrics (concord_consensus_budget_*).
+  double link_budget_bytes_per_second = 0.0;
 };
 
 struct HttpConfig {
@@ -162,6 +167,9 @@ struct DaemonConfig {
   std::size_t queue_capacity = 64;
   /// spdlog level: trace, debug, info, warn, error, critical, off.
   std::string log_level = "info";
+  /// log_file: append the log to this file instead of stderr; SIGHUP reopens it (logrotate).
+  /// "" = stderr (journald keeps it under systemd).
+  std::filesystem::path log_file;
   /// Fault injection (command line only: --failpoint).
   Failpoints failpoints;
 
@@ -175,5 +183,15 @@ struct DaemonConfig {
 [[nodiscard]] DaemonConfig parse_daemon_config(const std::string& yaml_text,
                                                const std::string& source_name,
                                                const std::filesystem::path& base_directory);
+
+/// `concordd --check-config`: the problems with what a valid config names, without starting
+/// anything: the team key (present, well-formed, not readable by group or others), the source's
+/// data (the dataset's robot folder, the image sequence folder and its detections and front-end
+/// options, the ingest camera), the output folder and the log file (writable, or creatable by
+/// this user). Each problem names the key and the path. Reads, never creates or writes.
+[[nodiscard]] std::vector<std::string> check_config_files(const DaemonConfig& config);
+
+/// One line saying what a config runs (robot, team, mode, source, peers, discovery, ports).
+[[nodiscard]] std::string describe(const DaemonConfig& config);
 
 }  // namespace concord::daemon

@@ -79,6 +79,12 @@ struct ExchangeCounters {
   std::uint64_t quarantines = 0;
   std::uint64_t quarantined_dropped = 0;
   std::uint64_t quarantined_peers = 0;
+  /// Link budget (consensus.link_budget_bytes_per_second): marginals trimmed to fit, marginals
+  /// sent empty (nothing fitted), landmarks left out, and the bytes consensus sent.
+  std::uint64_t budget_marginals_trimmed = 0;
+  std::uint64_t budget_marginals_empty = 0;
+  std::uint64_t budget_landmarks_dropped = 0;
+  std::uint64_t bytes_sent = 0;
 };
 
 /// Per-peer poisoning-defence counters (for /metrics and /peers).
@@ -88,6 +94,8 @@ struct PeerTrust {
   std::uint64_t quarantines = 0;
   bool quarantined = false;
 };
+
+class LinkBudget;  // link_budget.h
 
 /// Fault injection for tests (concordd --failpoint, docs/daemon.md).
 struct ExchangeFailpoints {
@@ -136,9 +144,12 @@ class ConsensusExchange {
   void send_landmark_set(int robot, std::uint64_t round, const std::vector<LandmarkId>& ids);
   RoundReport lockstep_round(std::uint64_t round, Estimator& estimator);
   RoundReport async_round(std::uint64_t round, Estimator& estimator);
+  /// `links_left`: marginals still to send this round, this one included (their budget share).
   void send_marginal(int robot, std::uint64_t round, const Estimator& estimator,
                      const std::vector<LandmarkId>& own_ids,
-                     const std::vector<LandmarkId>& peer_ids, int degree);
+                     const std::vector<LandmarkId>& peer_ids, int degree, int links_left);
+  /// Sends and charges the link budget (estimator thread).
+  void send_counted(int robot, const v1::Envelope& envelope);
   void forget_rounds_up_to(std::uint64_t round);
   /// Whether a message of `round` is beyond the future-round window (lockstep; mutex held).
   bool beyond_window(std::uint64_t round) const;
@@ -165,6 +176,10 @@ class ConsensusExchange {
   /// The round run_round is in (or last ran); -1 before the first.
   std::int64_t current_round_ = -1;
   ExchangeCounters counters_;
+  /// Estimator thread only: the link budget, and per neighbour the round each landmark was last
+  /// sent in (what it received most recently is the least valuable to send again).
+  std::unique_ptr<LinkBudget> budget_;
+  std::map<int, std::map<LandmarkId, std::uint64_t>> last_sent_;
 };
 
 }  // namespace concord::daemon

@@ -6,7 +6,10 @@
 /// PeerNetwork); an HTTP endpoint serves the state as JSON; outputs are rewritten atomically
 /// while running and at shutdown. Networking, HTTP and signals share one Asio io_context thread.
 
+#include <functional>
 #include <memory>
+#include <string>
+#include <vector>
 
 #include "concord/daemon/config.h"
 
@@ -18,16 +21,28 @@ inline constexpr int kExitCannotStart = 2;   ///< bad config or command line, ke
                                              ///< directory, port in use
 inline constexpr int kExitOutputFailed = 3;  ///< ran, but the final outputs could not be written
 
+/// What only main() knows how to do, called on SIGHUP (on the network thread). Either may be
+/// empty.
+struct DaemonHooks {
+  /// Re-reads the static peer list (the config file, then the command-line overrides). Throws
+  /// (e.g. config::ConfigError) on a bad file: the running list is then kept.
+  std::function<std::vector<std::string>()> reload_peers;
+  /// Reopens the log file (after logrotate moved it); returns "" or what went wrong.
+  std::function<std::string()> reopen_logs;
+};
+
 class Daemon {
  public:
-  explicit Daemon(DaemonConfig config);
+  explicit Daemon(DaemonConfig config, DaemonHooks hooks = {});
   ~Daemon();
   Daemon(const Daemon&) = delete;
   Daemon& operator=(const Daemon&) = delete;
 
   /// Runs until the source is exhausted or a stop is requested (SIGINT/SIGTERM or
   /// request_stop()), writes the outputs and returns the process exit code: kExitOk,
-  /// kExitCannotStart (the reason is logged) or kExitOutputFailed.
+  /// kExitCannotStart (the reason is logged) or kExitOutputFailed. Under systemd (NOTIFY_SOCKET)
+  /// it reports READY=1 once it listens, feeds the watchdog (WATCHDOG_USEC) while the estimator
+  /// thread checks in, and reloads on SIGHUP (DaemonHooks).
   [[nodiscard]] int run();
 
   /// Asks run() to finish the frame in progress, write the outputs and return. Any thread.

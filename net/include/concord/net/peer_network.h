@@ -180,6 +180,11 @@ class PeerNetwork {
   /// Adds a static peer at run time (dialed now if started). Any thread.
   void add_peer(HostPort address);
 
+  /// Replaces the static peer list at run time (SIGHUP): addresses new to the list are dialed
+  /// now; addresses no longer in it are not dialed again (a live connection to them stays up until
+  /// it drops, and such a robot can still dial us or be found by its beacons). Any thread.
+  void set_static_peers(std::vector<HostPort> addresses);
+
   /// The bound TCP port (after start()).
   std::uint16_t listen_port() const;
 

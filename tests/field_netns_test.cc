@@ -1,0 +1,223 @@
+// A team across hosts (issue 14): each concordd in its own network namespace on a bridge
+// (tests/netns_lab.h), found by UDP beacon discovery with no static peers, partitioned (a link
+// down) and healed, and on tc token-bucket links. Skipped with a message where namespaces cannot
+// be created (not root, no iproute2, no CAP_NET_ADMIN). Every wait has a deadline; the namespaces
+// are removed even when an assertion fails (RAII).
+#include <gtest/gtest.h>
+#include <signal.h>
+
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <optional>
+#include <regex>
+#include <sstream>
+#include <thread>
+
+#include "concord/dataset/dataset.h"
+#include "concord/dataset/result_io.h"
+#include "launch/launch.h"
+#include "launch/process.h"
+#include "netns_lab.h"
+
+namespace concord {
+namespace {
+
+namespace fs = std::filesystem;
+using namespace std::chrono_literals;
+using launch::ChildProcess;
+using nlohmann::json;
+using testing::NetnsLab;
+using Clock = std::chrono::steady_clock;
+
+const fs::path kSource = CONCORD_SOURCE_DIR;
+const fs::path kDaemon = CONCORD_DAEMON_PATH;
+constexpr std::uint16_t kHttpPort = 8080;  // every robot has its own namespace: same ports
+
+fs::path fresh_folder(const std::string& name) {
+  const fs::path folder =
+      fs::path(CONCORD_BINARY_DIR) / "test-out" / (name + "-" + std::to_string(getpid()));
+  fs::remove_all(folder);
+  fs::create_directories(folder);
+  return folder;
+}
+
+std::string read_text(const fs::path& file) {
+  std::ifstream stream(file);
+  std::ostringstream text;
+  text << stream.rdbuf();
+  return text.str();
+}
+
+template <typename Condition>
+bool eventually(Condition condition, std::chrono::milliseconds timeout) {
+  const auto deadline = Clock::now() + timeout;
+  while (!condition()) {
+    if (Clock::now() > deadline) return false;
+    std::this_thread::sleep_for(50ms);  // polling interval, not synchronisation
+  }
+  return true;
+}
+
+/// The lab, or why the test is skipped.
+std::optional<NetnsLab> make_lab(int robots, const fs::path& scratch, std::string& skip) {
+  skip = NetnsLab::unavailable();
+  if (!skip.empty()) return std::nullopt;
+  try {
+    return std::optional<NetnsLab>(std::in_place, robots, scratch);
+  } catch (const std::exception& error) {
+    skip = std::string("cannot create network namespaces here: ") + error.what();
+    return std::nullopt;
+  }
+}
+
+/// Robot `robot`'s config: discovery only (no static peers), async consensus.
+std::string robot_config(const fs::path& out, const fs::path& key, int robot, int robots,
+                         double rate_hz, const std::string& extra_network = "") {
+  std::string members;
+  for (int member = 0; member < robots; ++member)
+    members += (member ? ", " : "") + std::to_string(member);
+  return "robot_id: " + std::to_string(robot) + "\nteam: field\nteam_key_file: " + key.string() +
+         "\nmembers: [" + members +
+         "]\nestimator: " + (kSource / "configs/sensors/kitti-stereo.yaml").string() +
+         "\nsource: {kind: replay, dataset: " + (kSource / "data/kitti00-300").string() +
+         ", robot: " + std::to_string(robot % 3) + ", rate_hz: " + std::to_string(rate_hz) +
+         "}\nnetwork: {listen_address: 0.0.0.0, listen_port: 7100, peers: [], discovery: true, "
+         "heartbeat_interval_ms: 100, heartbeat_timeout_ms: 1000" +
+         extra_network + "}\nconsensus: {mode: async}\nhttp: {address: 0.0.0.0, port: " +
+         std::to_string(kHttpPort) +
+         "}\noutput: {directory: " + (out / dataset::robot_folder_name(robot)).string() +
+         ", write_interval_ms: 0}\n";
+}
+
+std::optional<json> get_json(const NetnsLab& lab, int robot, const std::string& target) {
+  const auto body = launch::http_get(lab.address(robot), kHttpPort, target, 1000ms);
+  if (!body) return std::nullopt;
+  json parsed = json::parse(*body, nullptr, false);
+  if (parsed.is_discarded()) return std::nullopt;
+  return parsed;
+}
+
+/// Robots that `robot` has up, or -1 if it does not answer.
+int live_peers(const NetnsLab& lab, int robot) {
+  const auto peers = get_json(lab, robot, "/peers");
+  if (!peers) return -1;
+  int up = 0;
+  for (const auto& peer : (*peers)["peers"]) up += peer["up"] == true ? 1 : 0;
+  return up;
+}
+
+/// A counter of /metrics (robot label only), or -1.
+double metric(const NetnsLab& lab, int robot, const std::string& name) {
+  const auto text = launch::http_get(lab.address(robot), kHttpPort, "/metrics", 1000ms);
+  if (!text) return -1;
+  const std::string prefix = name + "{robot=\"" + std::to_string(robot) + "\"} ";
+  const auto at = text->find(prefix);
+  if (at == std::string::npos) return -1;
+  return std::stod(text->substr(at + prefix.size()));
+}
+
+TEST(FieldNetns, DiscoveryAcrossNamespacesThenPartitionAndHeal) {
+  const fs::path out = fresh_folder("field-partition");
+  std::string skip;
+  auto lab = make_lab(3, out, skip);
+  if (!lab) GTEST_SKIP() << skip;
+  launch::LaunchOptions options;
+  options.out = out;
+  const fs::path key = launch::ensure_team_key(options);
+  std::vector<ChildProcess> daemons;
+  for (int robot = 0; robot < 3; ++robot) {
+    const fs::path config = out / (dataset::robot_folder_name(robot) + ".yaml");
+    dataset::write_file_atomically(config, robot_config(out, key, robot, 3, 10.0));
+    daemons.push_back(lab->spawn(robot, {kDaemon, "--config", config},
+                                 out / (dataset::robot_folder_name(robot) + ".log")));
+  }
+  auto log_of = [&](int robot) {
+    return read_text(out / (dataset::robot_folder_name(robot) + ".log"));
+  };
+
+  // 1. Discovery: no static peers, each robot finds the two others by their beacons.
+  for (int robot = 0; robot < 3; ++robot)
+    ASSERT_TRUE(eventually([&] { return live_peers(*lab, robot) == 2; }, 20s))
+        << "robot " << robot << ":\n"
+        << log_of(robot);
+  // Robots 0 and 1 see the same cars early in kitti00-300 (robot 2 does not): they fuse.
+  EXPECT_TRUE(
+      eventually([&] { return metric(*lab, 1, "concord_marginals_fused_total") > 0.0; }, 20s));
+
+  // 2. Partition: robot 1's link goes down; both sides notice within the heartbeat timeout.
+  lab->set_link(1, false);
+  EXPECT_TRUE(
+      eventually([&] { return live_peers(*lab, 0) == 1 && live_peers(*lab, 2) == 1; }, 15s));
+  // Robot 1 is out of reach of the test too (its HTTP goes over the same link).
+  EXPECT_EQ(live_peers(*lab, 1), -1);
+
+  // 3. Heal: the link comes back; they find each other again and robot 1 fuses again.
+  lab->set_link(1, true);
+  ASSERT_TRUE(eventually([&] { return live_peers(*lab, 1) == 2; }, 20s)) << log_of(1);
+  EXPECT_TRUE(
+      eventually([&] { return live_peers(*lab, 0) == 2 && live_peers(*lab, 2) == 2; }, 20s));
+  const double fused_at_heal = metric(*lab, 1, "concord_marginals_fused_total");
+  EXPECT_TRUE(eventually(
+      [&] { return metric(*lab, 1, "concord_marginals_fused_total") > fused_at_heal; }, 10s));
+
+  for (auto& daemon : daemons) daemon.signal(SIGTERM);
+  for (int robot = 0; robot < 3; ++robot) {
+    ASSERT_TRUE(daemons[robot].wait_for(10s));
+    EXPECT_EQ(daemons[robot].exit_code(), 0) << log_of(robot);
+  }
+}
+
+TEST(FieldNetns, RateLimitedLinksUnderALinkBudgetTrimMarginalsAndKeepTheFrameRate) {
+  const fs::path out = fresh_folder("field-budget");
+  std::string skip;
+  auto lab = make_lab(3, out, skip);
+  if (!lab) GTEST_SKIP() << skip;
+  launch::LaunchOptions options;
+  options.out = out;
+  const fs::path key = launch::ensure_team_key(options);
+  constexpr double kBudget = 8000.0;  // bytes per second for consensus, far below what it wants
+  std::vector<ChildProcess> daemons;
+  for (int robot = 0; robot < 3; ++robot) {
+    lab->rate_limit(robot, "1mbit");  // each robot's radio: 1 Mbit/s out
+    const fs::path config = out / (dataset::robot_folder_name(robot) + ".yaml");
+    std::string yaml = robot_config(out, key, robot, 3, 20.0);
+    yaml.replace(
+        yaml.find("consensus: {mode: async}"), 24,
+        "consensus: {mode: async, link_budget_bytes_per_second: " + std::to_string(kBudget) + "}");
+    dataset::write_file_atomically(config, yaml);
+    daemons.push_back(lab->spawn(robot, {kDaemon, "--config", config},
+                                 out / (dataset::robot_folder_name(robot) + ".log")));
+  }
+  auto log_of = [&](int robot) {
+    return read_text(out / (dataset::robot_folder_name(robot) + ".log"));
+  };
+  for (int robot = 0; robot < 3; ++robot)
+    ASSERT_TRUE(eventually([&] { return live_peers(*lab, robot) == 2; }, 20s)) << log_of(robot);
+  const auto start = Clock::now();
+  const double bytes_at_start = metric(*lab, 0, "concord_consensus_bytes_sent_total");
+  // Robots 0 and 1 share cars: their marginals do not fit and are trimmed, yet still fused.
+  EXPECT_TRUE(eventually(
+      [&] { return metric(*lab, 0, "concord_consensus_budget_marginals_trimmed_total") > 0; }, 20s))
+      << log_of(0);
+  EXPECT_TRUE(
+      eventually([&] { return metric(*lab, 1, "concord_marginals_fused_total") > 0; }, 20s));
+  EXPECT_GT(metric(*lab, 0, "concord_consensus_budget_landmarks_dropped_total"), 0);
+  // The frame rate is kept: frames never pile up in the queue while the links are saturated.
+  EXPECT_TRUE(
+      eventually([&] { return metric(*lab, 0, "concord_frames_processed_total") >= 150; }, 30s));
+  EXPECT_LE(metric(*lab, 0, "concord_frame_queue_depth"), 2);
+  // Consensus stays within its budget: rate x elapsed + the one-second burst (+ a few control
+  // messages that may overdraw it).
+  const double elapsed = std::chrono::duration<double>(Clock::now() - start).count();
+  const double sent = metric(*lab, 0, "concord_consensus_bytes_sent_total") - bytes_at_start;
+  EXPECT_LE(sent, kBudget * (elapsed + 1.0) + 4000.0) << "over " << elapsed << " s";
+
+  for (auto& daemon : daemons) daemon.signal(SIGTERM);
+  for (int robot = 0; robot < 3; ++robot) {
+    ASSERT_TRUE(daemons[robot].wait_for(10s));
+    EXPECT_EQ(daemons[robot].exit_code(), 0) << log_of(robot);
+  }
+}
+
+}  // namespace
+}  // namespace concord
