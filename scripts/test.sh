@@ -30,7 +30,9 @@ sanitizer_flags=(-G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_CXX_COMPILER
 stage "ASan+UBSan build (with the fuzzers)"
 cmake -S . -B build-asan "${sanitizer_flags[@]}" -DCONCORD_SANITIZE=address,undefined \
   -DCONCORD_BUILD_FUZZERS=ON
-cmake --build build-asan --parallel 2
+# The test suite, the daemon it starts and the fuzzers (not the `concord` tool: no test runs it).
+cmake --build build-asan --parallel 2 --target concord_tests concordd \
+  fuzz_frame_decoder fuzz_channel fuzz_marginal fuzz_http_target
 stage "ASan+UBSan tests"
 # The Monte-Carlo consistency runs exercise only the estimator's arithmetic on simulated data
 # (no input from outside) and take minutes under the sanitizers: they run in Release above.
