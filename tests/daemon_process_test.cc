@@ -41,8 +41,8 @@ std::uint16_t port_base(int offset) {
 }
 
 fs::path fresh_folder(const std::string& name) {
-  const fs::path folder = fs::path(CONCORD_BINARY_DIR) / "test-out" /
-                          (name + "-" + std::to_string(getpid()));
+  const fs::path folder =
+      fs::path(CONCORD_BINARY_DIR) / "test-out" / (name + "-" + std::to_string(getpid()));
   fs::remove_all(folder);
   fs::create_directories(folder);
   return folder;
@@ -205,8 +205,10 @@ TEST(DaemonProcess, TeamSurvivesAKilledPeerAndTakesItBack) {
     const fs::path folder = out / ("robot_0" + std::to_string(robot));
     EXPECT_EQ(line_count(folder / "trajectory.kitti"), 300u);
   }
-  EXPECT_GT(get_json(http0, "/status").value_or(json{{"frames_processed", 300}})
-                .value("frames_processed", 300), frames_at_kill - 1);
+  EXPECT_GT(get_json(http0, "/status")
+                .value_or(json{{"frames_processed", 300}})
+                .value("frames_processed", 300),
+            frames_at_kill - 1);
 
   // SIGTERM: the restarted robot stops cleanly with the output of every processed frame.
   daemons[2].signal(SIGTERM);
@@ -242,7 +244,7 @@ std::optional<std::string> exchange_raw(std::uint16_t port, const std::string& b
         continue;
       }
       if (n == 0 || errno == ECONNRESET) received = answer;  // closed by the daemon
-      break;                                               // else: timed out, still open
+      break;                                                 // else: timed out, still open
     }
   }
   ::close(fd);
@@ -263,21 +265,26 @@ TEST(DaemonProcess, RejectsGarbageAndMalformedHttpAndStillAnswers) {
 
   // Peer port: an oversized length prefix and an unparsable payload each close the connection.
   EXPECT_TRUE(exchange_raw(peer_port, std::string("\x7f\xff\xff\xff", 4) + "xxxx", 5s));
-  EXPECT_TRUE(exchange_raw(peer_port, std::string("\x00\x00\x00\x05", 4) + "\xff\xff\xff\xff\xff", 5s));
+  EXPECT_TRUE(
+      exchange_raw(peer_port, std::string("\x00\x00\x00\x05", 4) + "\xff\xff\xff\xff\xff", 5s));
 
   // HTTP: garbage, oversized, wrong method, unknown path.
   const auto garbage = exchange_raw(http, "BLAH BLAH\r\n\r\n", 5s);
   ASSERT_TRUE(garbage);
   EXPECT_EQ(garbage->rfind("HTTP/1.1 400", 0), 0u) << *garbage;
   const auto oversized = exchange_raw(
-      http, "GET /status HTTP/1.1\r\nHost: x\r\nX-Big: " + std::string(20000, 'a') + "\r\n\r\n", 5s);
+      http, "GET /status HTTP/1.1\r\nHost: x\r\nX-Big: " + std::string(20000, 'a') + "\r\n\r\n",
+      5s);
   ASSERT_TRUE(oversized);
   EXPECT_TRUE(oversized->rfind("HTTP/1.1 431", 0) == 0 || oversized->rfind("HTTP/1.1 413", 0) == 0)
       << *oversized;
-  const auto post = exchange_raw(http, "POST /status HTTP/1.1\r\nHost: x\r\nConnection: close\r\nContent-Length: 0\r\n\r\n", 5s);
+  const auto post = exchange_raw(
+      http, "POST /status HTTP/1.1\r\nHost: x\r\nConnection: close\r\nContent-Length: 0\r\n\r\n",
+      5s);
   ASSERT_TRUE(post);
   EXPECT_EQ(post->rfind("HTTP/1.1 405", 0), 0u) << *post;
-  const auto missing = exchange_raw(http, "GET /nope HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n", 5s);
+  const auto missing =
+      exchange_raw(http, "GET /nope HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n", 5s);
   ASSERT_TRUE(missing);
   EXPECT_EQ(missing->rfind("HTTP/1.1 404", 0), 0u);
   EXPECT_NE(missing->find("\"error\""), std::string::npos);
@@ -287,7 +294,8 @@ TEST(DaemonProcess, RejectsGarbageAndMalformedHttpAndStillAnswers) {
   EXPECT_TRUE(get_json(http, "/healthz"));
   const auto metrics = launch::http_get("127.0.0.1", http, "/metrics", 1s);
   ASSERT_TRUE(metrics);
-  EXPECT_NE(metrics->find("concord_network_frames_rejected_total{robot=\"0\"} 2"), std::string::npos)
+  EXPECT_NE(metrics->find("concord_network_frames_rejected_total{robot=\"0\"} 2"),
+            std::string::npos)
       << *metrics;
   ASSERT_TRUE(eventually([&] { return get_json(http, "/pose").has_value(); }, 20s));
   const auto pose = get_json(http, "/pose");
@@ -350,6 +358,56 @@ TEST(DaemonProcess, IngestsSensorFramesOverTcp) {
   const auto trajectory = dataset::read_trajectory_kitti(out / "robot_00" / "trajectory.kitti");
   ASSERT_EQ(trajectory.size(), 30u);
   EXPECT_TRUE(trajectory.back().isApprox(reference.current_pose(), 1e-6));
+}
+
+}  // namespace
+}  // namespace concord
+
+namespace concord {
+namespace {
+
+TEST(LaunchStatus, ReadsStatusBodiesAndRefusesGarbage) {
+  const launch::RobotStatus robot =
+      launch::parse_status(R"({"phase": "running", "frame": 12, "live_peers": [1, 2]})");
+  EXPECT_TRUE(robot.reachable);
+  EXPECT_EQ(robot.phase, "running");
+  EXPECT_EQ(robot.frame, 12);
+  EXPECT_EQ(robot.peers, 2);
+  EXPECT_FALSE(launch::parse_status(std::nullopt).reachable);
+  EXPECT_FALSE(launch::parse_status("{not json").reachable);
+  const launch::RobotStatus starting =
+      launch::parse_status(R"({"phase": "waiting", "frame": null})");
+  EXPECT_TRUE(starting.reachable);
+  EXPECT_FALSE(starting.frame);
+}
+
+TEST(LaunchStatus, SmallTeamsGetAFieldPerRobotLargeTeamsOneSummary) {
+  std::vector<launch::RobotStatus> team(3);
+  for (int robot = 0; robot < 3; ++robot) {
+    team[robot].reachable = true;
+    team[robot].phase = "running";
+    team[robot].frame = 10 + robot;
+    team[robot].peers = 2;
+  }
+  team[2].exited = true;
+  team[2].exit_code = 1;
+  EXPECT_EQ(launch::team_status_line(team, 4),
+            "[4 s] r0:running f10 p2 r1:running f11 p2 r2:exit 1");
+  // 50 robots: frames 0..46 with 0..46 % 5 peers, one silent, two exited (one failed).
+  std::vector<launch::RobotStatus> large(50);
+  for (int robot = 0; robot < 47; ++robot) {
+    large[robot].reachable = true;
+    large[robot].phase = "running";
+    large[robot].frame = robot;
+    large[robot].peers = robot % 5;
+  }
+  large[48].exited = true;
+  large[49].exited = true;
+  large[49].exit_code = 3;
+  const std::string line = launch::team_status_line(large, 9);
+  EXPECT_EQ(line,
+            "[9 s] 50 robots: 47 running, 1 not answering, 2 exited (1 failed); frame "
+            "min/median/max 0/23/46, peers 0/2/4");
 }
 
 }  // namespace

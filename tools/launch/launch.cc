@@ -4,6 +4,7 @@
 #include <unistd.h>
 #include <yaml-cpp/yaml.h>
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <csignal>
@@ -26,21 +27,76 @@ std::atomic<int> interrupted{0};
 
 void on_interrupt(int signal_number) { interrupted = signal_number; }
 
-/// "frame 123 running, 2 peers" from a /status body.
-std::string describe_status(const std::optional<std::string>& body) {
-  if (!body) return "-";
+}  // namespace
+
+RobotStatus parse_status(const std::optional<std::string>& body) {
+  RobotStatus robot;
+  if (!body) return robot;
   try {
     const auto status = nlohmann::json::parse(*body);
-    std::string text = status.value("phase", std::string("?"));
-    if (!status["frame"].is_null()) text += " f" + std::to_string(status["frame"].get<int>());
-    text += " p" + std::to_string(status["live_peers"].size());
-    return text;
+    robot.phase = status.value("phase", std::string("?"));
+    if (status.contains("frame") && status["frame"].is_number_integer())
+      robot.frame = status["frame"].get<int>();
+    if (status.contains("live_peers") && status["live_peers"].is_array())
+      robot.peers = static_cast<int>(status["live_peers"].size());
+    robot.reachable = true;
   } catch (const std::exception&) {
-    return "?";
+    robot.phase = "?";  // an unreadable body: counted as not answering
   }
+  return robot;
+}
+
+namespace {
+
+/// "min/median/max" of `values` (sorted in place); "-" if empty.
+std::string spread(std::vector<int> values) {
+  if (values.empty()) return "-";
+  std::sort(values.begin(), values.end());
+  return std::to_string(values.front()) + "/" + std::to_string(values[values.size() / 2]) + "/" +
+         std::to_string(values.back());
 }
 
 }  // namespace
+
+std::string team_status_line(const std::vector<RobotStatus>& robots, int seconds,
+                             int per_robot_limit) {
+  std::ostringstream line;
+  line << "[" << seconds << " s]";
+  if (static_cast<int>(robots.size()) <= per_robot_limit) {
+    for (std::size_t index = 0; index < robots.size(); ++index) {
+      const RobotStatus& robot = robots[index];
+      line << " r" << index << ":";
+      if (robot.exited) {
+        line << "exit " << robot.exit_code;
+      } else if (!robot.reachable) {
+        line << "-";
+      } else {
+        line << robot.phase;
+        if (robot.frame) line << " f" << *robot.frame;
+        line << " p" << robot.peers;
+      }
+    }
+    return line.str();
+  }
+  int exited = 0, failed = 0, silent = 0;
+  std::vector<int> frames, peers;
+  for (const RobotStatus& robot : robots) {
+    if (robot.exited) {
+      ++exited;
+      failed += robot.exit_code != 0 ? 1 : 0;
+    } else if (!robot.reachable) {
+      ++silent;
+    } else {
+      if (robot.frame) frames.push_back(*robot.frame);
+      peers.push_back(robot.peers);
+    }
+  }
+  const auto running = static_cast<int>(robots.size()) - exited - silent;
+  line << " " << robots.size() << " robots: " << running << " running, " << silent
+       << " not answering, " << exited << " exited (" << failed << " failed); frame min/median/max "
+       << spread(frames) << ", peers " << spread(peers);
+  return line.str();
+}
 
 std::filesystem::path team_key_path(const LaunchOptions& options) {
   return options.team_key_file.empty() ? options.out / "team.key" : options.team_key_file;
@@ -157,21 +213,25 @@ LaunchResult launch_team(const LaunchOptions& options, int robots, std::ostream*
       for (auto& daemon : daemons) daemon.signal(SIGTERM);
       stopping = true;
     }
-    if (status && now - last_print >= (tty ? std::chrono::milliseconds(500) : std::chrono::milliseconds(1000))) {
+    if (status && now - last_print >=
+                      (tty ? std::chrono::milliseconds(500) : std::chrono::milliseconds(1000))) {
       last_print = now;
-      std::ostringstream line;
-      line << "[" << static_cast<int>(std::chrono::duration<double>(now - start).count()) << " s]";
+      std::vector<RobotStatus> states;
       for (int robot = 0; robot < robots; ++robot) {
-        std::string text;
+        RobotStatus state;
         if (daemons[robot].exited()) {
-          text = "exit " + std::to_string(*daemons[robot].exit_code());
+          state.exited = true;
+          state.exit_code = *daemons[robot].exit_code();
         } else {
-          text = describe_status(http_get("127.0.0.1", static_cast<std::uint16_t>(options.http_base_port + robot),
-                                          "/status", std::chrono::milliseconds(200)));
+          state = parse_status(http_get("127.0.0.1",
+                                        static_cast<std::uint16_t>(options.http_base_port + robot),
+                                        "/status", std::chrono::milliseconds(200)));
         }
-        line << " r" << robot << ":" << text;
+        states.push_back(state);
       }
-      *status << (tty ? "\r" : "") << line.str() << (tty ? "\033[K" : "\n") << std::flush;
+      const std::string line = team_status_line(
+          states, static_cast<int>(std::chrono::duration<double>(now - start).count()));
+      *status << (tty ? "\r" : "") << line << (tty ? "\033[K" : "\n") << std::flush;
     }
     // Polling the children's exit and status twice a second.
     std::this_thread::sleep_for(std::chrono::milliseconds(100));
