@@ -2,7 +2,8 @@
 ///   concord replay --dataset DIR --out DIR [--separate] [--config FILE] [--graph G] [--loss R]
 ///                  [--seed S] [--frames N] [--no-point-features] [--set KEY=VALUE ...]
 ///   concord eval --dataset DIR --result DIR
-///   concord slice --dataset DIR --out DIR --frames N [--robots R]
+///   concord slice --dataset DIR --out DIR --frames N [--robots R] [--private-ids]
+///   [--unknown-start] concord convert --dataset DIR --out DIR [--private-ids] [--unknown-start]
 ///   concord calibrate --dataset DIR [--robot R] [--first F] [--frames N]
 ///   concord launch --dataset DIR --out DIR [--lockstep|--async|--separate] [--base-port P]
 ///                  [--http-base-port P] [--config FILE] [--robots R] [--frames N] [--rate HZ]
@@ -13,6 +14,8 @@
 ///               [--odometry-translation-noise T] [--odometry-rotation-noise R] [--pixel-noise S]
 ///               ... (camera, path and object-placement parameters: concord sim --help)
 
+#include <yaml-cpp/yaml.h>
+
 #include <CLI/CLI.hpp>
 #include <chrono>
 #include <cmath>
@@ -20,14 +23,14 @@
 #include <exception>
 #include <filesystem>
 #include <iostream>
+#include <limits>
 #include <nlohmann/json.hpp>
-#include <yaml-cpp/yaml.h>
 #include <numbers>
 
+#include "calibration/calibration.h"
 #include "concord/config/options_file.h"
 #include "concord/dataset/dataset.h"
 #include "concord/dataset/result_io.h"
-#include "calibration/calibration.h"
 #include "concord/frontend/frontend.h"
 #include "concord/frontend/frontend_options_file.h"
 #include "concord/frontend/frontend_run.h"
@@ -235,12 +238,32 @@ int run_calibrate(const fs::path& dataset_dir, const calibration::CalibrationOpt
   return 0;
 }
 
-int run_slice(const fs::path& dataset_dir, const fs::path& out, int frames, int robots) {
+int run_slice(const fs::path& dataset_dir, const fs::path& out, int frames, int robots,
+              bool private_ids, bool unknown_start) {
   const dataset::Dataset data = dataset::read_dataset(dataset_dir);
   dataset::write_dataset(
-      dataset::slice(data, frames, robots > 0 ? robots : static_cast<int>(data.robots.size())),
+      dataset::make_variant(
+          dataset::slice(data, frames > 0 ? frames : std::numeric_limits<int>::max(),
+                         robots > 0 ? robots : static_cast<int>(data.robots.size())),
+          private_ids, unknown_start),
       out);
   std::cerr << "concord slice: wrote " << out.string() << "\n";
+  return 0;
+}
+
+/// A dataset's private-ids and/or unknown-starts variant (the whole set).
+int run_convert(const fs::path& dataset_dir, const fs::path& out, bool private_ids,
+                bool unknown_start) {
+  if (!private_ids && !unknown_start) {
+    std::cerr << "concord convert: nothing to do: give --private-ids and/or --unknown-start\n";
+    return 1;
+  }
+  const dataset::Dataset data = dataset::read_dataset(dataset_dir);
+  const dataset::Dataset variant = dataset::make_variant(data, private_ids, unknown_start);
+  dataset::write_dataset(variant, out);
+  std::cerr << "concord convert: wrote " << out.string() << " (object_ids "
+            << dataset::to_string(variant.object_ids) << ", start_poses "
+            << dataset::to_string(variant.start_poses) << ")\n";
   return 0;
 }
 
@@ -508,6 +531,23 @@ int main(int argc, char** argv) {
       ->check(CLI::PositiveNumber);
   slice_command->add_option("--robots", robots, "Robots to keep (default all)")
       ->check(CLI::PositiveNumber);
+  bool variant_private_ids = false, variant_unknown_start = false;
+  slice_command->add_flag("--private-ids", variant_private_ids,
+                          "Also renumber each robot's objects privately (object_ids_truth.csv)");
+  slice_command->add_flag("--unknown-start", variant_unknown_start,
+                          "Also mark the start poses unknown");
+
+  auto* convert_command =
+      app.add_subcommand("convert", "Write a dataset's private-ids and/or unknown-starts variant");
+  convert_command->add_option("--dataset", dataset_dir, "Dataset folder")
+      ->required()
+      ->check(CLI::ExistingDirectory);
+  convert_command->add_option("--out", out_dir, "Output folder")->required();
+  convert_command->add_flag("--private-ids", variant_private_ids,
+                            "Renumber each robot's objects privately; robot_XX/"
+                            "object_ids_truth.csv maps them to objects_gt.csv (evaluation only)");
+  convert_command->add_flag("--unknown-start", variant_unknown_start,
+                            "Start poses unknown: every filter starts at its own frame");
 
   auto* sim_command = app.add_subcommand(
       "sim", "Simulate a multi-robot dataset (Lissajous paths, docs/simulator.md)");
@@ -602,6 +642,20 @@ int main(int argc, char** argv) {
       ->add_option("--object-max-depth", sim_options.object_max_depth,
                    "Largest depth of an object in view of the pose it is placed around, metres")
       ->capture_default_str();
+  sim_command
+      ->add_option("--classes", sim_options.classes,
+                   "Detector classes: objects get a class in [0, K) (objects.csv class column); "
+                   "0: no class column")
+      ->capture_default_str();
+  sim_command
+      ->add_option("--false-detections", sim_options.false_detection_rate,
+                   "Fraction of object detections that are false (phantom objects), in [0, 0.5]")
+      ->capture_default_str();
+  sim_command->add_flag("--private-ids", sim_options.private_ids,
+                        "Each robot numbers its objects its own way (object_ids_truth.csv for "
+                        "evaluation)");
+  sim_command->add_flag("--unknown-start", sim_options.unknown_start,
+                        "Start poses unknown to the robots (filters start at their own frames)");
 
   bool render_images = false;
   sim::RenderOptions render_options;
@@ -755,7 +809,13 @@ int main(int argc, char** argv) {
                         no_point_features, overrides);
     }
     if (eval_command->parsed()) return run_eval(dataset_dir, result_dir);
-    if (slice_command->parsed()) return run_slice(dataset_dir, out_dir, frames, robots);
+    if (slice_command->parsed()) {
+      return run_slice(dataset_dir, out_dir, frames, robots, variant_private_ids,
+                       variant_unknown_start);
+    }
+    if (convert_command->parsed()) {
+      return run_convert(dataset_dir, out_dir, variant_private_ids, variant_unknown_start);
+    }
     if (calibrate_command->parsed()) return run_calibrate(dataset_dir, calibration_options);
     if (sim_command->parsed()) {
       return run_sim(

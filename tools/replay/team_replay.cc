@@ -84,6 +84,11 @@ std::vector<std::vector<int>> make_graph(GraphKind kind, int robots, std::uint64
 
 ReplayResult run_team(const dataset::Dataset& dataset, const EstimatorOptions& estimator_options,
                       const ReplayOptions& options, const ProgressCallback& progress) {
+  return run_team(dataset::sensor_inputs(dataset), estimator_options, options, progress);
+}
+
+ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions& estimator_options,
+                      const ReplayOptions& options, const ProgressCallback& progress) {
   if (!(options.link_loss >= 0.0 && options.link_loss <= 1.0)) {
     throw std::invalid_argument("loss: expected a probability in [0, 1], got " +
                                 std::to_string(options.link_loss));
@@ -95,7 +100,8 @@ ReplayResult run_team(const dataset::Dataset& dataset, const EstimatorOptions& e
   int steps = 0;
   for (const auto& robot : dataset.robots) {
     if (robot.num_frames() == 0) throw std::invalid_argument("robot without frames");
-    estimators.emplace_back(estimator_options, dataset.camera, robot.groundtruth.front(), 0);
+    estimators.emplace_back(estimator_options, dataset.camera,
+                            robot.T_world_body_start.value_or(Eigen::Isometry3d::Identity()), 0);
     steps = std::max(steps, robot.num_frames());
   }
   const auto graph = make_graph(options.graph, robots, options.seed);

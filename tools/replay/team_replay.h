@@ -75,7 +75,13 @@ struct ReplayResult {
 /// Called after every step with (step, steps in total).
 using ProgressCallback = std::function<void(int, int)>;
 
-/// Runs the team on a dataset. Throws std::invalid_argument on bad options.
+/// Runs the team on what its robots measure (never the ground truth: dataset::sensor_inputs).
+/// A robot whose start pose is unknown starts at the identity of its own frame. Throws
+/// std::invalid_argument on bad options.
+ReplayResult run_team(const dataset::TeamInputs& team, const EstimatorOptions& estimator_options,
+                      const ReplayOptions& options, const ProgressCallback& progress = {});
+
+/// run_team on dataset::sensor_inputs(dataset).
 ReplayResult run_team(const dataset::Dataset& dataset, const EstimatorOptions& estimator_options,
                       const ReplayOptions& options, const ProgressCallback& progress = {});
 
