@@ -2,6 +2,8 @@
 
 #include <Eigen/Cholesky>
 #include <algorithm>
+#include <cstdio>
+#include <cstdlib>
 #include <deque>
 #include <set>
 #include <stdexcept>
@@ -161,6 +163,32 @@ bool Negotiator::process_pair(int neighbour, const MapDescription& theirs, int r
     if (frames_connected(own.frame, theirs.frame)) return false;
     ++counters_.searches;
     const PairAlignment found = align_maps(own, theirs, options_.association);
+    if (const char* dump = std::getenv("CONCORD_DUMP_DESCRIPTIONS")) {
+      const std::string file = std::string(dump) + "/r" + std::to_string(round) + "_" +
+                               std::to_string(robot_) + "_" + std::to_string(theirs.robot) + ".txt";
+      if (FILE* out = std::fopen(file.c_str(), "w")) {
+        for (const MapDescription* map : {&own, &theirs}) {
+          for (const ObjectDescription& o : map->objects) {
+            std::fprintf(out, "%d %lld %d %.6f %.6f %.6f", map->robot, static_cast<long long>(o.id),
+                         o.observations, o.position.x(), o.position.y(), o.position.z());
+            for (int r = 0; r < 3; ++r)
+              for (int c = 0; c < 3; ++c) std::fprintf(out, " %.8g", o.local_covariance(r, c));
+            for (int r = 0; r < 3; ++r)
+              for (int c = 0; c < 3; ++c) std::fprintf(out, " %.8g", o.covariance(r, c));
+            std::fprintf(out, "\n");
+          }
+        }
+        std::fclose(out);
+      }
+    }
+    if (std::getenv("CONCORD_DEBUG_ASSOCIATION")) {
+      std::fprintf(stderr,
+                   "round %d pair %d-%d: %zu/%zu objects, %d candidates, %lld edges, clique %d "
+                   "rival %d: %s\n",
+                   round, robot_, theirs.robot, own.objects.size(), theirs.objects.size(),
+                   found.candidates, found.consistency_edges, found.clique_size,
+                   found.rival_clique_size, to_string(found.status).c_str());
+    }
     if (found.status == AlignmentStatus::kAmbiguous) ++counters_.ambiguous;
     if (found.status != AlignmentStatus::kAligned) {
       pair.streak = 0;

@@ -4,6 +4,8 @@
 #include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
+#include <cstdlib>
 #include <limits>
 #include <optional>
 
@@ -68,16 +70,20 @@ class DistanceTable {
   std::vector<double> variance_;
 };
 
-/// How many distances of two sorted neighbour lists agree (greedy two-pointer matching, each used
-/// once), within 3 sigma.
-int descriptor_score(const std::vector<std::pair<double, double>>& a,
-                     const std::vector<std::pair<double, double>>& b) {
-  int score = 0;
+/// How well two sorted neighbour lists agree: the number of distances that agree within the
+/// bound (greedy two-pointer matching, each used once), plus, to order equal counts, the sum of
+/// exp(-z^2 / 2) over those (z the normalized difference) divided by (list size + 1).
+double descriptor_score(const std::vector<std::pair<double, double>>& a,
+                        const std::vector<std::pair<double, double>>& b, double bound) {
+  int count = 0;
+  double closeness = 0.0;
   std::size_t i = 0, j = 0;
   while (i < a.size() && j < b.size()) {
     const double difference = a[i].first - b[j].first;
-    if (difference * difference <= 9.0 * (a[i].second + b[j].second)) {
-      ++score;
+    const double squared = difference * difference / (a[i].second + b[j].second);
+    if (squared <= bound) {
+      ++count;
+      closeness += std::exp(-0.5 * squared);
       ++i;
       ++j;
     } else if (difference < 0.0) {
@@ -86,13 +92,13 @@ int descriptor_score(const std::vector<std::pair<double, double>>& a,
       ++j;
     }
   }
-  return score;
+  return count + closeness / static_cast<double>(std::max(a.size(), b.size()) + 1);
 }
 
 struct Candidate {
   int a = 0;  ///< index in map a
   int b = 0;  ///< index in map b
-  int score = 0;
+  double score = 0.0;
 };
 
 /// Candidate pairs: each object's best-described partners in the other map (both directions).
@@ -106,18 +112,19 @@ std::vector<Candidate> find_candidates(const MapDescription& a, const MapDescrip
   for (std::size_t j = 0; j < b.objects.size(); ++j)
     descriptors_b.push_back(table_b.neighbours(j, k));
   const std::size_t na = a.objects.size(), nb = b.objects.size();
-  std::vector<int> scores(na * nb, 0);
+  const double bound = UpdaterHelper::chi2_quantile(options.descriptor_chi2_probability, 1);
+  std::vector<double> scores(na * nb, 0.0);
   for (std::size_t i = 0; i < na; ++i) {
     for (std::size_t j = 0; j < nb; ++j) {
       if (!classes_compatible(a.objects[i].object_class, b.objects[j].object_class, options)) {
         continue;
       }
-      scores[i * nb + j] = descriptor_score(descriptors_a[i], descriptors_b[j]);
+      scores[i * nb + j] = descriptor_score(descriptors_a[i], descriptors_b[j], bound);
     }
   }
   // Keep the best candidates_per_object of each row and of each column.
   std::vector<bool> kept(na * nb, false);
-  const auto keep_best = [&](std::vector<std::pair<int, std::size_t>>& line) {
+  const auto keep_best = [&](std::vector<std::pair<double, std::size_t>>& line) {
     std::stable_sort(line.begin(), line.end(),
                      [](const auto& x, const auto& y) { return x.first > y.first; });
     for (std::size_t n = 0;
@@ -125,7 +132,7 @@ std::vector<Candidate> find_candidates(const MapDescription& a, const MapDescrip
       if (line[n].first >= options.min_descriptor_matches) kept[line[n].second] = true;
     }
   };
-  std::vector<std::pair<int, std::size_t>> line;
+  std::vector<std::pair<double, std::size_t>> line;
   for (std::size_t i = 0; i < na; ++i) {
     line.clear();
     for (std::size_t j = 0; j < nb; ++j) line.emplace_back(scores[i * nb + j], i * nb + j);
@@ -228,7 +235,11 @@ std::vector<std::string> AssociationOptions::validate() const {
     }
   };
   require(min_observations >= 1, "min_observations", min_observations, ">= 1");
+  require(std::isfinite(search_max_sigma) && search_max_sigma > 0.0, "search_max_sigma",
+          search_max_sigma, "finite and > 0");
   require(descriptor_neighbours >= 2, "descriptor_neighbours", descriptor_neighbours, ">= 2");
+  require(descriptor_chi2_probability > 0.0 && descriptor_chi2_probability < 1.0,
+          "descriptor_chi2_probability", descriptor_chi2_probability, "in (0, 1)");
   require(candidates_per_object >= 1, "candidates_per_object", candidates_per_object, ">= 1");
   require(min_descriptor_matches >= 1, "min_descriptor_matches", min_descriptor_matches, ">= 1");
   require(consistency_chi2_probability > 0.0 && consistency_chi2_probability < 1.0,
@@ -244,6 +255,7 @@ std::vector<std::string> AssociationOptions::validate() const {
           match_chi2_probability, "in (0, 1)");
   require(std::isfinite(match_margin) && match_margin >= 0.0, "match_margin", match_margin,
           "finite and >= 0");
+  require(max_hypotheses >= 1, "max_hypotheses", max_hypotheses, ">= 1");
   require(max_candidates >= 3, "max_candidates", max_candidates, ">= 3");
   require(max_clique_expansions >= 1, "max_clique_expansions",
           static_cast<double>(max_clique_expansions), ">= 1");
@@ -346,10 +358,30 @@ std::vector<Match> match_with_transform(const MapDescription& a, const MapDescri
   return matches;
 }
 
-PairAlignment align_maps(const MapDescription& a, const MapDescription& b,
+namespace {
+
+/// The objects of a map whose local covariance's largest standard deviation is at most max_sigma.
+MapDescription well_placed(const MapDescription& map, double max_sigma) {
+  MapDescription kept;
+  kept.robot = map.robot;
+  kept.frame = map.frame;
+  for (const ObjectDescription& object : map.objects) {
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> solver(object.local_covariance,
+                                                                Eigen::EigenvaluesOnly);
+    if (solver.eigenvalues()(2) <= max_sigma * max_sigma) kept.objects.push_back(object);
+  }
+  return kept;
+}
+
+}  // namespace
+
+PairAlignment align_maps(const MapDescription& full_a, const MapDescription& full_b,
                          const AssociationOptions& options) {
   PairAlignment result;
   const auto min_inliers = static_cast<std::size_t>(options.min_inliers);
+  // The search uses the well-placed objects; the final matching all of them.
+  const MapDescription a = well_placed(full_a, options.search_max_sigma);
+  const MapDescription b = well_placed(full_b, options.search_max_sigma);
   if (a.objects.size() < min_inliers || b.objects.size() < min_inliers) return result;
 
   // 1. Candidates from the objects' surroundings.
@@ -362,46 +394,79 @@ PairAlignment align_maps(const MapDescription& a, const MapDescription& b,
     return result;
   }
 
-  // 2. Consistency graph and its maximum clique.
+  // 2. Consistency graph.
   const double bound = UpdaterHelper::chi2_quantile(options.consistency_chi2_probability, 1);
   const ConsistencyGraph graph = consistency_graph(candidates, table_a, table_b, bound);
   result.consistency_edges = graph.edges();
-  const CliqueResult best = maximum_clique(graph, options.max_clique_expansions);
-  result.clique_size = static_cast<int>(best.vertices.size());
-  result.cliques_exact = best.exact;
-  if (best.vertices.size() < min_inliers) {
+
+  // 3. Its maximum clique and the transform of it. Distances cannot tell a layout from its mirror
+  //    image, and loose covariances let chance sets through: a clique whose own transform does
+  //    not bring min_inliers of its members within the match gate is set aside and the next
+  //    largest tried (max_hypotheses times).
+  const double gate = UpdaterHelper::chi2_quantile(options.match_chi2_probability, 3);
+  const auto residual_within_gate = [&](const Candidate& candidate, const Eigen::Isometry3d& T) {
+    const PointPair pair =
+        pair_of(a.objects[candidate.a], b.objects[candidate.b], true, options.distance_noise);
+    const Eigen::Matrix3d& R = T.linear();
+    const Eigen::Vector3d residual = pair.p_target - T * pair.p_source;
+    const Eigen::LLT<Eigen::Matrix3d> llt(pair.covariance_target +
+                                          R * pair.covariance_source * R.transpose());
+    return llt.info() == Eigen::Success && residual.dot(llt.solve(residual)) <= gate;
+  };
+  // The largest rigid hypothesis among the allowed candidates: its transform and how many of its
+  // clique's members it brings within the gate.
+  struct Hypothesis {
+    RigidAlignment fit;
+    int inliers = 0;
+  };
+  const auto find_hypothesis = [&](std::vector<bool> allowed, int minimum) {
+    std::optional<Hypothesis> found;
+    for (int attempt = 0; attempt < options.max_hypotheses && !found; ++attempt) {
+      const CliqueResult clique = maximum_clique(graph, options.max_clique_expansions, allowed);
+      result.cliques_exact = result.cliques_exact && clique.exact;
+      if (static_cast<int>(clique.vertices.size()) < minimum) break;
+      std::vector<std::pair<int, int>> pairs;
+      for (int v : clique.vertices) pairs.emplace_back(candidates[v].a, candidates[v].b);
+      const auto fitted = fit(a, b, pairs, options);
+      int inliers = 0;
+      if (fitted) {
+        for (int v : clique.vertices)
+          inliers += residual_within_gate(candidates[v], fitted->T_target_source);
+      }
+      if (fitted && inliers >= minimum) {
+        found = Hypothesis{*fitted, inliers};
+      } else {
+        for (int v : clique.vertices) allowed[v] = false;
+      }
+    }
+    return found;
+  };
+  const auto best =
+      find_hypothesis(std::vector<bool>(candidates.size(), true), options.min_inliers);
+  if (!best) {
     result.status = AlignmentStatus::kTooFewInliers;
     return result;
   }
+  result.clique_size = best->inliers;
+  const std::optional<RigidAlignment> clique_fit = best->fit;
 
-  // 3. The transform of the clique.
-  std::vector<std::pair<int, int>> clique_pairs;
-  for (int v : best.vertices) clique_pairs.emplace_back(candidates[v].a, candidates[v].b);
-  const auto clique_fit = fit(a, b, clique_pairs, options);
-  if (!clique_fit) {
-    result.status = AlignmentStatus::kDegenerate;
-    return result;
-  }
-
-  // 4. Rival hypothesis: the largest clique among the candidates this transform rejects.
-  const double gate = UpdaterHelper::chi2_quantile(options.match_chi2_probability, 3);
+  // 4. Rival hypothesis: the largest rigid hypothesis among the candidates this transform
+  //    rejects (a symmetric or repetitive layout has one nearly as large). Sets of 3 always fit,
+  //    so a rival needs at least 4.
   std::vector<bool> rejected(candidates.size(), false);
   for (std::size_t v = 0; v < candidates.size(); ++v) {
-    const PointPair pair = pair_of(a.objects[candidates[v].a], b.objects[candidates[v].b], true,
-                                   options.distance_noise);
-    const Eigen::Matrix3d& R = clique_fit->T_target_source.linear();
-    const Eigen::Vector3d residual = pair.p_target - clique_fit->T_target_source * pair.p_source;
-    const Eigen::Matrix3d covariance =
-        pair.covariance_target + R * pair.covariance_source * R.transpose();
-    const Eigen::LLT<Eigen::Matrix3d> llt(covariance);
-    rejected[v] = llt.info() != Eigen::Success || residual.dot(llt.solve(residual)) > gate;
+    rejected[v] = !residual_within_gate(candidates[v], clique_fit->T_target_source);
   }
-  const CliqueResult rival = maximum_clique(graph, options.max_clique_expansions, rejected);
-  result.rival_clique_size = static_cast<int>(rival.vertices.size());
-  result.cliques_exact = result.cliques_exact && rival.exact;
-  if (rival.vertices.size() >= 3 &&
-      static_cast<double>(rival.vertices.size()) >=
-          options.ambiguity_ratio * static_cast<double>(best.vertices.size())) {
+  const int rival_minimum = std::max(
+      4, static_cast<int>(std::ceil(options.ambiguity_ratio * static_cast<double>(best->inliers))));
+  const auto rival = find_hypothesis(rejected, rival_minimum);
+  result.rival_clique_size = rival ? rival->inliers : 0;
+  if (std::getenv("CONCORD_DEBUG_ASSOCIATION")) {
+    std::fprintf(stderr, "  clique fit chi2 %.2f largest %.2f inliers %d rival %d\n",
+                 clique_fit->chi2, clique_fit->largest_residual, result.clique_size,
+                 result.rival_clique_size);
+  }
+  if (rival) {
     result.status = AlignmentStatus::kAmbiguous;
     return result;
   }

@@ -31,11 +31,19 @@ struct AssociationOptions {
   /// min_observations: objects detected in fewer frames are not described (a false detection is
   /// rarely tracked long, a briefly seen object is poorly placed).
   int min_observations = 5;
+  /// search_max_sigma: only objects whose position is known this well (metres, the largest
+  /// standard deviation of the local covariance) take part in the search for a transform; the
+  /// others can still be matched once it is known. A loosely placed object makes almost any
+  /// distance consistent.
+  double search_max_sigma = 0.5;
   /// descriptor_neighbours: an object's surroundings are its distances to this many nearest
   /// objects of its map.
   int descriptor_neighbours = 8;
+  /// descriptor_chi2_probability: two neighbour distances agree within this chi-square quantile
+  /// (1 degree of freedom) under their variances.
+  double descriptor_chi2_probability = 0.95;
   /// candidates_per_object: each object keeps this many best-described partners as candidates.
-  int candidates_per_object = 3;
+  int candidates_per_object = 5;
   /// min_descriptor_matches: a candidate needs this many of its neighbour distances to agree.
   int min_descriptor_matches = 2;
   /// consistency_chi2_probability: two candidates are consistent when the difference of their
@@ -60,10 +68,12 @@ struct AssociationOptions {
   /// match_margin: the second-best partner of either object must be at least this much further
   /// (squared Mahalanobis distance; 9 is a likelihood ratio of about 90) than the best.
   double match_margin = 9.0;
+  /// max_hypotheses: cliques tried in turn when the largest does not fit a rigid transform.
+  int max_hypotheses = 3;
   /// max_candidates: candidates kept (best descriptor scores first).
   int max_candidates = 1500;
   /// max_clique_expansions: branch-and-bound budget of one clique search.
-  long long max_clique_expansions = 200000;
+  int max_clique_expansions = 200000;
   /// use_classes: only objects of the same class (or of unknown class) are candidates.
   bool use_classes = true;
 
