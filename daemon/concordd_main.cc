@@ -2,8 +2,12 @@
 ///   concordd --config robot.yaml [--robot-id N] [--listen-port P] [--http-port P] [--out DIR]
 ///            [--mode off|lockstep|async] [--peer host:port ...] [--dataset DIR] [--robot N]
 ///            [--max-frames N] [--rate HZ] [--wait-for-peers N] [--log-level LEVEL]
+///            [--failpoint NAME[=ARG] ...]
+/// Exit codes: 0 normal end (also after SIGTERM/SIGINT), 2 cannot start (command line, config,
+/// key, data, output directory, port), 3 the final outputs could not be written.
 /// See docs/daemon.md and configs/team-kitti00/robot_00.yaml.
 
+#include <spdlog/fmt/ranges.h>
 #include <spdlog/sinks/stdout_sinks.h>
 #include <spdlog/spdlog.h>
 
@@ -26,6 +30,7 @@ int main(int argc, char** argv) {
   std::optional<double> rate;
   std::optional<std::string> out, mode, dataset, log_level;
   std::vector<std::string> peers;
+  std::vector<std::string> failpoints;
   app.add_option("--robot-id", robot_id, "Override robot_id");
   app.add_option("--listen-port", listen_port, "Override network.listen_port")->check(CLI::Range(0, 65535));
   app.add_option("--http-port", http_port, "Override http.port")->check(CLI::Range(0, 65535));
@@ -38,7 +43,19 @@ int main(int argc, char** argv) {
   app.add_option("--rate", rate, "Override source.rate_hz (0: as fast as possible)")->check(CLI::NonNegativeNumber);
   app.add_option("--wait-for-peers", wait_for_peers, "Override consensus.wait_for_peers");
   app.add_option("--log-level", log_level, "Override log_level");
-  CLI11_PARSE(app, argc, argv);
+  app.add_option("--failpoint", failpoints,
+                 "Testing aid: switch on a failpoint (repeatable): marginal.silence, "
+                 "marginal.garbage, estimator.hang=SECONDS, output.fail");
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::CallForHelp& help) {
+    return app.exit(help);  // 0
+  } catch (const CLI::CallForAllHelp& help) {
+    return app.exit(help);
+  } catch (const CLI::ParseError& error) {
+    (void)app.exit(error);  // prints the message
+    return daemon::kExitCannotStart;
+  }
 
   auto logger = spdlog::stderr_logger_mt("concordd");
   spdlog::set_default_logger(logger);
@@ -63,6 +80,10 @@ int main(int argc, char** argv) {
     if (rate) config.source.rate_hz = *rate;
     if (wait_for_peers) config.consensus.wait_for_peers = *wait_for_peers;
     if (log_level) config.log_level = *log_level;
+    for (const std::string& failpoint : failpoints) {
+      const std::string problem = daemon::enable_failpoint(failpoint, config.failpoints);
+      if (!problem.empty()) throw config::ConfigError("--failpoint: " + problem);
+    }
     const auto problems = config.validate();
     if (!problems.empty()) {
       std::string message = "invalid settings:";
@@ -71,17 +92,19 @@ int main(int argc, char** argv) {
     }
   } catch (const config::ConfigError& error) {
     std::cerr << "concordd: " << error.what() << "\n";
-    return 2;
+    return daemon::kExitCannotStart;
   }
   const auto level = spdlog::level::from_str(config.log_level);
   if (level == spdlog::level::off && config.log_level != "off") {
     std::cerr << "concordd: log_level: unknown level '" << config.log_level << "'\n";
-    return 2;
+    return daemon::kExitCannotStart;
   }
   spdlog::set_level(level);
   spdlog::set_pattern("%Y-%m-%dT%H:%M:%S.%e %l robot " + std::to_string(config.robot_id) + ": %v");
   spdlog::flush_on(spdlog::level::info);
 
+  if (config.failpoints.any())
+    spdlog::warn("failpoints switched on (testing aid): {}", fmt::join(failpoints, ", "));
   daemon::Daemon instance(config);
   return instance.run();
 }

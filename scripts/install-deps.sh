@@ -14,7 +14,9 @@ packages=(
   libboost-dev             # Asio (peer-to-peer network) and Beast (HTTP endpoint), header-only
   libprotobuf-dev protobuf-compiler  # wire schema (proto/)
   libspdlog-dev            # daemon logging, one event per line
+  libsodium-dev            # team key and the authenticated peer channel (crypto_kx, secretstream)
   libgtest-dev libgmock-dev  # tests
+  clang libclang-rt-14-dev   # sanitizer builds and the libFuzzer targets (scripts/test.sh)
 )
 
 missing=()

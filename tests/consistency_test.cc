@@ -113,18 +113,16 @@ TEST(Nees, HandComputedPoseAndPointCases) {
   EXPECT_NEAR(nees.orientation, 0.25, 1e-9);
   EXPECT_TRUE(std::isnan(evaluation::pose_nees(estimate, -covariance, truth).pose));
   // Point: error (1, 2, 0) under diag(1, 4, 9): 1 + 1 = 2.
-  EXPECT_NEAR(evaluation::point_nees(Eigen::Vector3d(1, 2, 3),
-                                     Eigen::Vector3d(1.0, 4.0, 9.0).asDiagonal(),
-                                     Eigen::Vector3d(0, 0, 3)),
-              2.0, 1e-12);
+  EXPECT_NEAR(
+      evaluation::point_nees(Eigen::Vector3d(1, 2, 3), Eigen::Vector3d(1.0, 4.0, 9.0).asDiagonal(),
+                             Eigen::Vector3d(0, 0, 3)),
+      2.0, 1e-12);
 }
 
 TEST(Nees, SummaryCountsTheBoundAndTheQuarters) {
   // chi2(3) 95 % bound is 7.815: 7 of 8 samples inside; first quarter {1, 2}, last {9, 3}.
-  const evaluation::NeesSummary summary =
-      evaluation::summarize_nees({1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 9.0, 3.0,
-                                  std::numeric_limits<double>::quiet_NaN()},
-                                 3);
+  const evaluation::NeesSummary summary = evaluation::summarize_nees(
+      {1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 9.0, 3.0, std::numeric_limits<double>::quiet_NaN()}, 3);
   EXPECT_EQ(summary.samples, 8);
   EXPECT_NEAR(summary.mean, 33.0 / 8.0, 1e-12);
   EXPECT_NEAR(summary.median, 3.5, 1e-12);
@@ -145,8 +143,7 @@ TEST(Nees, EvaluationReportsPoseAndObjectNeesFromTheCovariances) {
   lie::Matrix6d covariance = 0.09 * lie::Matrix6d::Identity();
   result.pose_covariances = {covariance, covariance};
   result.objects.push_back({7, Eigen::Vector3d(0.2, 0, 0), 0.04 * Eigen::Matrix3d::Identity()});
-  const auto metrics =
-      evaluation::evaluate({truth}, {result}, {{7, Eigen::Vector3d::Zero()}});
+  const auto metrics = evaluation::evaluate({truth}, {result}, {{7, Eigen::Vector3d::Zero()}});
   EXPECT_EQ(metrics.robots[0].pose_nees.samples, 2);
   EXPECT_NEAR(metrics.robots[0].pose_nees.mean, 0.5, 1e-9);
   EXPECT_NEAR(metrics.robots[0].object_nees.mean, 1.0, 1e-9);
@@ -195,8 +192,7 @@ TEST(FailureCounters, AnInconsistentNewObjectIsGatedAndCounted) {
       input.T_previous_current = step;
       truth = truth * step;
     }
-    Eigen::Vector4d uv =
-        camera.denormalize(UpdaterHelper::project(camera, truth, p_object)->xy);
+    Eigen::Vector4d uv = camera.denormalize(UpdaterHelper::project(camera, truth, p_object)->xy);
     if (frame == 2) uv(0) += 40.0;
     input.objects.push_back({3, uv});
     const FrameReport report = estimator.process(input);
@@ -216,6 +212,78 @@ TEST(FailureCounters, AnUpdateWithAnIndefiniteInnovationIsRefusedAndLeavesTheSta
   const Eigen::MatrixXd noise = -100.0 * Eigen::MatrixXd::Identity(2, 2);
   EXPECT_FALSE(StateHelper::update(state, H, Eigen::VectorXd::Ones(2), noise));
   EXPECT_TRUE(state.covariance.isApprox(before.covariance, 0.0));
+}
+
+/// A short simulated robot with objects only, for the restore and odometry-noise tests.
+dataset::Dataset one_robot(int frames) {
+  sim::SimulationOptions simulation;
+  simulation.robots = 1;
+  simulation.frames = frames;
+  simulation.seed = 11;
+  simulation.points_per_frame = 0;
+  return sim::simulate(simulation);
+}
+
+TEST(Resume, AnEstimatorRestoredFromItsStateContinuesExactlyAsTheOriginal) {
+  const dataset::Dataset data = one_robot(60);
+  const EstimatorOptions options = config::load_estimator_options(kSimConfig);
+  const dataset::RobotData& robot = data.robots.front();
+  Estimator original(options, data.camera, robot.groundtruth.front());
+  for (int frame = 0; frame < 30; ++frame) (void)original.process(robot.frame_input(frame));
+  ASSERT_FALSE(original.objects().empty());
+  Estimator restored(options, data.camera, original.state(), original.pending_objects());
+  for (int frame = 30; frame < 60; ++frame) {
+    (void)original.process(robot.frame_input(frame));
+    (void)restored.process(robot.frame_input(frame));
+  }
+  EXPECT_TRUE(restored.state().covariance.isApprox(original.state().covariance, 0.0));
+  EXPECT_TRUE(restored.state().newest_pose().T_world_body.isApprox(
+      original.state().newest_pose().T_world_body, 0.0));
+  EXPECT_EQ(restored.objects().size(), original.objects().size());
+}
+
+TEST(Resume, AStateWhoseShapesDisagreeIsRefused) {
+  const dataset::Dataset data = one_robot(10);
+  const EstimatorOptions options = config::load_estimator_options(kSimConfig);
+  Estimator estimator(options, data.camera, data.robots.front().groundtruth.front());
+  for (int frame = 0; frame < 10; ++frame)
+    (void)estimator.process(data.robots.front().frame_input(frame));
+  State bad = estimator.state();
+  bad.covariance.conservativeResize(bad.covariance.rows() - 1, bad.covariance.cols() - 1);
+  EXPECT_THROW(Estimator(options, data.camera, bad), std::invalid_argument);
+  State gap = estimator.state();
+  gap.poses.back().frame += 2;
+  EXPECT_THROW(Estimator(options, data.camera, gap), std::invalid_argument);
+}
+
+TEST(OdometryCovariance, APerFrameCovarianceReplacesTheConfiguredNoise) {
+  const dataset::Dataset data = one_robot(2);
+  EstimatorOptions options = config::load_estimator_options(kSimConfig);
+  options.object_noise = StereoNoise::isotropic(1.0);
+  FrameInput first = data.robots.front().frame_input(0);
+  FrameInput second = data.robots.front().frame_input(1);
+  first.objects.clear();
+  second.objects.clear();
+  const auto grown = [&](const std::optional<Eigen::Matrix<double, 6, 6>>& covariance) {
+    Estimator estimator(options, data.camera, data.robots.front().groundtruth.front());
+    (void)estimator.process(first);
+    FrameInput input = second;
+    input.odometry_covariance = covariance;
+    (void)estimator.process(input);
+    return estimator.current_pose_covariance();
+  };
+  // With no landmarks the covariance after one step is the start's plus the step's noise: a
+  // per-frame covariance 100x the configured one grows the new pose's uncertainty by about that.
+  const Eigen::Matrix<double, 6, 6> configured = grown(std::nullopt);
+  Eigen::Matrix<double, 6, 6> large = Eigen::Matrix<double, 6, 6>::Zero();
+  large.diagonal() << Eigen::Vector3d::Constant(
+      std::pow(100.0 * options.odometry_translation_sigma, 2)),
+      Eigen::Vector3d::Constant(std::pow(100.0 * options.odometry_rotation_sigma, 2));
+  const Eigen::Matrix<double, 6, 6> given = grown(large);
+  EXPECT_GT(given.trace(), 100.0 * configured.trace());
+  EXPECT_TRUE(given.allFinite());
+  Eigen::Matrix<double, 6, 6> indefinite = -large;
+  EXPECT_THROW(grown(indefinite), std::invalid_argument);
 }
 
 TEST(Calibration, RecoversTheSimulatorsNoise) {

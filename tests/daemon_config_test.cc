@@ -24,16 +24,20 @@ TEST(DaemonConfig, CheckedInTeamConfigsLoad) {
   }
 }
 
-TEST(DaemonConfig, DefaultsNeedOnlyADataset) {
-  const DaemonConfig config = parse_daemon_config("source: {dataset: data/x}\n", "inline", "/base");
+TEST(DaemonConfig, DefaultsNeedADatasetATeamKeyAndTheMembers) {
+  const DaemonConfig config = parse_daemon_config(
+      "team_key_file: team.key\nmembers: [0, 1]\nsource: {dataset: data/x}\n", "inline", "/base");
   EXPECT_EQ(config.source.dataset, std::filesystem::path("/base/data/x"));
+  EXPECT_EQ(config.team_key_file, std::filesystem::path("/base/team.key"));
+  EXPECT_EQ(config.members, (std::vector<int>{0, 1}));
   EXPECT_EQ(config.http.address, "127.0.0.1");
   EXPECT_FALSE(config.network.discovery);
 }
 
 TEST(DaemonConfig, InlineEstimatorOptions) {
   const DaemonConfig config = parse_daemon_config(
-      "source: {dataset: d}\nestimator: {window_size: 7, consensus: {neighbour_chi2_probability: 0.99}}\n",
+      "consensus: {mode: off}\nsource: {dataset: d}\n"
+      "estimator: {window_size: 7, consensus: {neighbour_chi2_probability: 0.99}}\n",
       "inline", "/");
   EXPECT_EQ(config.estimator.window_size, 7);
   EXPECT_EQ(config.estimator.consensus.neighbour_chi2_probability, 0.99);
@@ -41,7 +45,7 @@ TEST(DaemonConfig, InlineEstimatorOptions) {
 
 std::string problems_of(const std::string& yaml) {
   try {
-    parse_daemon_config(yaml, "robot.yaml", "/");
+    (void)parse_daemon_config(yaml, "robot.yaml", "/");
   } catch (const config::ConfigError& error) {
     return error.what();
   }
@@ -76,7 +80,35 @@ TEST(DaemonConfig, CrossFieldChecks) {
             std::string::npos);
   EXPECT_NE(problems_of("[1, 2]\n").find("expected a map"), std::string::npos);
   EXPECT_NE(problems_of("a: [\n").find("invalid YAML"), std::string::npos);
-  EXPECT_THROW(load_daemon_config("/nonexistent/robot.yaml"), config::ConfigError);
+  EXPECT_THROW((void)load_daemon_config("/nonexistent/robot.yaml"), config::ConfigError);
+}
+
+TEST(DaemonConfig, TrustAndBoundsAreChecked) {
+  const std::string unkeyed = problems_of("source: {dataset: d}\n");
+  EXPECT_NE(unkeyed.find("team_key_file: required"), std::string::npos) << unkeyed;
+  EXPECT_NE(unkeyed.find("members: required"), std::string::npos) << unkeyed;
+  EXPECT_NE(problems_of("robot_id: 5\nteam_key_file: k\nmembers: [0, 1]\nsource: {dataset: d}\n")
+                .find("does not contain this robot's id 5"),
+            std::string::npos);
+  // Consensus off: no key needed.
+  EXPECT_EQ(problems_of("source: {dataset: d}\nconsensus: {mode: off}\n"), "");
+  // Ingest on another address than loopback must be authenticated.
+  const std::string open_ingest = problems_of(
+      "consensus: {mode: off}\nsource: {kind: ingest, camera: c, ingest_address: 0.0.0.0}\n");
+  EXPECT_NE(open_ingest.find("ingest_authenticated"), std::string::npos) << open_ingest;
+  EXPECT_NE(problems_of("consensus: {mode: off}\nsource: {kind: ingest, camera: c, "
+                        "ingest_address: 0.0.0.0, ingest_authenticated: true}\n")
+                .find("team_key_file: required"),
+            std::string::npos);
+  for (const char* rate : {"-1", "1e-6", "20000"})
+    EXPECT_NE(problems_of("consensus: {mode: off}\nsource: {dataset: d, rate_hz: " +
+                          std::string(rate) + "}\n")
+                  .find("source.rate_hz"),
+              std::string::npos)
+        << rate;
+  EXPECT_NE(problems_of("consensus: {mode: off, future_rounds: 0}\nsource: {dataset: d}\n")
+                .find("consensus.future_rounds"),
+            std::string::npos);
 }
 
 }  // namespace

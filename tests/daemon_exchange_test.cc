@@ -12,6 +12,7 @@
 #include "concord/estimator/estimator.h"
 #include "concord/v1/concord.pb.h"
 #include "replay/team_replay.h"
+#include "sim/simulator.h"
 #include "test_support.h"
 
 namespace concord::daemon {
@@ -84,6 +85,62 @@ TEST(DaemonExchange, LockstepReproducesTheReplay) {
     }
   }
   EXPECT_GT(team.exchanges[0]->counters().marginals_fused, 50u);
+}
+
+TEST(DaemonExchange, ALyingNeighbourIsRefusedAndQuarantined) {
+  // Robot 2 holds the team key but sends every marginal 50 m off in x. Its landmarks disagree
+  // with the others' beyond the chi-square bound: they are refused, robot 2 is quarantined, and
+  // robots 0 and 1 are not dragged away (their trajectories stay within a metre of the truth).
+  sim::SimulationOptions simulation;
+  simulation.robots = 3;
+  simulation.frames = 120;
+  simulation.points_per_frame = 0;
+  const dataset::Dataset data = sim::simulate(simulation);
+  const EstimatorOptions options =
+      config::load_estimator_options(kSource / "configs/sensors/sim.yaml");
+  ConsensusConfig config;
+  config.mode = ConsensusMode::kLockstep;
+  config.round_deadline = std::chrono::seconds(20);
+  std::vector<std::unique_ptr<ConsensusExchange>> exchanges;
+  for (int i = 0; i < 3; ++i) {
+    exchanges.push_back(std::make_unique<ConsensusExchange>(
+        config, [&exchanges, i](int robot, const v1::Envelope& envelope) {
+          v1::Envelope sent = envelope;
+          if (i == 2 && sent.has_marginal()) {
+            auto* mean = sent.mutable_marginal()->mutable_mean();
+            for (int k = 0; k < mean->size(); k += 3) mean->Set(k, mean->Get(k) + 50.0);
+          }
+          exchanges[robot]->on_message(i, sent);
+          return true;
+        }));
+  }
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j)
+      if (i != j) exchanges[i]->on_peer(j, true);
+  std::vector<double> worst_error(3, 0.0);
+  std::vector<std::thread> robots;
+  for (int i = 0; i < 3; ++i) {
+    robots.emplace_back([&, i] {
+      Estimator estimator(options, data.camera, data.robots[i].groundtruth.front(), 0);
+      for (int k = 0; k < data.robots[i].num_frames(); ++k) {
+        estimator.process(data.robots[i].frame_input(k));
+        (void)exchanges[i]->run_round(static_cast<std::uint64_t>(k), estimator);
+        worst_error[i] = std::max(worst_error[i], (estimator.current_pose().translation() -
+                                                   data.robots[i].groundtruth[k].translation())
+                                                      .norm());
+      }
+    });
+  }
+  for (auto& robot : robots) robot.join();
+  for (int honest : {0, 1}) {
+    const PeerTrust liar = exchanges[honest]->peer_trust().at(2);
+    EXPECT_GT(liar.landmarks_refused, 0u) << "robot " << honest;
+    EXPECT_GE(liar.quarantines, 1u) << "robot " << honest;
+    EXPECT_GT(exchanges[honest]->counters().quarantined_dropped, 0u);
+    // The honest neighbour is not quarantined.
+    EXPECT_EQ(exchanges[honest]->peer_trust().at(1 - honest).quarantines, 0u);
+    EXPECT_LT(worst_error[honest], 1.0) << "robot " << honest;
+  }
 }
 
 /// A robot with one landmark (id 5), for protocol tests.

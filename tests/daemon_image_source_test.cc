@@ -18,6 +18,7 @@ namespace fs = std::filesystem;
 
 TEST(DaemonImageSource, ConfigReadsTheSequenceDetectionsAndFrontEndOptions) {
   const DaemonConfig config = parse_daemon_config(
+      "consensus: {mode: off}\n"
       "source: {kind: images, images: seq, detections: seq/boxes.csv, frontend: fe.yaml, "
       "rate_hz: 20}\n",
       "robot.yaml", "/base");
@@ -27,7 +28,8 @@ TEST(DaemonImageSource, ConfigReadsTheSequenceDetectionsAndFrontEndOptions) {
   EXPECT_EQ(config.source.frontend, fs::path("/base/fe.yaml"));
   EXPECT_DOUBLE_EQ(config.source.rate_hz, 20.0);
   try {
-    parse_daemon_config("source: {kind: images}\n", "robot.yaml", "/");
+    (void)parse_daemon_config("consensus: {mode: off}\nsource: {kind: images}\n", "robot.yaml",
+                              "/");
     FAIL() << "expected a ConfigError";
   } catch (const config::ConfigError& error) {
     EXPECT_NE(std::string(error.what()).find("source.images: required for images"),

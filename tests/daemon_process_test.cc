@@ -162,6 +162,7 @@ TEST(DaemonProcess, TeamSurvivesAKilledPeerAndTakesItBack) {
   auto options = team_options(out, 40);
   options.rate_hz = 50.0;  // 300 frames in about 6 s: time to kill and restart mid-run
   fs::create_directories(out / "configs");
+  launch::ensure_team_key(options);
   std::vector<fs::path> configs;
   std::vector<ChildProcess> daemons;
   for (int robot = 0; robot < 3; ++robot) {
@@ -253,6 +254,7 @@ TEST(DaemonProcess, RejectsGarbageAndMalformedHttpAndStillAnswers) {
   auto options = team_options(out, 80);
   options.rate_hz = 20.0;  // runs until we stop it
   const fs::path config = out / "robot_00.yaml";
+  launch::ensure_team_key(options);
   dataset::write_file_atomically(config, launch::daemon_config_yaml(options, 0, 1));
   ChildProcess daemon({kDaemon, "--config", config}, out / "robot_00.log");
   const std::uint16_t http = options.http_base_port;
@@ -287,6 +289,7 @@ TEST(DaemonProcess, RejectsGarbageAndMalformedHttpAndStillAnswers) {
   ASSERT_TRUE(metrics);
   EXPECT_NE(metrics->find("concord_network_frames_rejected_total{robot=\"0\"} 2"), std::string::npos)
       << *metrics;
+  ASSERT_TRUE(eventually([&] { return get_json(http, "/pose").has_value(); }, 20s));
   const auto pose = get_json(http, "/pose");
   ASSERT_TRUE(pose);
   EXPECT_EQ((*pose)["covariance"].size(), 6u);

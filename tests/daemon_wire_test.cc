@@ -2,8 +2,10 @@
 // reason instead of crashing or producing garbage estimates.
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <random>
 
+#include "checkpoint.h"
 #include "concord/daemon/wire.h"
 #include "concord/v1/concord.pb.h"
 #include "test_support.h"
@@ -85,6 +87,8 @@ TEST(DaemonWire, SensorFrameRoundTrip) {
   motion.linear() = Eigen::AngleAxisd(0.1, Eigen::Vector3d(0, 0, 1)).toRotationMatrix();
   motion.translation() = Eigen::Vector3d(1.0, 0.2, -0.1);
   frame.T_previous_current = motion;
+  std::mt19937 random(3);
+  frame.odometry_covariance = concord::testing::random_spd(6, random, 1e-4, 1e-2);
   frame.objects.push_back({5, Eigen::Vector4d(100, 50, 90, 50)});
   frame.features.push_back({77, Eigen::Vector4d(0.1, 0.2, 0.05, 0.2)});
   v1::SensorFrame message;
@@ -95,6 +99,8 @@ TEST(DaemonWire, SensorFrameRoundTrip) {
   EXPECT_EQ(back->frame, 12);
   ASSERT_TRUE(back->T_previous_current);
   EXPECT_TRUE(back->T_previous_current->isApprox(motion, 1e-12));
+  ASSERT_TRUE(back->odometry_covariance);
+  EXPECT_TRUE(back->odometry_covariance->isApprox(*frame.odometry_covariance, 1e-15));
   ASSERT_EQ(back->objects.size(), 1u);
   EXPECT_EQ(back->objects[0].id, 5);
   EXPECT_EQ(back->objects[0].uv, frame.objects[0].uv);
@@ -119,6 +125,62 @@ TEST(DaemonWire, MalformedSensorFramesAreRejected) {
   auto* observation = not_finite.add_objects();
   observation->set_u_left(std::numeric_limits<double>::infinity());
   EXPECT_FALSE(from_wire(not_finite, error));
+
+  // odometry_covariance: none, or 21 values of a positive definite 6x6 matrix.
+  v1::SensorFrame covariance;
+  covariance.set_frame(1);
+  for (int row = 0; row < 6; ++row)
+    for (int column = row; column < 6; ++column)
+      covariance.add_odometry_covariance(row == column ? 0.01 : 0.0);
+  EXPECT_TRUE(from_wire(covariance, error)) << error;
+  covariance.set_odometry_covariance(0, -1.0);
+  EXPECT_FALSE(from_wire(covariance, error));
+  EXPECT_NE(error.find("positive definite"), std::string::npos) << error;
+  covariance.set_odometry_covariance(0, std::nan(""));
+  EXPECT_FALSE(from_wire(covariance, error));
+  covariance.add_odometry_covariance(1.0);
+  EXPECT_FALSE(from_wire(covariance, error));
+  EXPECT_NE(error.find("expected 21"), std::string::npos) << error;
+}
+
+}  // namespace
+}  // namespace concord::daemon
+
+namespace concord::daemon {
+namespace {
+
+TEST(DaemonCheckpoint, RoundTripsTheFilterStateAndPendingObjectsAndRefusesDamage) {
+  std::mt19937 random(8);
+  Checkpoint checkpoint;
+  checkpoint.robot_id = 2;
+  checkpoint.round = 41;
+  checkpoint.frames = {40, 41};
+  checkpoint.timestamps = {4.0, 4.1};
+  checkpoint.poses = {Eigen::Isometry3d::Identity(), Eigen::Isometry3d::Identity()};
+  checkpoint.state = concord::testing::random_state(3, 2, random);
+  checkpoint.pending[9] = {{40, Eigen::Vector4d(0.1, 0.2, 0.05, 0.2)},
+                           {41, Eigen::Vector4d(0.11, 0.2, 0.06, 0.2)}};
+  const std::string bytes = serialize_checkpoint(checkpoint);
+  std::string error;
+  const auto back = parse_checkpoint(bytes, error);
+  ASSERT_TRUE(back) << error;
+  EXPECT_EQ(back->round, 41u);
+  EXPECT_TRUE(back->state.covariance.isApprox(checkpoint.state.covariance, 0.0));
+  ASSERT_EQ(back->state.landmarks.size(), 2u);
+  EXPECT_EQ(back->state.landmarks[1].p_linearization,
+            checkpoint.state.landmarks[1].p_linearization);
+  ASSERT_EQ(back->pending.size(), 1u);
+  ASSERT_EQ(back->pending.at(9).size(), 2u);
+  EXPECT_EQ(back->pending.at(9)[1].frame, 41);
+  EXPECT_EQ(back->pending.at(9)[1].xy, checkpoint.pending[9][1].xy);
+  // Every truncation and any flipped byte is refused with a reason, never read.
+  for (std::size_t size = 0; size < bytes.size(); size += 7) {
+    EXPECT_FALSE(parse_checkpoint(bytes.substr(0, size), error)) << size;
+  }
+  std::string flipped = bytes;
+  flipped[bytes.size() / 2] ^= 0x10;
+  EXPECT_FALSE(parse_checkpoint(flipped, error));
+  EXPECT_NE(error.find("checksum"), std::string::npos) << error;
 }
 
 }  // namespace

@@ -489,6 +489,21 @@ TEST(HttpServer, ConnectionsOverTheLimitGet503) {
   EXPECT_EQ(counters.connections_active, 1u);
 }
 
+TEST(HttpServer, OneClientCannotHoldEverySlot) {
+  ServerOptions options;
+  options.max_connections = 8;
+  options.max_connections_per_client = 2;
+  RunningServer server(options);
+  TestClient first(server.port());
+  TestClient second(server.port());
+  EXPECT_EQ(first.get("/healthz").result_int(), 200u);
+  EXPECT_EQ(second.get("/healthz").result_int(), 200u);
+  TestClient third(server.port());  // same client address (loopback): over its share
+  third.send(http::verb::get, "/healthz");
+  expect_json_error(third.receive(), 503);
+  EXPECT_EQ(server.counters().connections_rejected, 1u);
+}
+
 TEST(HttpServer, CountersCountRequestsAndResponseClasses) {
   RunningServer server;
   TestClient client(server.port());

@@ -246,13 +246,13 @@ TEST(FrameCodec, ZeroLengthIsAnError) {
 
 TEST(FrameCodec, WrongVersionIsAnError) {
   v1::Envelope envelope = every_message_type()[1];
-  envelope.set_protocol_version(2);
+  envelope.set_protocol_version(1);  // a v1 daemon
   FrameDecoder decoder(alpha_options());
   decoder.feed(encode_frame(envelope));
   v1::Envelope decoded;
   ASSERT_EQ(decoder.next(decoded), Status::kError);
   EXPECT_EQ(decoder.error().kind, FrameErrorKind::kWrongVersion);
-  EXPECT_NE(decoder.error().reason.find("version 2"), std::string::npos) << decoder.error().reason;
+  EXPECT_NE(decoder.error().reason.find("version 1"), std::string::npos) << decoder.error().reason;
 }
 
 TEST(FrameCodec, WrongTeamIsAnErrorUnlessAnyTeamIsAccepted) {

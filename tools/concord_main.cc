@@ -8,9 +8,11 @@
 ///   concord calibrate --dataset DIR [--robot R] [--first F] [--frames N]
 ///   concord launch --dataset DIR --out DIR [--lockstep|--async|--separate] [--base-port P]
 ///                  [--http-base-port P] [--config FILE] [--robots R] [--frames N] [--rate HZ]
+///                  [--round-deadline-ms MS] [--failpoint ROBOT:NAME[=ARG] ...]
 ///   concord plot --input CHART.json --out CHART.png
 ///   concord frontend --input DIR --out DIR [--detections FILE] [--odometry FILE] [--frames N]
 ///   concord frontend-eval --dataset DIR [--world FILE]
+///   concord keygen --out FILE      (a new team key, mode 0600; never overwrites)
 ///   concord sim --robots N --out DIR [--seed S] [--frames F] [--objects M] [--points-per-frame P]
 ///               [--odometry-translation-noise T] [--odometry-rotation-noise R] [--pixel-noise S]
 ///               ... (camera, path and object-placement parameters: concord sim --help)
@@ -37,6 +39,7 @@
 #include "concord/frontend/frontend_options_file.h"
 #include "concord/frontend/frontend_run.h"
 #include "evaluation/frontend_metrics.h"
+#include "concord/net/team_key.h"
 #include "evaluation/line_plot.h"
 #include "evaluation/metrics.h"
 #include "evaluation/plot.h"
@@ -863,6 +866,14 @@ int main(int argc, char** argv) {
                            "Ignore features.csv");
   launch_command->add_option("--concordd", concordd_path, "The concordd binary")
       ->check(CLI::ExistingFile);
+  std::vector<std::string> launch_failpoints;
+  launch_command->add_option("--failpoint", launch_failpoints,
+                             "Testing aid: ROBOT:NAME[=ARG] passes --failpoint NAME[=ARG] to "
+                             "robot ROBOT's concordd (repeatable)");
+  launch_command
+      ->add_option("--round-deadline-ms", launch_options.round_deadline_ms,
+                   "consensus.round_deadline_ms of the daemons (default: theirs)")
+      ->check(CLI::PositiveNumber);
 
   auto* plot_command =
       app.add_subcommand("plot", "Draw a line chart described in JSON as a PNG (bench charts)");
@@ -929,9 +940,20 @@ int main(int argc, char** argv) {
   frontend_eval_command
       ->add_option("--world", world_file, "world.csv of rendered sequences (concord sim --render)")
       ->check(CLI::ExistingFile);
+  auto* keygen_command = app.add_subcommand(
+      "keygen", "Write a new team key (32 random bytes) to a file readable by its owner only");
+  std::string key_file;
+  keygen_command->add_option("--out", key_file, "Key file to create (never overwritten)")
+      ->required();
 
   CLI11_PARSE(app, argc, argv);
   try {
+    if (keygen_command->parsed()) {
+      net::write_team_key(key_file, net::TeamKey::generate());
+      std::cout << "team key: " << key_file << " (mode 0600; copy it to every robot of the team "
+                << "and point team_key_file at it)\n";
+      return 0;
+    }
     if (plot_command->parsed()) {
       evaluation::write_line_plot_png(out_dir, evaluation::read_line_plot_json(plot_input));
       std::cout << "plot: " << out_dir << "\n";
@@ -946,6 +968,22 @@ int main(int argc, char** argv) {
       launch_options.point_features = !no_point_features;
       if (!launch_config.empty()) launch_options.estimator_config = launch_config;
       if (!concordd_path.empty()) launch_options.concordd = concordd_path;
+      for (const std::string& failpoint : launch_failpoints) {
+        const std::size_t colon = failpoint.find(':');
+        int robot = -1;
+        try {
+          robot = colon == std::string::npos ? -1 : std::stoi(failpoint.substr(0, colon));
+        } catch (const std::exception&) {
+        }
+        if (robot < 0) {
+          std::cerr << "concord launch: --failpoint: expected ROBOT:NAME[=ARG], got '" << failpoint
+                    << "'\n";
+          return 1;
+        }
+        auto& arguments = launch_options.extra_arguments[robot];
+        arguments.push_back("--failpoint");
+        arguments.push_back(failpoint.substr(colon + 1));
+      }
       return run_launch(launch_options);
     }
     if (replay_command->parsed()) {

@@ -2,6 +2,7 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include <algorithm>
 #include <limits>
 #include <map>
 #include <set>
@@ -96,6 +97,27 @@ class Section {
     }
     field = static_cast<std::size_t>(value);
   }
+  void read_ints(const std::string& key, std::vector<int>& field) {
+    const YAML::Node value = child(key);
+    if (!value || value.IsNull()) return;
+    std::vector<int> numbers;
+    bool valid = value.IsSequence();
+    if (valid) {
+      for (const auto& item : value) {
+        try {
+          numbers.push_back(item.as<int>());
+        } catch (const YAML::Exception&) {
+          valid = false;
+          break;
+        }
+      }
+    }
+    if (!valid) {
+      problems_.push_back(line_of(value) + prefix_ + key + ": expected a sequence of integers");
+      return;
+    }
+    field = std::move(numbers);
+  }
   void read_strings(const std::string& key, std::vector<std::string>& field) {
     const YAML::Node value = child(key);
     if (!value || value.IsNull()) return;
@@ -183,14 +205,67 @@ std::vector<std::string> DaemonConfig::validate() const {
   std::vector<std::string> problems;
   if (robot_id < 0) problems.push_back("robot_id: expected >= 0, got " + std::to_string(robot_id));
   if (team.empty()) problems.push_back("team: must not be empty");
+  const bool needs_key = consensus.mode != ConsensusMode::kOff ||
+                         (source.kind == SourceKind::kIngest && source.ingest_authenticated);
+  if (needs_key && team_key_file.empty())
+    problems.push_back("team_key_file: required (create one with `concord keygen --out FILE`)");
+  if (consensus.mode != ConsensusMode::kOff) {
+    if (members.empty()) problems.push_back("members: required, the robot ids of the team");
+    if (!members.empty() && std::find(members.begin(), members.end(), robot_id) == members.end())
+      problems.push_back("members: does not contain this robot's id " + std::to_string(robot_id));
+  }
+  for (const int member : members)
+    if (member < 0) problems.push_back("members: " + std::to_string(member) + " is negative");
+  if (source.kind == SourceKind::kIngest) {
+    const std::string& address = source.ingest_address;
+    const bool loopback =
+        address.rfind("127.", 0) == 0 || address == "::1" || address == "localhost";
+    if (!loopback && !source.ingest_authenticated)
+      problems.push_back("source.ingest_address: " + address +
+                         " is not a loopback address: set source.ingest_authenticated: true");
+    if (!(source.max_translation_m > 0.0))
+      problems.push_back("source.max_translation_m: expected > 0");
+    if (!(source.max_rotation_rad > 0.0))
+      problems.push_back("source.max_rotation_rad: expected > 0");
+  }
+  if (consensus.future_rounds < 1 || consensus.future_rounds > 1000)
+    problems.push_back("consensus.future_rounds: expected 1-1000, got " +
+                       std::to_string(consensus.future_rounds));
+  if (!(consensus.suspicious_refusal_fraction >= 0.0 && consensus.suspicious_refusal_fraction < 1.0))
+    problems.push_back("consensus.suspicious_refusal_fraction: expected a fraction in [0, 1), got " +
+                       std::to_string(consensus.suspicious_refusal_fraction));
+  if (consensus.quarantine_after < 1)
+    problems.push_back("consensus.quarantine_after: expected >= 1, got " +
+                       std::to_string(consensus.quarantine_after));
+  if (consensus.quarantine_rounds < 0)
+    problems.push_back("consensus.quarantine_rounds: expected >= 0, got " +
+                       std::to_string(consensus.quarantine_rounds));
+  if (consensus.miss_limit < 1)
+    problems.push_back("consensus.miss_limit: expected >= 1, got " +
+                       std::to_string(consensus.miss_limit));
+  if (consensus.max_marginal_landmarks < 1)
+    problems.push_back("consensus.max_marginal_landmarks: expected >= 1");
+  if (http.max_connections_per_client > http.max_connections)
+    problems.push_back("http.max_connections_per_client: above http.max_connections");
   if (source.kind == SourceKind::kReplay) {
     if (source.dataset.empty()) problems.push_back("source.dataset: required for replay");
     if (source.robot < 0) problems.push_back("source.robot: expected >= 0");
-    if (!(source.rate_hz >= 0.0)) problems.push_back("source.rate_hz: expected >= 0");
+    if (!(source.rate_hz >= 0.0 && source.rate_hz <= 10000.0))
+      problems.push_back(
+          "source.rate_hz: expected 0 (as fast as possible) or a rate up to 10000 "
+          "frames per second, got " +
+          std::to_string(source.rate_hz));
+    else if (source.rate_hz > 0.0 && source.rate_hz < 1e-3)
+      problems.push_back("source.rate_hz: " + std::to_string(source.rate_hz) +
+                         " is below 0.001 frames per second (one frame in 17 minutes)");
     if (source.max_frames < 0) problems.push_back("source.max_frames: expected >= 0");
+    if (!(source.frame_period_s > 0.0 && source.frame_period_s <= 3600.0))
+      problems.push_back("source.frame_period_s: expected a period in (0, 3600] seconds");
   } else if (source.kind == SourceKind::kImages) {
     if (source.images.empty()) problems.push_back("source.images: required for images");
-    if (!(source.rate_hz >= 0.0)) problems.push_back("source.rate_hz: expected >= 0");
+    if (!(source.rate_hz >= 0.0 && source.rate_hz <= 10000.0))
+      problems.push_back("source.rate_hz: expected 0 (as fast as possible) or a rate up to 10000 "
+                         "frames per second, got " + std::to_string(source.rate_hz));
     if (source.max_frames < 0) problems.push_back("source.max_frames: expected >= 0");
   } else {
     if (source.camera.empty()) problems.push_back("source.camera: required for ingest");
@@ -225,6 +300,8 @@ DaemonConfig parse_daemon_config(const std::string& yaml_text, const std::string
   top.read("team", config.team);
   top.read("log_level", config.log_level);
   top.read_size("queue_capacity", config.queue_capacity);
+  top.read("team_key_file", config.team_key_file, base_directory);
+  top.read_ints("members", config.members);
 
   // estimator: a file name, or the options inline.
   const YAML::Node estimator = top.child("estimator");
@@ -260,6 +337,7 @@ DaemonConfig parse_daemon_config(const std::string& yaml_text, const std::string
   source.read("rate_hz", config.source.rate_hz);
   source.read("max_frames", config.source.max_frames);
   source.read("point_features", config.source.point_features);
+  source.read("frame_period_s", config.source.frame_period_s);
   source.read("ingest_address", config.source.ingest_address);
   source.read_port("ingest_port", config.source.ingest_port, true);
   source.read("camera", config.source.camera, base_directory);
@@ -267,6 +345,9 @@ DaemonConfig parse_daemon_config(const std::string& yaml_text, const std::string
   source.read("images", config.source.images, base_directory);
   source.read("detections", config.source.detections, base_directory);
   source.read("frontend", config.source.frontend, base_directory);
+  source.read("ingest_authenticated", config.source.ingest_authenticated);
+  source.read("max_translation_m", config.source.max_translation_m);
+  source.read("max_rotation_rad", config.source.max_rotation_rad);
   source.finish();
 
   Section network(top.child("network"), "network.", problems);
@@ -280,6 +361,9 @@ DaemonConfig parse_daemon_config(const std::string& yaml_text, const std::string
   network.read("discovery", config.network.discovery);
   network.read("discovery_address", config.network.discovery_address);
   network.read_port("discovery_port", config.network.discovery_port, false);
+  network.read_size("max_pending_handshakes", config.network.max_pending_handshakes);
+  network.read_size("receive_bytes_per_second", config.network.receive_bytes_per_second);
+  network.read_size("receive_messages_per_second", config.network.receive_messages_per_second);
   network.finish();
 
   Section consensus(top.child("consensus"), "consensus.", problems);
@@ -294,17 +378,27 @@ DaemonConfig parse_daemon_config(const std::string& yaml_text, const std::string
   consensus.read("staleness_rounds", config.consensus.staleness_rounds);
   consensus.read("wait_for_peers", config.consensus.wait_for_peers);
   consensus.read_milliseconds("startup_timeout_ms", config.consensus.startup_timeout, true);
+  consensus.read("future_rounds", config.consensus.future_rounds);
+  consensus.read("miss_limit", config.consensus.miss_limit);
+  consensus.read("suspicious_refusal_fraction", config.consensus.suspicious_refusal_fraction);
+  consensus.read("quarantine_after", config.consensus.quarantine_after);
+  consensus.read("quarantine_rounds", config.consensus.quarantine_rounds);
+  consensus.read("max_marginal_landmarks", config.consensus.max_marginal_landmarks);
   consensus.finish();
 
   Section http(top.child("http"), "http.", problems);
   http.read("enabled", config.http.enabled);
   http.read("address", config.http.address);
   http.read_port("port", config.http.port, true);
+  http.read_size("max_connections", config.http.max_connections);
+  http.read_size("max_connections_per_client", config.http.max_connections_per_client);
   http.finish();
 
   Section output(top.child("output"), "output.", problems);
   output.read("directory", config.output.directory, base_directory);
   output.read_milliseconds("write_interval_ms", config.output.write_interval, true);
+  output.read_milliseconds("fsync_interval_ms", config.output.fsync_interval, true);
+  output.read("checkpoint", config.output.checkpoint);
   output.finish();
   top.finish();
 

@@ -5,9 +5,11 @@
 #include <algorithm>
 #include <iterator>
 #include <optional>
+#include <set>
 
 #include "concord/daemon/wire.h"
 #include "concord/estimator/estimator.h"
+#include "concord/net/log_limiter.h"
 #include "concord/v1/concord.pb.h"
 
 namespace concord::daemon {
@@ -25,6 +27,16 @@ bool sorted_unique(const std::vector<LandmarkId>& ids) {
   return std::adjacent_find(ids.begin(), ids.end(), std::greater_equal<>()) == ids.end();
 }
 
+/// A warning caused by a peer, at most a few per (peer, kind) and period.
+template <class... Args>
+void warn_limited(net::LogLimiter& limiter, int robot, const char* kind,
+                  spdlog::format_string_t<Args...> format, Args&&... args) {
+  std::uint64_t suppressed = 0;
+  if (!limiter.allow("robot " + std::to_string(robot) + " " + kind, suppressed)) return;
+  spdlog::warn("{}{}", fmt::format(format, std::forward<Args>(args)...),
+               net::suppressed_note(suppressed));
+}
+
 double seconds_between(std::chrono::steady_clock::time_point a,
                        std::chrono::steady_clock::time_point b) {
   return std::chrono::duration<double>(b - a).count();
@@ -37,8 +49,12 @@ struct ConsensusExchange::Peer {
     Marginal marginal;
     int degree = 0;
     bool used = false;
+    bool rejected = false;  ///< malformed: the peer's answer for its round, nothing to fuse
   };
   bool up = false;
+  /// Lockstep liveness: deadlines missed in a row, and whether it left the waits.
+  int missed_in_a_row = 0;
+  bool excluded = false;
   bool goodbye = false;
   /// Highest round the peer announced (LandmarkSet or Marginal); -1 before any.
   std::int64_t last_round = -1;
@@ -52,10 +68,18 @@ struct ConsensusExchange::Peer {
   /// independently).
   std::optional<Received> latest;
   std::int64_t latest_received_at = -1;
+  /// Poisoning defence: suspicious rounds in a row, and the round its quarantine ends (-1: none).
+  int suspicious_in_a_row = 0;
+  std::int64_t quarantined_until = -1;
+  PeerTrust trust;
 };
 
-ConsensusExchange::ConsensusExchange(ConsensusConfig config, Send send)
-    : config_(std::move(config)), send_(std::move(send)) {}
+ConsensusExchange::ConsensusExchange(ConsensusConfig config, Send send,
+                                     ExchangeFailpoints failpoints)
+    : config_(std::move(config)),
+      send_(std::move(send)),
+      failpoints_(failpoints),
+      log_limiter_(std::make_unique<net::LogLimiter>()) {}
 
 ConsensusExchange::~ConsensusExchange() = default;
 
@@ -66,6 +90,7 @@ void ConsensusExchange::on_peer(int robot, bool up) {
   Peer& peer = *slot;
   if (up) {
     // A new connection: whatever the peer announced before is from its previous life.
+    if (peer.excluded && counters_.excluded_peers > 0) --counters_.excluded_peers;
     peer = Peer{};
     peer.up = true;
   } else {
@@ -82,6 +107,24 @@ void ConsensusExchange::on_message(int robot, const v1::Envelope& envelope) {
   switch (envelope.body_case()) {
     case v1::Envelope::kLandmarkSet: {
       const v1::LandmarkSet& message = envelope.landmark_set();
+      const auto limit = static_cast<std::size_t>(config_.max_marginal_landmarks);
+      if (static_cast<std::size_t>(message.ids_size()) > limit ||
+          static_cast<std::size_t>(message.added_size()) > limit ||
+          static_cast<std::size_t>(message.removed_size()) > limit) {
+        ++counters_.malformed;
+        warn_limited(*log_limiter_, robot, "landmark-set",
+                     "consensus: robot {} sent a landmark set above {} ids; ignored", robot, limit);
+        return;
+      }
+      if (config_.mode != ConsensusMode::kAsync && beyond_window(message.round())) {
+        // Not kept (bounded memory), but it tells where the peer is (a restarted robot
+        // rejoins there; a peer far ahead is not waited for).
+        ++counters_.future_dropped;
+        peer.last_round =
+            std::max<std::int64_t>(peer.last_round, static_cast<std::int64_t>(message.round()));
+        changed_.notify_all();
+        return;
+      }
       std::vector<LandmarkId> ids;
       if (!message.delta()) {
         ids.assign(message.ids().begin(), message.ids().end());
@@ -97,13 +140,17 @@ void ConsensusExchange::on_message(int robot, const v1::Envelope& envelope) {
                        std::back_inserter(ids));
       } else {
         ++counters_.malformed;
-        spdlog::warn("consensus: robot {} sent a landmark delta without a base set; ignored",
+        warn_limited(*log_limiter_, robot, "landmark-set",
+                     "consensus: robot {} sent a landmark delta without a base set; ignored",
                      robot);
         return;
       }
-      if (!sorted_unique(ids)) {
+      if (!sorted_unique(ids) || ids.size() > limit) {
         ++counters_.malformed;
-        spdlog::warn("consensus: robot {} sent landmark ids that are not sorted and unique", robot);
+        warn_limited(*log_limiter_, robot, "landmark-set",
+                     "consensus: robot {} sent landmark ids that are not sorted and unique, or "
+                     "too many; ignored",
+                     robot);
         return;
       }
       peer.ids = ids;
@@ -121,15 +168,36 @@ void ConsensusExchange::on_message(int robot, const v1::Envelope& envelope) {
     }
     case v1::Envelope::kMarginal: {
       const v1::Marginal& message = envelope.marginal();
-      std::string error;
-      auto marginal = from_wire(message, error);
-      if (!marginal) {
-        ++counters_.malformed;
-        spdlog::warn("consensus: robot {} round {}: {}", robot, message.round(), error);
+      const bool lockstep = config_.mode != ConsensusMode::kAsync;
+      if (lockstep && beyond_window(message.round())) {
+        ++counters_.future_dropped;
+        peer.last_round =
+            std::max<std::int64_t>(peer.last_round, static_cast<std::int64_t>(message.round()));
+        changed_.notify_all();
         return;
       }
-      peer.last_round = std::max<std::int64_t>(peer.last_round,
-                                               static_cast<std::int64_t>(message.round()));
+      std::string error;
+      std::optional<Marginal> marginal;
+      if (message.landmark_ids_size() > config_.max_marginal_landmarks)
+        error = "marginal of " + std::to_string(message.landmark_ids_size()) +
+                " landmarks, above the limit of " + std::to_string(config_.max_marginal_landmarks);
+      else
+        marginal = from_wire(message, error);
+      peer.last_round =
+          std::max<std::int64_t>(peer.last_round, static_cast<std::int64_t>(message.round()));
+      if (!marginal) {
+        ++counters_.malformed;
+        warn_limited(*log_limiter_, robot, "marginal", "consensus: robot {} round {}: {}", robot,
+                     message.round(), error);
+        // A rejected marginal is the peer's answer for its round: nothing to fuse, no waiting.
+        if (lockstep && static_cast<std::int64_t>(message.round()) > forgotten_up_to_) {
+          Peer::Received rejected;
+          rejected.rejected = true;
+          peer.marginals[message.round()] = std::move(rejected);
+          changed_.notify_all();
+        }
+        return;
+      }
       if (config_.mode == ConsensusMode::kAsync) {
         peer.latest = Peer::Received{std::move(*marginal), static_cast<int>(message.degree()), false};
         peer.latest_received_at = current_round_;
@@ -168,6 +236,49 @@ void ConsensusExchange::stop() {
   changed_.notify_all();
 }
 
+bool ConsensusExchange::beyond_window(std::uint64_t round) const {
+  const std::int64_t base = std::max<std::int64_t>({current_round_, forgotten_up_to_, 0});
+  return static_cast<std::int64_t>(round) > base + config_.future_rounds;
+}
+
+void ConsensusExchange::count_miss(int robot, Peer& peer, std::uint64_t round) {
+  ++peer.missed_in_a_row;
+  if (peer.excluded || peer.missed_in_a_row < config_.miss_limit) return;
+  peer.excluded = true;
+  ++counters_.exclusions;
+  ++counters_.excluded_peers;
+  spdlog::warn(
+      "consensus: round {}: robot {} missed {} round(s) in a row; it leaves the lockstep waits "
+      "until it answers in time again",
+      round, robot, peer.missed_in_a_row);
+}
+
+void ConsensusExchange::count_answer(int robot, Peer& peer, std::uint64_t round) {
+  peer.missed_in_a_row = 0;
+  if (!peer.excluded) return;
+  peer.excluded = false;
+  if (counters_.excluded_peers > 0) --counters_.excluded_peers;
+  spdlog::info("consensus: round {}: robot {} answered in time; back in the lockstep waits", round,
+               robot);
+}
+
+std::int64_t ConsensusExchange::wait_for_team_round(std::chrono::milliseconds timeout) {
+  std::unique_lock lock(mutex_);
+  auto round = [&] {
+    std::int64_t highest = -1;
+    for (const auto& [robot, peer] : peers_)
+      if (peer->up && !peer->goodbye) highest = std::max(highest, peer->last_round);
+    return highest;
+  };
+  changed_.wait_for(lock, timeout, [&] { return stopped_ || round() >= 0; });
+  return round();
+}
+
+void ConsensusExchange::resume_at(std::uint64_t round) {
+  std::lock_guard lock(mutex_);
+  current_round_ = static_cast<std::int64_t>(round);
+}
+
 std::vector<int> ConsensusExchange::live_peers() const {
   std::lock_guard lock(mutex_);
   std::vector<int> live;
@@ -178,7 +289,9 @@ std::vector<int> ConsensusExchange::live_peers() const {
 
 ExchangeCounters ConsensusExchange::counters() const {
   std::lock_guard lock(mutex_);
-  return counters_;
+  ExchangeCounters counters = counters_;
+  counters.log_lines_suppressed = log_limiter_->suppressed_total();
+  return counters;
 }
 
 RoundReport ConsensusExchange::run_round(std::uint64_t round, Estimator& estimator) {
@@ -213,8 +326,13 @@ void ConsensusExchange::send_marginal(int robot, std::uint64_t round, const Esti
   v1::Marginal* message = envelope.mutable_marginal();
   message->set_round(round);
   message->set_degree(static_cast<std::uint32_t>(degree));
+  if (failpoints_.marginal_silence) return;  // failpoint: heartbeats and LandmarkSets only
   const std::vector<LandmarkId> common = intersection(own_ids, peer_ids);
   if (!common.empty()) to_wire(estimator.marginal(common), *message);
+  if (failpoints_.marginal_garbage) {  // failpoint: one mean value too many
+    message->add_landmark_ids(1);
+    message->add_mean(0.0);
+  }
   send_(robot, envelope);
 }
 
@@ -225,18 +343,28 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
   const auto k = static_cast<std::int64_t>(round);
   const std::vector<LandmarkId> ids = estimator.object_ids();
 
+  // Live peers take part; those that missed miss_limit rounds in a row are not waited for (they
+  // take part when their messages are there in time, and are waited for again once they are).
   std::vector<int> candidates;
+  std::set<int> waited;
   {
     std::lock_guard lock(mutex_);
-    for (const auto& [robot, peer] : peers_)
-      if (peer->up && !peer->goodbye) candidates.push_back(robot);
+    for (const auto& [robot, peer] : peers_) {
+      if (!peer->up || peer->goodbye) continue;
+      candidates.push_back(robot);
+      if (peer->excluded)
+        ++report.excluded;
+      else
+        waited.insert(robot);
+    }
   }
   report.live = static_cast<int>(candidates.size());
   for (int robot : candidates) send_landmark_set(robot, round, ids);
 
-  // Phase 1: every candidate's LandmarkSet(k), or evidence it is not in round k.
+  // Phase 1: every waited-for candidate's LandmarkSet(k), or evidence it is not in round k.
   std::vector<int> neighbours;
   std::map<int, std::vector<LandmarkId>> neighbour_ids;
+  std::set<int> missed;
   {
     std::unique_lock lock(mutex_);
     auto settled = [&](int robot) {
@@ -245,7 +373,7 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
              peer.last_round > k || peer.last_round < k - 1;
     };
     changed_.wait_until(lock, start + config_.round_deadline, [&] {
-      return stopped_ || std::all_of(candidates.begin(), candidates.end(), settled);
+      return stopped_ || std::all_of(waited.begin(), waited.end(), settled);
     });
     for (int robot : candidates) {
       const Peer& peer = *peers_.at(robot);
@@ -253,9 +381,11 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
       if (peer.up && it != peer.landmark_sets.end()) {
         neighbours.push_back(robot);
         neighbour_ids[robot] = it->second;
-      } else if (!settled(robot)) {
+      } else if (waited.count(robot) && !settled(robot) && !stopped_) {
         ++report.timed_out;
-        spdlog::warn("consensus: round {}: no landmark set from robot {} within {} ms", round,
+        missed.insert(robot);
+        warn_limited(*log_limiter_, robot, "deadline",
+                     "consensus: round {}: no landmark set from robot {} within {} ms", round,
                      robot, config_.round_deadline.count());
       }
     }
@@ -266,8 +396,9 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
     send_marginal(robot, round, estimator, ids, neighbour_ids[robot], degree);
   }
 
-  // Phase 2: every neighbour's Marginal(k).
+  // Phase 2: every waited-for neighbour's Marginal(k) (a rejected one is its answer too).
   std::vector<WeightedMarginal> inbox;
+  std::vector<int> senders;  // robot of each inbox entry
   {
     std::unique_lock lock(mutex_);
     auto settled = [&](int robot) {
@@ -276,29 +407,52 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
     };
     const auto phase_start = Clock::now();
     changed_.wait_until(lock, phase_start + config_.round_deadline, [&] {
-      return stopped_ || std::all_of(neighbours.begin(), neighbours.end(), settled);
+      return stopped_ || std::all_of(neighbours.begin(), neighbours.end(), [&](int robot) {
+               return !waited.count(robot) || settled(robot);
+             });
     });
     for (int robot : neighbours) {
       Peer& peer = *peers_.at(robot);
       const auto it = peer.marginals.find(round);
       if (it == peer.marginals.end()) {
-        if (!settled(robot)) {
+        if (waited.count(robot) && !settled(robot) && !stopped_) {
           ++report.timed_out;
-          spdlog::warn("consensus: round {}: no marginal from robot {} within {} ms", round,
-                       robot, config_.round_deadline.count());
+          missed.insert(robot);
+          warn_limited(*log_limiter_, robot, "deadline",
+                       "consensus: round {}: no marginal from robot {} within {} ms", round, robot,
+                       config_.round_deadline.count());
         }
         continue;
       }
       it->second.used = true;
-      if (it->second.marginal.ids.empty()) continue;
+      if (it->second.rejected) {
+        ++report.bad_messages;
+        continue;
+      }
+      if (it->second.marginal.ids.empty() || quarantined(robot, peer, round)) continue;
       inbox.push_back({Consensus::metropolis_weight(degree, it->second.degree),
                        std::move(it->second.marginal)});
+      senders.push_back(robot);
+    }
+    // Liveness bookkeeping: a waited-for peer that missed the deadline; a peer (waited for or
+    // not) whose LandmarkSet and Marginal were both there in time answered.
+    for (int robot : candidates) {
+      const auto found = peers_.find(robot);
+      if (found == peers_.end()) continue;
+      Peer& peer = *found->second;
+      if (missed.count(robot)) {
+        count_miss(robot, peer, round);
+      } else if (std::find(neighbours.begin(), neighbours.end(), robot) != neighbours.end() &&
+                 peer.marginals.count(round) > 0) {
+        count_answer(robot, peer, round);
+      }
     }
   }
   report.wait_seconds = seconds_between(start, Clock::now());
   if (!inbox.empty()) {
     report.consensus = estimator.fuse(inbox);
     report.fused = static_cast<int>(inbox.size());
+    judge(round, senders, report.consensus);
   }
   forget_rounds_up_to(round);
   return report;
@@ -328,6 +482,7 @@ RoundReport ConsensusExchange::async_round(std::uint64_t round, Estimator& estim
     }
   }
   std::vector<WeightedMarginal> inbox;
+  std::vector<int> senders;
   {
     std::lock_guard lock(mutex_);
     for (int robot : live) {
@@ -339,17 +494,75 @@ RoundReport ConsensusExchange::async_round(std::uint64_t round, Estimator& estim
         continue;
       }
       peer.latest->used = true;
-      if (!peer.latest->marginal.ids.empty()) {
+      if (!peer.latest->marginal.ids.empty() && !quarantined(robot, peer, round)) {
         inbox.push_back({Consensus::metropolis_weight(degree, peer.latest->degree),
                          std::move(peer.latest->marginal)});
+        senders.push_back(robot);
       }
     }
   }
   if (!inbox.empty()) {
     report.consensus = estimator.fuse(inbox);
     report.fused = static_cast<int>(inbox.size());
+    judge(round, senders, report.consensus);
   }
   return report;
+}
+
+bool ConsensusExchange::quarantined(int robot, Peer& peer, std::uint64_t round) {
+  if (peer.quarantined_until < 0) return false;
+  if (static_cast<std::int64_t>(round) > peer.quarantined_until) {
+    peer.quarantined_until = -1;
+    peer.trust.quarantined = false;
+    --counters_.quarantined_peers;
+    spdlog::info("consensus: robot {} leaves quarantine at round {}", robot, round);
+    return false;
+  }
+  ++counters_.quarantined_dropped;
+  return true;
+}
+
+void ConsensusExchange::judge(std::uint64_t round, const std::vector<int>& senders,
+                              const ConsensusReport& report) {
+  std::lock_guard lock(mutex_);
+  for (std::size_t j = 0; j < senders.size(); ++j) {
+    const auto found = peers_.find(senders[j]);
+    if (found == peers_.end() || j >= report.refused_per_neighbour.size()) continue;
+    Peer& peer = *found->second;
+    const int refused = report.refused_per_neighbour[j];
+    const int tested = report.tested_per_neighbour[j];
+    peer.trust.landmarks_refused += static_cast<std::uint64_t>(refused);
+    peer.trust.landmarks_tested += static_cast<std::uint64_t>(tested);
+    counters_.landmarks_refused += static_cast<std::uint64_t>(refused);
+    const bool suspicious =
+        refused >= 2 && refused > config_.suspicious_refusal_fraction * tested;
+    peer.suspicious_in_a_row = suspicious ? peer.suspicious_in_a_row + 1 : 0;
+    if (suspicious) {
+      warn_limited(*log_limiter_, senders[j], "refused",
+                   "consensus: round {}: {} of {} landmarks from robot {} refused (they disagree "
+                   "with this robot's beyond the chi-square bound)",
+                   round, refused, tested, senders[j]);
+    }
+    if (peer.suspicious_in_a_row >= config_.quarantine_after && config_.quarantine_rounds > 0 &&
+        peer.quarantined_until < 0) {
+      peer.quarantined_until = static_cast<std::int64_t>(round) + config_.quarantine_rounds;
+      peer.suspicious_in_a_row = 0;
+      peer.trust.quarantined = true;
+      ++peer.trust.quarantines;
+      ++counters_.quarantines;
+      ++counters_.quarantined_peers;
+      spdlog::warn("consensus: robot {} quarantined until round {}: its marginals disagreed with "
+                   "this robot's in {} rounds in a row",
+                   senders[j], peer.quarantined_until, config_.quarantine_after);
+    }
+  }
+}
+
+std::map<int, PeerTrust> ConsensusExchange::peer_trust() const {
+  std::lock_guard lock(mutex_);
+  std::map<int, PeerTrust> out;
+  for (const auto& [robot, peer] : peers_) out[robot] = peer->trust;
+  return out;
 }
 
 void ConsensusExchange::forget_rounds_up_to(std::uint64_t round) {

@@ -8,7 +8,10 @@
 #include <boost/asio/io_context.hpp>
 #include <boost/asio/signal_set.hpp>
 #include <cmath>
+#include <condition_variable>
 #include <cstdio>
+#include <fstream>
+#include <iterator>
 #include <mutex>
 #include <nlohmann/json.hpp>
 #include <optional>
@@ -17,6 +20,7 @@
 #include <thread>
 
 #include "bounded_queue.h"
+#include "checkpoint.h"
 #include "concord/daemon/consensus_exchange.h"
 #include "concord/daemon/wire.h"
 #include "concord/dataset/dataset.h"
@@ -25,11 +29,15 @@
 #include "concord/frontend/frontend.h"
 #include "concord/frontend/frontend_options_file.h"
 #include "concord/net/frame_listener.h"
+#include "concord/net/log_limiter.h"
 #include "concord/net/peer_network.h"
+#include "concord/net/team_key.h"
 #include "concord/v1/concord.pb.h"
 #include "concord/web/http_server.h"
 #include "concord/web/json_response.h"
 #include "metrics_text.h"
+#include "output_files.h"
+#include "trajectory_history.h"
 
 namespace concord::daemon {
 
@@ -44,10 +52,25 @@ double seconds_between(Clock::time_point a, Clock::time_point b) {
 
 /// A frame waiting for the estimator, with when it arrived.
 struct QueuedFrame {
-  FrameInput input;
+  FrameInput input;  ///< input.frame is the source's frame index (the consensus round)
   double timestamp = 0.0;
   Clock::time_point arrival;
 };
+
+/// Samples kept for percentiles: the latest ones only (a daemon runs for days).
+constexpr std::size_t kMaxSamples = 8192;
+
+template <typename T>
+void push_bounded(std::vector<T>& samples, T value) {
+  if (samples.size() >= kMaxSamples)
+    samples.erase(samples.begin(), samples.begin() + kMaxSamples / 2);
+  samples.push_back(value);
+}
+
+/// Rotation angle of a rotation matrix, radians.
+double rotation_angle(const Eigen::Matrix3d& R) {
+  return std::acos(std::clamp((R.trace() - 1.0) / 2.0, -1.0, 1.0));
+}
 
 /// Percentile (nearest rank on a sorted copy) of a sample; 0 for an empty one.
 template <typename T>
@@ -86,19 +109,26 @@ double seconds_ago(Clock::time_point then, Clock::time_point now) {
 struct LiveState {
   mutable std::mutex mutex;
   std::string phase = "starting";
-  std::vector<int> frames;
-  std::vector<double> timestamps;
-  std::vector<Eigen::Isometry3d> poses;
-  /// The online covariance of every pose (right perturbation), with its frame.
-  std::vector<dataset::PoseCovariance> pose_covariances;
+  TrajectoryHistory trajectory;  ///< processed frames (snapshots are cheap; see its header)
   Eigen::Matrix<double, 6, 6> pose_covariance = Eigen::Matrix<double, 6, 6>::Zero();
   std::vector<ObjectEstimate> objects;
   std::uint64_t frames_rejected = 0;
   std::uint64_t frames_dropped = 0;
+  std::uint64_t frames_gap = 0;          ///< frames never processed: rejected, missing, skipped
+  std::uint64_t motion_unknown = 0;      ///< gaps bridged without odometry (assumed no motion)
+  std::uint64_t output_failures = 0;     ///< output writes that failed
+  std::int64_t resumed_from_round = -1;  ///< checkpoint round resumed from (-1: fresh start)
   std::uint64_t rounds = 0;
   std::uint64_t marginals_fused = 0;
   std::uint64_t landmarks_fused = 0;
   std::uint64_t objects_initialized = 0;
+  /// The estimator's refusals: object observations rejected by its gates, new objects whose
+  /// initialization failed its chi-square test, point-feature tracks rejected, and Kalman updates
+  /// refused (innovation not positive definite).
+  std::uint64_t object_observations_rejected = 0;
+  std::uint64_t object_initializations_gated = 0;
+  std::uint64_t feature_tracks_rejected = 0;
+  std::uint64_t update_failures = 0;
   double update_seconds = 0.0;
   double consensus_seconds = 0.0;  ///< whole rounds, waiting included
   double wait_seconds = 0.0;
@@ -119,10 +149,12 @@ class Daemon::Impl {
   void register_routes();
   void replay_frames();
   void image_frames();
-  void on_ingest(const v1::Envelope& envelope);
+  bool on_ingest(const v1::Envelope& envelope);
   void estimator_loop();
   bool process(QueuedFrame& item);
-  void write_outputs(bool final);
+  [[nodiscard]] bool write_outputs(bool final);
+  void load_checkpoint();
+  [[nodiscard]] bool wait_or_stop(Clock::duration duration);
   json stats_json() const;
   void shutdown_services();
 
@@ -139,6 +171,9 @@ class Daemon::Impl {
   std::optional<Estimator> estimator_;
 
   boost::asio::io_context io_;
+  boost::asio::io_context http_io_;  // HTTP on its own thread: a flood never delays the peers
+  std::thread http_thread_;
+  std::shared_ptr<const net::TeamKey> team_key_;
   std::unique_ptr<net::PeerNetwork> network_;
   std::unique_ptr<ConsensusExchange> exchange_;
   std::unique_ptr<web::HttpServer> http_;
@@ -149,7 +184,24 @@ class Daemon::Impl {
 
   LiveState live_;
   Clock::time_point last_write_ = Clock::now();
+  Clock::time_point last_fsync_ = Clock::now();
+
+  // Stop-aware waits (replay pacing, the estimator.hang failpoint).
+  std::mutex stop_mutex_;
+  std::condition_variable stop_changed_;
+
+  // Ingest stream state (io thread only).
+  net::LogLimiter ingest_limiter_;
   std::int64_t last_ingest_frame_ = -1;
+  double last_ingest_timestamp_ = -std::numeric_limits<double>::infinity();
+  Eigen::Isometry3d carried_motion_ = Eigen::Isometry3d::Identity();  // over skipped frames
+  bool ingest_started_ = false;
+  bool ingest_ended_ = false;
+
+  // Resume (replay): the checkpoint read at start, and the first frame to replay.
+  std::optional<Checkpoint> checkpoint_;
+  int first_replay_frame_ = 0;
+  bool hang_done_ = false;
 };
 
 bool Daemon::Impl::load_source() {
@@ -211,8 +263,20 @@ bool Daemon::Impl::load_source() {
 
 bool Daemon::Impl::start_services() {
   try {
+    const bool needs_key =
+        config_.consensus.mode != ConsensusMode::kOff ||
+        (config_.source.kind == SourceKind::kIngest && config_.source.ingest_authenticated);
+    if (needs_key) {
+      team_key_ = std::make_shared<const net::TeamKey>(net::load_team_key(config_.team_key_file));
+      spdlog::info("team key read from {}", config_.team_key_file.string());  // never the key
+    }
     if (config_.consensus.mode != ConsensusMode::kOff) {
       net::PeerNetworkOptions options;
+      options.team_key = team_key_;
+      options.members = config_.members;
+      options.max_pending_handshakes = config_.network.max_pending_handshakes;
+      options.receive_bytes_per_second = config_.network.receive_bytes_per_second;
+      options.receive_messages_per_second = config_.network.receive_messages_per_second;
       options.team = config_.team;
       options.robot_id = config_.robot_id;
       options.listen_address = config_.network.listen_address;
@@ -228,9 +292,12 @@ bool Daemon::Impl::start_services() {
       options.discovery.port = config_.network.discovery_port;
       network_ = std::make_unique<net::PeerNetwork>(io_, options);
       exchange_ = std::make_unique<ConsensusExchange>(
-          config_.consensus, [this](int robot, const v1::Envelope& envelope) {
+          config_.consensus,
+          [this](int robot, const v1::Envelope& envelope) {
             return network_->send(robot, envelope);
-          });
+          },
+          ExchangeFailpoints{config_.failpoints.marginal_silence,
+                             config_.failpoints.marginal_garbage});
       network_->set_message_handler([this](int robot, const v1::Envelope& envelope) {
         exchange_->on_message(robot, envelope);
       });
@@ -250,18 +317,23 @@ bool Daemon::Impl::start_services() {
       options.port = config_.source.ingest_port;
       options.max_frame_bytes = config_.network.max_frame_bytes;
       options.team = config_.team;
+      if (config_.source.ingest_authenticated) options.team_key = team_key_;
       ingest_ = std::make_unique<net::FrameListener>(io_, options);
       ingest_->set_envelope_handler(
-          [this](std::uint64_t, const v1::Envelope& envelope) { on_ingest(envelope); });
+          [this](std::uint64_t, const v1::Envelope& envelope) { return on_ingest(envelope); });
       ingest_->start();
-      spdlog::info("source: ingest of SensorFrame envelopes on {}:{}",
-                   config_.source.ingest_address, ingest_->port());
+      spdlog::info("source: ingest of SensorFrame envelopes on {}:{} ({})",
+                   config_.source.ingest_address, ingest_->port(),
+                   config_.source.ingest_authenticated ? "authenticated with the team key"
+                                                       : "plaintext, loopback only");
     }
     if (config_.http.enabled) {
       web::ServerOptions options;
       options.address = config_.http.address;
       options.port = config_.http.port;
-      http_ = std::make_unique<web::HttpServer>(io_, options);
+      options.max_connections = config_.http.max_connections;
+      options.max_connections_per_client = config_.http.max_connections_per_client;
+      http_ = std::make_unique<web::HttpServer>(http_io_, options);
       register_routes();
       http_->start();
       spdlog::info("http: serving on {}:{}", config_.http.address, http_->port());
@@ -280,7 +352,11 @@ bool Daemon::Impl::start_services() {
 }
 
 void Daemon::Impl::request_stop() {
-  stop_requested_ = true;
+  {
+    std::lock_guard lock(stop_mutex_);
+    stop_requested_ = true;
+  }
+  stop_changed_.notify_all();
   if (exchange_) exchange_->stop();
   const std::size_t dropped = queue_.close_and_clear();
   if (dropped > 0) spdlog::info("stop: {} queued frames not processed", dropped);
@@ -292,13 +368,21 @@ void Daemon::Impl::replay_frames() {
                                 std::chrono::duration<double>(1.0 / config_.source.rate_hz))
                           : Clock::duration::zero();
   auto next = Clock::now();
-  for (int k = 0; k < robot_->num_frames() && !stop_requested_; ++k) {
+  for (int k = first_replay_frame_; k < robot_->num_frames() && !stop_requested_; ++k) {
     if (period > Clock::duration::zero()) {
-      // Pacing a replay at the sensor rate (not synchronisation).
-      std::this_thread::sleep_until(next);
+      // Pacing a replay at the sensor rate (not synchronisation); a stop ends the wait at once.
+      if (!wait_or_stop(next - Clock::now())) return;
       next += period;
     }
-    QueuedFrame item{robot_->frame_input(k), static_cast<double>(k), Clock::now()};
+    QueuedFrame item{robot_->frame_input(k), k * config_.source.frame_period_s, Clock::now()};
+    if (k == first_replay_frame_ && first_replay_frame_ > 0) {
+      // Resumed: the motion from the checkpoint's frame to this one, composed from the
+      // odometry of the frames skipped (reported as a gap).
+      Eigen::Isometry3d motion = Eigen::Isometry3d::Identity();
+      for (int j = static_cast<int>(checkpoint_->round) + 1; j <= k; ++j)
+        if (const auto step = robot_->frame_input(j).T_previous_current) motion = motion * *step;
+      item.input.T_previous_current = motion;
+    }
     if (!queue_.push(std::move(item))) return;
   }
   queue_.close();
@@ -314,8 +398,8 @@ void Daemon::Impl::image_frames() {
   auto next = Clock::now();
   while (!frontend_->done() && !stop_requested_) {
     if (period > Clock::duration::zero()) {
-      // Pacing at the camera rate (not synchronisation).
-      std::this_thread::sleep_until(next);
+      // Pacing at the camera rate (not synchronisation); a stop ends the wait at once.
+      if (!wait_or_stop(next - Clock::now())) break;
       next += period;
     }
     frontend::FrontendFrame frame;
@@ -336,56 +420,169 @@ void Daemon::Impl::image_frames() {
   queue_.close();
 }
 
-void Daemon::Impl::on_ingest(const v1::Envelope& envelope) {
+bool Daemon::Impl::wait_or_stop(Clock::duration duration) {
+  std::unique_lock lock(stop_mutex_);
+  stop_changed_.wait_for(lock, duration, [&] { return stop_requested_.load(); });
+  return !stop_requested_;
+}
+
+bool Daemon::Impl::on_ingest(const v1::Envelope& envelope) {
+  // Runs on the network thread. Returns false only when the queue is full: the listener then
+  // stops reading that connection and offers the frame again (backpressure to the sender).
+  auto limited = [&](const char* kind, const std::string& message) {
+    std::uint64_t suppressed = 0;
+    if (ingest_limiter_.allow(kind, suppressed))
+      spdlog::warn("ingest: {}{}", message, net::suppressed_note(suppressed));
+  };
+  if (ingest_ended_) return true;
   if (envelope.body_case() != v1::Envelope::kSensorFrame) {
-    spdlog::warn("ingest: ignored a non-SensorFrame envelope from robot {}", envelope.sender());
-    return;
+    limited("other",
+            fmt::format("ignored a non-SensorFrame envelope from sender {}", envelope.sender()));
+    return true;
   }
   const v1::SensorFrame& message = envelope.sensor_frame();
   std::string error;
-  auto frame = from_wire(message, error);
-  if (!frame) {
-    std::lock_guard lock(live_.mutex);
-    ++live_.frames_rejected;
-    spdlog::warn("ingest: rejected: {}", error);
-    return;
-  }
-  if (last_ingest_frame_ >= 0 && frame->frame != last_ingest_frame_ + 1) {
-    std::lock_guard lock(live_.mutex);
-    ++live_.frames_rejected;
-    spdlog::warn("ingest: rejected frame {}: expected frame {}", frame->frame,
-                 last_ingest_frame_ + 1);
-    return;
-  }
-  const bool last = message.last();
-  if (!queue_.try_push(QueuedFrame{std::move(*frame), message.timestamp(), Clock::now()})) {
-    std::lock_guard lock(live_.mutex);
-    ++live_.frames_dropped;
-    spdlog::error("ingest: frame queue full ({} frames): frame {} dropped; the estimator cannot "
-                  "keep up with the sensor rate", queue_.capacity(), message.frame());
-    return;
-  }
-  last_ingest_frame_ = message.frame();
-  if (last) {
-    spdlog::info("ingest: last frame {} received", message.frame());
+  std::optional<FrameInput> frame = from_wire(message, error);
+  const std::int64_t index = message.frame();
+  auto end_if_last = [&] {
+    if (!message.last()) return;
+    ingest_ended_ = true;
+    spdlog::info("ingest: last frame {} received", index);
     queue_.close();
+  };
+  // 1. Old or repeated frames: rejected, the stream goes on.
+  if (index <= last_ingest_frame_) {
+    {
+      std::lock_guard lock(live_.mutex);
+      ++live_.frames_rejected;
+    }
+    limited("order",
+            fmt::format("rejected frame {}: not after frame {}", index, last_ingest_frame_));
+    end_if_last();
+    return true;
   }
+  // 2. Plausibility: finite, increasing time stamps; bounded motion per frame.
+  if (frame) {
+    const double t = message.timestamp();
+    if (!std::isfinite(t) || t <= last_ingest_timestamp_) {
+      error = "time stamp " + std::to_string(t) + " is not finite and after the previous one";
+      frame.reset();
+    } else if (frame->T_previous_current) {
+      const double translation = frame->T_previous_current->translation().norm();
+      const double rotation = rotation_angle(frame->T_previous_current->linear());
+      if (translation > config_.source.max_translation_m ||
+          rotation > config_.source.max_rotation_rad) {
+        error = "odometry of " + std::to_string(translation) + " m and " +
+                std::to_string(rotation) + " rad exceeds source.max_translation_m / " +
+                "max_rotation_rad";
+        frame.reset();
+      }
+    }
+  }
+  // 3. Frames missing before this one: a gap, whose motion is unknown.
+  const std::int64_t missing = last_ingest_frame_ >= 0 ? index - last_ingest_frame_ - 1 : 0;
+  if (!frame) {
+    // A rejected frame never blocks the stream: the next usable frame goes on from here. Its
+    // motion is composed if its odometry was readable, else unknown (assumed none).
+    std::lock_guard lock(live_.mutex);
+    ++live_.frames_rejected;
+    live_.frames_gap += static_cast<std::uint64_t>(1 + missing);
+  }
+  if (!frame) {
+    limited("rejected", fmt::format("rejected frame {}: {}", index, error));
+    std::string pose_error;
+    if (message.has_odometry() && missing == 0) {
+      if (const auto pose = from_wire(message.odometry(), pose_error);
+          pose && pose->translation().norm() <= config_.source.max_translation_m &&
+          rotation_angle(pose->linear()) <= config_.source.max_rotation_rad)
+        carried_motion_ = carried_motion_ * *pose;
+    } else if (ingest_started_) {
+      std::lock_guard lock(live_.mutex);
+      ++live_.motion_unknown;
+    }
+    last_ingest_frame_ = index;
+    if (std::isfinite(message.timestamp()))
+      last_ingest_timestamp_ = std::max(last_ingest_timestamp_, message.timestamp());
+    end_if_last();
+    return true;
+  }
+  // 4. A usable frame: bridge what was skipped.
+  QueuedFrame item{std::move(*frame), message.timestamp(), Clock::now()};
+  if (ingest_started_) {
+    if (missing > 0 || !item.input.T_previous_current) {
+      limited("gap", fmt::format("frames {}..{} missing or without odometry: motion over the gap "
+                                 "unknown, assumed none",
+                                 last_ingest_frame_ + 1, index));
+    }
+    const Eigen::Isometry3d step = item.input.T_previous_current && missing == 0
+                                       ? *item.input.T_previous_current
+                                       : Eigen::Isometry3d::Identity();
+    item.input.T_previous_current = carried_motion_ * step;
+  }
+  if (!queue_.try_push(std::move(item))) {
+    if (queue_.closed()) return true;
+    return false;  // full: backpressure
+  }
+  {
+    std::lock_guard lock(live_.mutex);
+    live_.frames_gap += static_cast<std::uint64_t>(std::max<std::int64_t>(missing, 0));
+    if (ingest_started_ && (missing > 0 || !message.has_odometry())) ++live_.motion_unknown;
+  }
+  ingest_started_ = true;
+  carried_motion_ = Eigen::Isometry3d::Identity();
+  last_ingest_frame_ = index;
+  last_ingest_timestamp_ = message.timestamp();
+  end_if_last();
+  return true;
 }
 
 bool Daemon::Impl::process(QueuedFrame& item) {
+  if (config_.failpoints.estimator_hang_seconds > 0.0 && !hang_done_ && estimator_) {
+    // Failpoint estimator.hang: the estimator thread hangs (stop still ends it at once).
+    hang_done_ = true;
+    spdlog::warn("failpoint estimator.hang: hanging for {} s",
+                 config_.failpoints.estimator_hang_seconds);
+    if (!wait_or_stop(std::chrono::duration_cast<Clock::duration>(
+            std::chrono::duration<double>(config_.failpoints.estimator_hang_seconds))))
+      return false;
+  }
   const auto popped = Clock::now();
-  if (!estimator_) {
-    if (item.input.T_previous_current && config_.source.kind == SourceKind::kIngest) {
-      item.input.T_previous_current.reset();  // the first frame is the known start
+  if (!estimator_ && checkpoint_ && item.input.T_previous_current) {
+    // Resume: the filter continues from the checkpoint's state (poses, objects and their
+    // covariance); the first frame's odometry spans the frames skipped.
+    try {
+      estimator_.emplace(config_.estimator, camera_, checkpoint_->state, checkpoint_->pending);
+      spdlog::info("resume: filter state restored ({} poses, {} objects)",
+                   checkpoint_->state.num_poses(), estimator_->objects().size());
+    } catch (const std::invalid_argument& error) {
+      spdlog::warn("resume: the checkpoint's filter state is unusable ({}); restarting the filter "
+                   "at its newest pose",
+                   error.what());
     }
-    estimator_.emplace(config_.estimator, camera_, start_pose_, item.input.frame);
+  }
+  if (!estimator_) {
+    // The first frame is the known start (after a resume without a usable state: the
+    // checkpoint's pose moved by the odometry of the frames skipped).
+    Eigen::Isometry3d start = start_pose_;
+    if (checkpoint_) start = checkpoint_->state.newest_pose().T_world_body;
+    if (item.input.T_previous_current &&
+        (config_.source.kind == SourceKind::kIngest || checkpoint_)) {
+      if (checkpoint_) start = start * *item.input.T_previous_current;
+      item.input.T_previous_current.reset();
+    }
+    estimator_.emplace(config_.estimator, camera_, start, item.input.frame);
   }
   FrameReport report;
   try {
-    report = estimator_->process(item.input);
+    // The estimator numbers frames consecutively; the source's index (with gaps) is the round.
+    FrameInput input = item.input;
+    if (estimator_->state().num_poses() > 0 && input.T_previous_current)
+      input.frame = estimator_->frame() + 1;
+    report = estimator_->process(input);
   } catch (const std::invalid_argument& error) {
     std::lock_guard lock(live_.mutex);
     ++live_.frames_rejected;
+    ++live_.frames_gap;
     spdlog::warn("frame {} rejected: {}", item.input.frame, error.what());
     return false;
   }
@@ -401,13 +598,16 @@ bool Daemon::Impl::process(QueuedFrame& item) {
   {
     std::lock_guard lock(live_.mutex);
     live_.phase = "running";
-    live_.frames.push_back(item.input.frame);
-    live_.timestamps.push_back(item.timestamp);
-    live_.poses.push_back(estimator_->current_pose());
+    live_.trajectory.push({item.input.frame, item.timestamp, estimator_->current_pose(),
+                           estimator_->current_pose_covariance()});
     live_.pose_covariance = estimator_->current_pose_covariance();
-    live_.pose_covariances.push_back({item.input.frame, live_.pose_covariance});
     live_.objects = estimator_->objects();
     live_.objects_initialized += static_cast<std::uint64_t>(report.objects.initialized);
+    live_.object_observations_rejected += static_cast<std::uint64_t>(report.objects.rejected);
+    live_.object_initializations_gated += static_cast<std::uint64_t>(report.objects.init_gated);
+    live_.feature_tracks_rejected += static_cast<std::uint64_t>(report.features.tracks_rejected);
+    live_.update_failures += static_cast<std::uint64_t>(report.objects.update_failures +
+                                                        report.features.update_failures);
     live_.update_seconds += seconds_between(popped, updated);
     if (exchange_) {
       ++live_.rounds;
@@ -415,9 +615,9 @@ bool Daemon::Impl::process(QueuedFrame& item) {
       live_.landmarks_fused += static_cast<std::uint64_t>(round.consensus.landmarks_fused);
       live_.consensus_seconds += seconds_between(updated, done);
       live_.wait_seconds += round.wait_seconds;
-      live_.bytes_per_round.push_back(bytes);
+      push_bounded(live_.bytes_per_round, bytes);
     }
-    live_.latencies_ms.push_back(1e3 * seconds_between(popped, done));
+    push_bounded(live_.latencies_ms, 1e3 * seconds_between(popped, done));
   }
   return true;
 }
@@ -436,39 +636,115 @@ void Daemon::Impl::estimator_loop() {
       spdlog::warn("starting with {} of {} peers live", live, config_.consensus.wait_for_peers);
     }
   }
+  if (robot_) {
+    if (checkpoint_) {
+      // Resume: rejoin at the team's current round (the frames in between are a gap).
+      std::int64_t team_round = -1;
+      if (exchange_ && config_.consensus.mode == ConsensusMode::kLockstep)
+        team_round = exchange_->wait_for_team_round(config_.consensus.round_deadline);
+      const auto after_checkpoint = static_cast<std::int64_t>(checkpoint_->round) + 1;
+      first_replay_frame_ = static_cast<int>(
+          std::min<std::int64_t>(std::max(after_checkpoint, team_round), robot_->num_frames()));
+      const std::int64_t skipped = first_replay_frame_ - after_checkpoint;
+      {
+        std::lock_guard lock(live_.mutex);
+        live_.frames_gap += static_cast<std::uint64_t>(std::max<std::int64_t>(skipped, 0));
+      }
+      spdlog::info(
+          "resume: checkpoint at round {}, team at round {}: continuing at frame {} ({} "
+          "frames skipped, reported as a gap)",
+          checkpoint_->round, team_round, first_replay_frame_, skipped);
+      if (exchange_ && first_replay_frame_ > 0)
+        exchange_->resume_at(static_cast<std::uint64_t>(first_replay_frame_ - 1));
+    }
+    source_thread_ = std::thread([this] { replay_frames(); });
+  }
+  if (frontend_) source_thread_ = std::thread([this] { image_frames(); });
   while (auto item = queue_.pop()) {
     if (stop_requested_) break;
     process(*item);
     if (config_.output.write_interval.count() > 0 &&
         Clock::now() - last_write_ >= config_.output.write_interval) {
-      write_outputs(false);
+      (void)write_outputs(false);  // a failure is logged and counted; the final write decides
     }
   }
 }
 
-void Daemon::Impl::write_outputs(bool final) {
-  last_write_ = Clock::now();
-  std::vector<Eigen::Isometry3d> poses;
-  std::vector<dataset::PoseCovariance> pose_covariances;
+void Daemon::Impl::load_checkpoint() {
+  const std::filesystem::path file = config_.output.directory / "checkpoint.bin";
+  if (!config_.output.checkpoint || !robot_ || !std::filesystem::exists(file)) return;
+  std::ifstream stream(file, std::ios::binary);
+  std::string bytes((std::istreambuf_iterator<char>(stream)), std::istreambuf_iterator<char>());
+  std::string error;
+  std::optional<Checkpoint> checkpoint = parse_checkpoint(bytes, error);
+  if (!checkpoint || checkpoint->robot_id != config_.robot_id) {
+    spdlog::warn("resume: ignoring {}: {}", file.string(),
+                 checkpoint ? "written by robot " + std::to_string(checkpoint->robot_id) : error);
+    return;
+  }
+  if (checkpoint->round + 1 >= static_cast<std::uint64_t>(robot_->num_frames())) {
+    spdlog::info("resume: {} is at the last frame; starting from frame 0", file.string());
+    return;
+  }
+  std::lock_guard lock(live_.mutex);
+  for (std::size_t i = 0; i < checkpoint->frames.size(); ++i)
+    live_.trajectory.push(
+        {checkpoint->frames[i], checkpoint->timestamps[i], checkpoint->poses[i],
+         Eigen::Matrix<double, 6, 6>::Zero()});
+  live_.resumed_from_round = static_cast<std::int64_t>(checkpoint->round);
+  spdlog::info("resume: checkpoint {} at round {} ({} frames processed before)", file.string(),
+               checkpoint->round, checkpoint->frames.size());
+  checkpoint_ = std::move(checkpoint);
+}
+
+bool Daemon::Impl::write_outputs(bool final) {
+  const auto now = Clock::now();
+  last_write_ = now;
+  const bool durable = final || (config_.output.fsync_interval.count() > 0 &&
+                                 now - last_fsync_ >= config_.output.fsync_interval);
+  if (durable) last_fsync_ = now;
+  Checkpoint checkpoint;
   std::vector<ObjectEstimate> objects;
+  TrajectoryHistory::Snapshot trajectory;
   {
     std::lock_guard lock(live_.mutex);
-    poses = live_.poses;
-    pose_covariances = live_.pose_covariances;
+    trajectory = live_.trajectory.snapshot();
     objects = live_.objects;
   }
+  checkpoint.frames = trajectory.frames();
+  checkpoint.timestamps = trajectory.timestamps();
+  checkpoint.poses = trajectory.poses();
   try {
-    std::filesystem::create_directories(config_.output.directory);
-    dataset::write_trajectory_kitti(config_.output.directory / "trajectory.kitti", poses);
-    dataset::write_pose_covariances_csv(config_.output.directory / "pose_covariance.csv",
-                                        pose_covariances);
-    dataset::write_objects_csv(config_.output.directory / "objects.csv", objects);
-    if (final) {
-      dataset::write_file_atomically(config_.output.directory / "stats.json",
-                                     stats_json().dump(2) + "\n");
+    if (config_.failpoints.output_fail)
+      throw std::runtime_error("failpoint output.fail: writes to " +
+                               config_.output.directory.string() + " fail");
+    const std::filesystem::path& folder = config_.output.directory;
+    write_output_file(folder / "trajectory.kitti",
+                      dataset::format_trajectory_kitti(checkpoint.poses), durable);
+    write_output_file(folder / "pose_covariance.csv",
+                      dataset::format_pose_covariances_csv(trajectory.pose_covariances()), durable);
+    const std::filesystem::path objects_file = folder / "objects.csv";
+    dataset::write_objects_csv(objects_file, objects);
+    if (config_.output.checkpoint && estimator_ && !checkpoint.frames.empty()) {
+      checkpoint.robot_id = config_.robot_id;
+      checkpoint.round = static_cast<std::uint64_t>(checkpoint.frames.back());
+      checkpoint.state = estimator_->state();
+      checkpoint.pending = estimator_->pending_objects();
+      write_output_file(folder / "checkpoint.bin", serialize_checkpoint(checkpoint), durable);
     }
+    if (final) write_output_file(folder / "stats.json", stats_json().dump(2) + "\n", true);
+    return true;
   } catch (const std::exception& error) {
-    spdlog::error("output: {}", error.what());
+    std::uint64_t failures = 0;
+    {
+      std::lock_guard lock(live_.mutex);
+      failures = ++live_.output_failures;
+    }
+    std::uint64_t suppressed = 0;
+    if (final || ingest_limiter_.allow("output", suppressed))
+      spdlog::error("output: {} ({} failed writes so far){}", error.what(), failures,
+                    net::suppressed_note(suppressed));
+    return false;
   }
 }
 
@@ -480,9 +756,13 @@ json Daemon::Impl::stats_json() const {
   json stats = {
       {"robot_id", config_.robot_id},
       {"mode", to_string(config_.consensus.mode)},
-      {"frames", live_.frames.size()},
+      {"frames", live_.trajectory.size()},
       {"frames_rejected", live_.frames_rejected},
       {"frames_dropped", live_.frames_dropped},
+      {"frames_gap", live_.frames_gap},
+      {"motion_unknown", live_.motion_unknown},
+      {"output_failures", live_.output_failures},
+      {"resumed_from_round", live_.resumed_from_round},
       {"rounds", live_.rounds},
       {"marginals_fused", live_.marginals_fused},
       {"wall_seconds", seconds_between(started_, Clock::now())},
@@ -491,20 +771,36 @@ json Daemon::Impl::stats_json() const {
       {"update_seconds", live_.update_seconds},
       {"consensus_seconds", live_.consensus_seconds},
       {"wait_seconds", live_.wait_seconds},
-      {"latency_ms", {{"p50", percentile(live_.latencies_ms, 50)},
-                      {"p99", percentile(live_.latencies_ms, 99)},
-                      {"max", percentile(live_.latencies_ms, 100)}}},
-      {"bytes_sent_per_round", {{"median", percentile(live_.bytes_per_round, 50)},
-                                {"max", percentile(live_.bytes_per_round, 100)}}},
+      {"latency_ms",
+       {{"p50", percentile(live_.latencies_ms, 50)},
+        {"p99", percentile(live_.latencies_ms, 99)},
+        {"max", percentile(live_.latencies_ms, 100)}}},
+      {"bytes_sent_per_round",
+       {{"median", percentile(live_.bytes_per_round, 50)},
+        {"max", percentile(live_.bytes_per_round, 100)}}},
   };
+  if (exchange_) {
+    const ExchangeCounters c = exchange_->counters();
+    stats["consensus"] = {{"deadline_misses", c.deadline_misses},
+                          {"exclusions", c.exclusions},
+                          {"future_dropped", c.future_dropped},
+                          {"malformed", c.malformed},
+                          {"landmarks_refused", c.landmarks_refused},
+                          {"quarantines", c.quarantines},
+                          {"quarantined_dropped", c.quarantined_dropped}};
+  }
   if (network_) {
     const auto totals = network_->totals();
-    stats["network"] = {{"bytes_out", totals.bytes_out},   {"bytes_in", totals.bytes_in},
-                        {"messages_out", totals.messages_out}, {"messages_in", totals.messages_in},
+    stats["network"] = {{"bytes_out", totals.bytes_out},
+                        {"bytes_in", totals.bytes_in},
+                        {"messages_out", totals.messages_out},
+                        {"messages_in", totals.messages_in},
                         {"send_drops", totals.send_drops},
                         {"rejected_oversized", totals.rejected_oversized},
                         {"rejected_garbage", totals.rejected_garbage},
-                        {"rejected_handshake", totals.rejected_handshake}};
+                        {"rejected_handshake", totals.rejected_handshake},
+                        {"rejected_unauthenticated", totals.rejected_unauthenticated},
+                        {"rejected_admission", totals.rejected_admission}};
   }
   return stats;
 }
@@ -525,16 +821,16 @@ void Daemon::Impl::register_routes() {
     body["live_peers"] = exchange_ ? exchange_->live_peers() : std::vector<int>{};
     std::lock_guard lock(live_.mutex);
     body["phase"] = live_.phase;
-    body["frame"] = live_.frames.empty() ? json(nullptr) : json(live_.frames.back());
-    body["frames_processed"] = live_.frames.size();
+    body["frame"] = live_.trajectory.empty() ? json(nullptr) : json(live_.trajectory.back().frame);
+    body["frames_processed"] = live_.trajectory.size();
     body["rounds"] = live_.rounds;
     return web::json_response(200, body);
   });
   http_->get("/pose", [this](const web::Request&) {
     std::lock_guard lock(live_.mutex);
-    if (live_.poses.empty()) return web::error_response(503, "no frame processed yet");
-    json body = pose_json(live_.poses.back());
-    body["frame"] = live_.frames.back();
+    if (live_.trajectory.empty()) return web::error_response(503, "no frame processed yet");
+    json body = pose_json(live_.trajectory.back().pose);
+    body["frame"] = live_.trajectory.back().frame;
     body["covariance"] = matrix_json(live_.pose_covariance);
     body["covariance_order"] = "rho_x rho_y rho_z phi_x phi_y phi_z (right perturbation)";
     return web::json_response(200, body);
@@ -542,34 +838,32 @@ void Daemon::Impl::register_routes() {
   http_->get("/trajectory", [this](const web::Request& request) {
     const auto it = request.query.find("format");
     const std::string format = it == request.query.end() ? "json" : it->second;
-    std::lock_guard lock(live_.mutex);
-    if (format == "json") {
-      json poses = json::array();
-      for (std::size_t i = 0; i < live_.poses.size(); ++i) {
-        json entry = pose_json(live_.poses[i]);
-        entry["frame"] = live_.frames[i];
-        poses.push_back(std::move(entry));
-      }
-      return web::json_response(200, {{"robot_id", config_.robot_id}, {"poses", poses}});
+    if (format != "json" && format != "kitti" && format != "tum")
+      return web::error_response(400, "format: expected json, kitti or tum, got '" + format + "'");
+    TrajectoryHistory::Snapshot trajectory;
+    {
+      // Only the snapshot under the estimator's lock; formatting happens outside it.
+      std::lock_guard lock(live_.mutex);
+      trajectory = live_.trajectory.snapshot();
     }
-    if (format == "kitti") {
-      return web::Response{200, "text/plain; charset=utf-8",
-                           dataset::format_trajectory_kitti(live_.poses), {}};
-    }
-    if (format == "tum") {
-      std::string text;
-      char line[256];
-      for (std::size_t i = 0; i < live_.poses.size(); ++i) {
-        const Eigen::Isometry3d& T = live_.poses[i];
-        const Eigen::Quaterniond q(T.rotation());
-        std::snprintf(line, sizeof line, "%.9f %.9g %.9g %.9g %.9g %.9g %.9g %.9g\n",
-                      live_.timestamps[i], T.translation().x(), T.translation().y(),
-                      T.translation().z(), q.x(), q.y(), q.z(), q.w());
-        text += line;
-      }
-      return web::Response{200, "text/plain; charset=utf-8", std::move(text), {}};
-    }
-    return web::error_response(400, "format: expected json, kitti or tum, got '" + format + "'");
+    if (format == "kitti")
+      return web::Response{200,
+                           "text/plain; charset=utf-8",
+                           dataset::format_trajectory_kitti(trajectory.poses()),
+                           {}};
+    if (format == "tum")
+      return web::Response{
+          200,
+          "text/plain; charset=utf-8",
+          dataset::format_trajectory_tum(trajectory.timestamps(), trajectory.poses()),
+          {}};
+    json poses = json::array();
+    trajectory.for_each([&](const TrajectoryPoint& point) {
+      json entry = pose_json(point.pose);
+      entry["frame"] = point.frame;
+      poses.push_back(std::move(entry));
+    });
+    return web::json_response(200, {{"robot_id", config_.robot_id}, {"poses", poses}});
   });
   http_->get("/objects", [this](const web::Request&) {
     std::lock_guard lock(live_.mutex);
@@ -585,7 +879,11 @@ void Daemon::Impl::register_routes() {
     json peers = json::array();
     if (network_) {
       const auto now = Clock::now();
+      const std::map<int, PeerTrust> trust =
+          exchange_ ? exchange_->peer_trust() : std::map<int, PeerTrust>{};
       for (const net::PeerStats& peer : network_->peers()) {
+        const auto found = trust.find(peer.robot);
+        const PeerTrust peer_trust = found != trust.end() ? found->second : PeerTrust{};
         peers.push_back({{"robot", peer.robot},
                          {"address", peer.address},
                          {"up", peer.up},
@@ -600,6 +898,10 @@ void Daemon::Impl::register_routes() {
                          {"rtt_mean_ms", 1e-6 * static_cast<double>(peer.rtt_mean.count())},
                          {"reconnects", peer.reconnects},
                          {"protocol_errors", peer.protocol_errors},
+                         {"landmarks_refused", peer_trust.landmarks_refused},
+                         {"landmarks_tested", peer_trust.landmarks_tested},
+                         {"quarantines", peer_trust.quarantines},
+                         {"quarantined", peer_trust.quarantined},
                          {"degree", peer.degree}});
       }
     }
@@ -608,14 +910,23 @@ void Daemon::Impl::register_routes() {
   http_->get("/metrics", [this](const web::Request&) {
     MetricsText text;
     const std::string robot = "robot=\"" + std::to_string(config_.robot_id) + "\"";
+    std::uint64_t suppressed = ingest_limiter_.suppressed_total();
     {
       std::lock_guard lock(live_.mutex);
-      text.counter("concord_frames_processed_total", "Frames processed by the estimator",
-                   robot, static_cast<double>(live_.frames.size()));
+      text.counter("concord_frames_processed_total", "Frames processed by the estimator", robot,
+                   static_cast<double>(live_.trajectory.size()));
       text.counter("concord_frames_rejected_total", "Frames rejected (malformed or out of order)",
                    robot, static_cast<double>(live_.frames_rejected));
       text.counter("concord_frames_dropped_total", "Ingest frames dropped on a full queue", robot,
                    static_cast<double>(live_.frames_dropped));
+      text.counter("concord_frames_gap_total",
+                   "Frames never processed: rejected, missing from the stream, skipped on resume",
+                   robot, static_cast<double>(live_.frames_gap));
+      text.counter("concord_ingest_motion_unknown_total",
+                   "Ingest gaps bridged without odometry (no motion assumed)", robot,
+                   static_cast<double>(live_.motion_unknown));
+      text.counter("concord_output_failures_total", "Output writes that failed", robot,
+                   static_cast<double>(live_.output_failures));
       text.counter("concord_update_seconds_total", "Time in the estimator update", robot,
                    live_.update_seconds);
       text.counter("concord_consensus_seconds_total",
@@ -628,6 +939,18 @@ void Daemon::Impl::register_routes() {
                    static_cast<double>(live_.marginals_fused));
       text.gauge("concord_objects", "Objects in the map", robot,
                  static_cast<double>(live_.objects.size()));
+      text.counter("concord_object_observations_rejected_total",
+                   "Object observations rejected by the chi-square gate", robot,
+                   static_cast<double>(live_.object_observations_rejected));
+      text.counter("concord_object_initializations_gated_total",
+                   "New objects whose initialization failed the chi-square test", robot,
+                   static_cast<double>(live_.object_initializations_gated));
+      text.counter("concord_feature_tracks_rejected_total",
+                   "Point-feature tracks rejected (triangulation, depth or chi-square)", robot,
+                   static_cast<double>(live_.feature_tracks_rejected));
+      text.counter("concord_update_failures_total",
+                   "Kalman updates refused (innovation covariance not positive definite)", robot,
+                   static_cast<double>(live_.update_failures));
       text.gauge("concord_frame_latency_p50_seconds", "Median frame latency (update + round)",
                  robot, 1e-3 * percentile(live_.latencies_ms, 50));
       text.gauge("concord_frame_latency_p99_seconds", "99th percentile frame latency", robot,
@@ -642,6 +965,37 @@ void Daemon::Impl::register_routes() {
                    static_cast<double>(c.deadline_misses));
       text.counter("concord_consensus_malformed_total", "Unusable consensus messages", robot,
                    static_cast<double>(c.malformed));
+      text.counter("concord_consensus_future_dropped_total",
+                   "Consensus messages beyond the future-round window, dropped", robot,
+                   static_cast<double>(c.future_dropped));
+      text.counter("concord_consensus_exclusions_total",
+                   "Times a peer left the lockstep waits after missing rounds", robot,
+                   static_cast<double>(c.exclusions));
+      text.gauge("concord_consensus_excluded_peers", "Peers out of the lockstep waits", robot,
+                 static_cast<double>(c.excluded_peers));
+      text.counter("concord_consensus_landmarks_refused_total",
+                   "Neighbours' landmarks refused by the chi-square test against this robot's",
+                   robot, static_cast<double>(c.landmarks_refused));
+      text.counter("concord_consensus_quarantines_total",
+                   "Times a peer was quarantined for repeatedly refused marginals", robot,
+                   static_cast<double>(c.quarantines));
+      text.counter("concord_consensus_quarantined_dropped_total",
+                   "Marginals not fused because their sender was in quarantine", robot,
+                   static_cast<double>(c.quarantined_dropped));
+      text.gauge("concord_consensus_quarantined_peers", "Peers in quarantine", robot,
+                 static_cast<double>(c.quarantined_peers));
+      suppressed += c.log_lines_suppressed;
+    }
+    if (ingest_) {
+      const auto c = ingest_->counters();
+      text.counter("concord_ingest_busy_pauses_total",
+                   "Times ingest reading paused on a full frame queue (backpressure)", robot,
+                   static_cast<double>(c.busy_pauses));
+      text.counter("concord_ingest_rejected_connections_total",
+                   "Ingest connections closed for a bad frame or failed authentication", robot,
+                   static_cast<double>(c.rejected_oversized + c.rejected_garbage +
+                                       c.rejected_unauthenticated));
+      suppressed += c.log_lines_suppressed;
     }
     if (network_) {
       const auto totals = network_->totals();
@@ -661,19 +1015,67 @@ void Daemon::Impl::register_routes() {
                    "Connections closed for oversized, garbage or handshake violations", robot,
                    static_cast<double>(totals.rejected_oversized + totals.rejected_garbage +
                                        totals.rejected_handshake));
-      for (const net::PeerStats& peer : network_->peers()) {
-        const std::string labels = robot + ",peer=\"" + std::to_string(peer.robot) + "\"";
+      text.counter("concord_network_unauthenticated_total",
+                   "Connections that failed the team-key handshake or message authentication",
+                   robot, static_cast<double>(totals.rejected_unauthenticated));
+      text.counter("concord_network_admission_refused_total",
+                   "Connections refused by the admission cap", robot,
+                   static_cast<double>(totals.rejected_admission));
+      text.counter("concord_network_budget_pauses_total",
+                   "Times a connection over its receive budget paused", robot,
+                   static_cast<double>(totals.budget_pauses));
+      suppressed += totals.log_lines_suppressed;
+      // Each family contiguous (the text format requires it): one loop per family.
+      const std::vector<net::PeerStats> peers = network_->peers();
+      auto per_peer = [&](auto&& emit) {
+        for (const net::PeerStats& peer : peers)
+          emit(peer, robot + ",peer=\"" + std::to_string(peer.robot) + "\"");
+      };
+      per_peer([&](const net::PeerStats& peer, const std::string& labels) {
         text.gauge("concord_peer_up", "Whether a peer is up", labels, peer.up ? 1.0 : 0.0);
+      });
+      per_peer([&](const net::PeerStats& peer, const std::string& labels) {
         text.counter("concord_peer_bytes_sent_total", "Bytes sent to a peer", labels,
                      static_cast<double>(peer.bytes_out));
+      });
+      per_peer([&](const net::PeerStats& peer, const std::string& labels) {
         text.counter("concord_peer_bytes_received_total", "Bytes received from a peer", labels,
                      static_cast<double>(peer.bytes_in));
+      });
+      per_peer([&](const net::PeerStats& peer, const std::string& labels) {
         text.counter("concord_peer_drops_total", "Messages to a peer dropped", labels,
                      static_cast<double>(peer.drops));
+      });
+      per_peer([&](const net::PeerStats& peer, const std::string& labels) {
+        text.counter("concord_peer_protocol_errors_total",
+                     "Connections of a peer closed for a "
+                     "protocol violation",
+                     labels, static_cast<double>(peer.protocol_errors));
+      });
+      per_peer([&](const net::PeerStats& peer, const std::string& labels) {
         text.gauge("concord_peer_rtt_seconds", "Last heartbeat round trip", labels,
                    1e-9 * static_cast<double>(peer.rtt_last.count()));
+      });
+      if (exchange_) {
+        const std::map<int, PeerTrust> trust = exchange_->peer_trust();
+        auto trust_of = [&](int robot_id) {
+          const auto found = trust.find(robot_id);
+          return found != trust.end() ? found->second : PeerTrust{};
+        };
+        per_peer([&](const net::PeerStats& peer, const std::string& labels) {
+          text.counter("concord_peer_landmarks_refused_total",
+                       "A peer's landmarks refused by the chi-square test", labels,
+                       static_cast<double>(trust_of(peer.robot).landmarks_refused));
+        });
+        per_peer([&](const net::PeerStats& peer, const std::string& labels) {
+          text.gauge("concord_peer_quarantined", "Whether a peer is in quarantine", labels,
+                     trust_of(peer.robot).quarantined ? 1.0 : 0.0);
+        });
       }
     }
+    text.counter("concord_log_lines_suppressed_total",
+                 "Log lines about peers and clients held back by the rate limit", robot,
+                 static_cast<double>(suppressed));
     const auto http = http_->counters();
     text.counter("concord_http_requests_total", "HTTP requests routed", robot,
                  static_cast<double>(http.requests));
@@ -686,7 +1088,8 @@ void Daemon::Impl::register_routes() {
 void Daemon::Impl::shutdown_services() {
   const std::uint64_t last_round = [&] {
     std::lock_guard lock(live_.mutex);
-    return live_.frames.empty() ? std::uint64_t{0} : static_cast<std::uint64_t>(live_.frames.back());
+    return live_.trajectory.empty() ? std::uint64_t{0}
+                                    : static_cast<std::uint64_t>(live_.trajectory.back().frame);
   }();
   if (exchange_) exchange_->stop();
   if (network_) network_->stop(stop_requested_ ? "stopped" : "finished", last_round);
@@ -699,22 +1102,33 @@ void Daemon::Impl::shutdown_services() {
 }
 
 int Daemon::Impl::run() {
-  if (!load_source()) return 2;
+  // Start-up errors exit with kExitCannotStart, naming what is wrong.
+  try {
+    check_output_folder(config_.output.directory);
+    if (const int removed = remove_stale_temporaries(config_.output.directory); removed > 0)
+      spdlog::info("output: removed {} temporary files left by an earlier run", removed);
+  } catch (const std::exception& error) {
+    spdlog::error("start: {}", error.what());
+    return kExitCannotStart;
+  }
+  if (!load_source()) return kExitCannotStart;
+  load_checkpoint();
   if (!start_services()) {
     shutdown_services();
     io_.run();
-    return 2;
+    http_io_.run();
+    return kExitCannotStart;
   }
-  io_thread_ = std::thread([this] {
+  auto run_context = [this](boost::asio::io_context& context, const char* name) {
     try {
-      io_.run();
+      context.run();
     } catch (const std::exception& error) {
-      spdlog::critical("network thread: {}", error.what());
+      spdlog::critical("{} thread: {}", name, error.what());
       request_stop();
     }
-  });
-  if (robot_) source_thread_ = std::thread([this] { replay_frames(); });
-  if (frontend_) source_thread_ = std::thread([this] { image_frames(); });
+  };
+  io_thread_ = std::thread([&] { run_context(io_, "network"); });
+  http_thread_ = std::thread([&] { run_context(http_io_, "HTTP"); });
 
   estimator_loop();
 
@@ -722,17 +1136,27 @@ int Daemon::Impl::run() {
     std::lock_guard lock(live_.mutex);
     live_.phase = stop_requested_ ? "stopped" : "finished";
   }
-  write_outputs(true);
+  const bool written = write_outputs(true);
   {
     std::lock_guard lock(live_.mutex);
-    spdlog::info("{}: {} frames, {} rounds; outputs in {}", live_.phase, live_.frames.size(),
-                 live_.rounds, config_.output.directory.string());
+    if (written)
+      spdlog::info("{}: {} frames, {} rounds; outputs in {}", live_.phase, live_.trajectory.size(),
+                   live_.rounds, config_.output.directory.string());
+    else
+      spdlog::error("{}: {} frames, {} rounds; the outputs could NOT be written to {}", live_.phase,
+                    live_.trajectory.size(), live_.rounds, config_.output.directory.string());
   }
   queue_.close_and_clear();
+  {
+    std::lock_guard lock(stop_mutex_);
+    stop_requested_ = true;  // ends a replay pacing wait
+  }
+  stop_changed_.notify_all();
   if (source_thread_.joinable()) source_thread_.join();
   shutdown_services();
   io_thread_.join();
-  return 0;
+  http_thread_.join();
+  return written ? kExitOk : kExitOutputFailed;
 }
 
 Daemon::Daemon(DaemonConfig config) : impl_(std::make_unique<Impl>(std::move(config))) {}

@@ -1,5 +1,6 @@
 #include "concord/daemon/wire.h"
 
+#include <Eigen/Cholesky>
 #include <cmath>
 
 #include "concord/v1/concord.pb.h"
@@ -131,6 +132,11 @@ void to_wire(const FrameInput& frame, double timestamp, v1::SensorFrame& out) {
   out.set_frame(frame.frame);
   out.set_timestamp(timestamp);
   if (frame.T_previous_current) to_wire(*frame.T_previous_current, *out.mutable_odometry());
+  if (frame.odometry_covariance) {
+    for (int row = 0; row < 6; ++row)
+      for (int column = row; column < 6; ++column)
+        out.add_odometry_covariance((*frame.odometry_covariance)(row, column));
+  }
   for (const auto& observation : frame.objects) to_wire(observation, *out.add_objects());
   for (const auto& observation : frame.features) to_wire(observation, *out.add_features());
 }
@@ -149,6 +155,27 @@ std::optional<FrameInput> from_wire(const v1::SensorFrame& message, std::string&
       return std::nullopt;
     }
     frame.T_previous_current = *pose;
+  }
+  if (message.odometry_covariance_size() != 0) {
+    // 6x6 on [rho; phi], upper triangle row by row: validated (finite, symmetric positive
+    // definite), then it replaces the configured odometry noise for this frame.
+    if (message.odometry_covariance_size() != 21) {
+      error = "sensor frame " + std::to_string(frame.frame) + ": odometry_covariance has " +
+              std::to_string(message.odometry_covariance_size()) + " values, expected 21 or none";
+      return std::nullopt;
+    }
+    Eigen::Matrix<double, 6, 6> covariance;
+    int index = 0;
+    for (int row = 0; row < 6; ++row)
+      for (int column = row; column < 6; ++column)
+        covariance(row, column) = covariance(column, row) = message.odometry_covariance(index++);
+    if (!covariance.allFinite() ||
+        Eigen::LLT<Eigen::Matrix<double, 6, 6>>(covariance).info() != Eigen::Success) {
+      error = "sensor frame " + std::to_string(frame.frame) +
+              ": odometry_covariance is not finite and positive definite";
+      return std::nullopt;
+    }
+    frame.odometry_covariance = covariance;
   }
   if (!from_wire(message.objects(), frame.objects, "object", error) ||
       !from_wire(message.features(), frame.features, "feature", error)) {

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <array>
 #include <atomic>
+#include <cstdio>
 #include <fstream>
 #include <limits>
 #include <nlohmann/json.hpp>
@@ -63,6 +64,22 @@ void write_file_atomically(const std::filesystem::path& file, const std::string&
 
 std::string format_trajectory_kitti(const std::vector<Eigen::Isometry3d>& poses) {
   return text_parsing::format_kitti_poses(poses);
+}
+
+std::string format_trajectory_tum(const std::vector<double>& times,
+                                  const std::vector<Eigen::Isometry3d>& poses) {
+  std::string text;
+  char line[256];
+  const std::size_t count = std::min(times.size(), poses.size());
+  for (std::size_t i = 0; i < count; ++i) {
+    const Eigen::Isometry3d& T = poses[i];
+    const Eigen::Quaterniond q(T.rotation());
+    std::snprintf(line, sizeof line, "%.9f %.17g %.17g %.17g %.17g %.17g %.17g %.17g\n", times[i],
+                  T.translation().x(), T.translation().y(), T.translation().z(), q.x(), q.y(),
+                  q.z(), q.w());
+    text += line;
+  }
+  return text;
 }
 
 void write_trajectory_kitti(const std::filesystem::path& file,

@@ -1,5 +1,6 @@
 #include "concord/estimator/estimator.h"
 
+#include <Eigen/Cholesky>
 #include <stdexcept>
 #include <string>
 
@@ -50,6 +51,35 @@ Estimator::Estimator(const EstimatorOptions& options, const StereoCamera& camera
   state_.covariance = lie::left_from_right_covariance(T_world_body_start, start);
 }
 
+Estimator::Estimator(const EstimatorOptions& options, const StereoCamera& camera, State state,
+                     PendingObjects pending)
+    : options_(validated(options)),
+      camera_(camera),
+      state_(std::move(state)),
+      propagator_(options_),
+      object_updater_(options_, camera_, std::move(pending)),
+      feature_updater_(options_, camera_),
+      started_(true) {
+  // A state from outside (a checkpoint): its shapes must agree before anything reads it.
+  const auto n = static_cast<Eigen::Index>(state_.dimension());
+  bool consecutive = !state_.poses.empty();
+  for (std::size_t k = 1; consecutive && k < state_.poses.size(); ++k) {
+    consecutive = state_.poses[k].frame == state_.poses[k - 1].frame + 1;
+  }
+  if (!consecutive || state_.num_poses() > options_.window_size || state_.covariance.rows() != n ||
+      state_.covariance.cols() != n || !state_.covariance.allFinite()) {
+    throw std::invalid_argument(
+        "Estimator: the state's poses, landmarks and covariance do not agree");
+  }
+  for (const auto& [id, object] : state_.archived) {
+    if (!object.p_world.allFinite() || !object.covariance.allFinite()) {
+      throw std::invalid_argument("Estimator: archived object " + std::to_string(id) +
+                                  " is not finite");
+    }
+  }
+  state_.rebuild_landmark_index();
+}
+
 FrameReport Estimator::process(const FrameInput& input) {
   FrameReport report;
   report.frame = input.frame;
@@ -63,7 +93,16 @@ FrameReport Estimator::process(const FrameInput& input) {
     }
     Eigen::Isometry3d motion = *input.T_previous_current;
     motion.translation() *= options_.odometry_translation_scale;
-    propagator_.propagate(state_, motion, input.frame);
+    const Eigen::Matrix<double, 6, 6>* noise =
+        input.odometry_covariance ? &*input.odometry_covariance : nullptr;
+    if (noise != nullptr) {
+      const Eigen::LLT<Eigen::Matrix<double, 6, 6>> llt(*noise);
+      if (!noise->allFinite() || llt.info() != Eigen::Success) {
+        throw std::invalid_argument("Estimator::process: frame " + std::to_string(input.frame) +
+                                    ": odometry covariance is not finite and positive definite");
+      }
+    }
+    propagator_.propagate(state_, motion, input.frame, noise);
   }
   started_ = true;
   if (options_.use_point_features) {
@@ -88,7 +127,8 @@ void Estimator::reanchor(const Eigen::Isometry3d& T_new_old,
 
 Eigen::Matrix<double, 6, 6> Estimator::current_pose_covariance() const {
   const int index = state_.pose_index(state_.num_poses() - 1);
-  return lie::right_from_left_covariance(current_pose(), state_.covariance.block<6, 6>(index, index));
+  return lie::right_from_left_covariance(current_pose(),
+                                         state_.covariance.block<6, 6>(index, index));
 }
 
 }  // namespace concord

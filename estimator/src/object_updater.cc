@@ -10,11 +10,13 @@
 
 namespace concord {
 
-ObjectUpdater::ObjectUpdater(const EstimatorOptions& options, const StereoCamera& camera)
+ObjectUpdater::ObjectUpdater(const EstimatorOptions& options, const StereoCamera& camera,
+                             PendingObjects pending)
     : options_(options),
       camera_(camera),
       whitening_(UpdaterHelper::whitening(
-          UpdaterHelper::observation_covariance(options.object_noise, camera))) {}
+          UpdaterHelper::observation_covariance(options.object_noise, camera))),
+      pending_(std::move(pending)) {}
 
 double ObjectUpdater::gate(int dof) const {
   return options_.object_chi2_probability > 0.0
@@ -102,9 +104,9 @@ ObjectUpdateStats ObjectUpdater::process(State& state,
   return stats;
 }
 
-ObjectUpdater::InitResult ObjectUpdater::try_initialize(
-    State& state, LandmarkId id, const std::vector<TrackObservation>& track,
-    ObjectUpdateStats& stats) {
+ObjectUpdater::InitResult ObjectUpdater::try_initialize(State& state, LandmarkId id,
+                                                        const std::vector<TrackObservation>& track,
+                                                        ObjectUpdateStats& stats) {
   std::vector<Eigen::Isometry3d> poses;
   std::vector<Eigen::Vector4d> observations;
   for (const TrackObservation& observation : track) {
@@ -177,8 +179,7 @@ ObjectUpdater::InitResult ObjectUpdater::try_initialize(
   if (rows > 3) {
     Eigen::MatrixXd H2_full = Eigen::MatrixXd::Zero(rows - 3, state.dimension());
     H2_full.leftCols(H2.cols()) = H2;
-    if (!StateHelper::update(state, H2_full, r2,
-                             Eigen::MatrixXd::Identity(rows - 3, rows - 3))) {
+    if (!StateHelper::update(state, H2_full, r2, Eigen::MatrixXd::Identity(rows - 3, rows - 3))) {
       ++stats.update_failures;
     }
   }

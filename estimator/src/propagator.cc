@@ -13,8 +13,8 @@ Propagator::Propagator(const EstimatorOptions& options) : window_size_(options.w
                                                    options.odometry_rotation_sigma);
 }
 
-void Propagator::propagate(State& state, const Eigen::Isometry3d& T_previous_current,
-                           int frame) const {
+void Propagator::propagate(State& state, const Eigen::Isometry3d& T_previous_current, int frame,
+                           const Eigen::Matrix<double, 6, 6>* noise_override) const {
   // 1. Marginalize the oldest pose when the window is full (the selection matrix A of eq. 23).
   if (state.num_poses() >= window_size_) StateHelper::remove_oldest_pose(state);
 
@@ -26,7 +26,8 @@ void Propagator::propagate(State& state, const Eigen::Isometry3d& T_previous_cur
   // eps_new = eps - Ad(T_new) w: the error carries over unchanged (eq. 23's J_t becomes the
   // identity in this chart) and the odometry noise enters rotated into the world frame.
   const lie::Matrix6d adjoint_new = lie::adjoint(T_world_new);
-  const lie::Matrix6d noise = adjoint_new * odometry_noise_ * adjoint_new.transpose();
+  const lie::Matrix6d& W = noise_override != nullptr ? *noise_override : odometry_noise_;
+  const lie::Matrix6d noise = adjoint_new * W * adjoint_new.transpose();
 
   // 3. Covariance: insert the new pose block after the poses, before the landmarks:
   //    rows P[newest, :], block P_newest + Ad W Ad^T (eq. 23).

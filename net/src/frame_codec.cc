@@ -2,6 +2,7 @@
 
 #include <cassert>
 #include <limits>
+#include <stdexcept>
 #include <utility>
 
 #include "concord/v1/concord.pb.h"
@@ -22,6 +23,8 @@ std::string_view to_string(FrameErrorKind kind) {
       return "wrong-version";
     case FrameErrorKind::kWrongTeam:
       return "wrong-team";
+    case FrameErrorKind::kUnauthenticated:
+      return "unauthenticated";
   }
   return "unknown";
 }
@@ -41,6 +44,17 @@ void append_frame(const v1::Envelope& envelope, std::string& out) {
   envelope.SerializeWithCachedSizesToArray(header + kFrameHeaderBytes);
 }
 
+void append_raw_frame(std::string_view payload, std::string& out) {
+  if (payload.size() > std::numeric_limits<std::uint32_t>::max())
+    throw std::length_error("frame payload above 4 GiB");
+  const auto length = static_cast<std::uint32_t>(payload.size());
+  out.push_back(static_cast<char>(length >> 24));
+  out.push_back(static_cast<char>(length >> 16));
+  out.push_back(static_cast<char>(length >> 8));
+  out.push_back(static_cast<char>(length));
+  out.append(payload);
+}
+
 std::string encode_frame(const v1::Envelope& envelope) {
   std::string out;
   append_frame(envelope, out);
@@ -57,6 +71,16 @@ FrameError check_envelope(const v1::Envelope& envelope,
     return {FrameErrorKind::kWrongTeam,
             "team '" + envelope.team() + "', expected '" + *expected_team + "'"};
   return {};
+}
+
+FrameError parse_envelope(std::string_view payload, const std::optional<std::string>& expected_team,
+                          v1::Envelope& envelope) {
+  envelope.Clear();
+  if (payload.size() > static_cast<std::size_t>(std::numeric_limits<int>::max()) ||
+      !envelope.ParseFromArray(payload.data(), static_cast<int>(payload.size())))
+    return {FrameErrorKind::kGarbage,
+            "payload of " + std::to_string(payload.size()) + " bytes is not a valid Envelope"};
+  return check_envelope(envelope, expected_team);
 }
 
 FrameDecoder::FrameDecoder(FrameDecoderOptions options) : options_(std::move(options)) {}
@@ -82,15 +106,15 @@ FrameDecoder::Status FrameDecoder::fail(FrameErrorKind kind, std::string reason)
   return Status::kError;
 }
 
-FrameDecoder::Status FrameDecoder::next(v1::Envelope& envelope) {
+FrameDecoder::Status FrameDecoder::peek(std::uint32_t& length) {
   if (failed()) return Status::kError;
   const std::size_t available = buffer_.size() - read_offset_;
   if (available < kFrameHeaderBytes) return Status::kNeedMore;
 
   // 1. Length prefix: checked before any payload is waited for.
   const auto* header = reinterpret_cast<const unsigned char*>(buffer_.data() + read_offset_);
-  const std::uint32_t length = (std::uint32_t{header[0]} << 24) | (std::uint32_t{header[1]} << 16) |
-                               (std::uint32_t{header[2]} << 8) | std::uint32_t{header[3]};
+  length = (std::uint32_t{header[0]} << 24) | (std::uint32_t{header[1]} << 16) |
+           (std::uint32_t{header[2]} << 8) | std::uint32_t{header[3]};
   if (length == 0) return fail(FrameErrorKind::kZeroLength, "zero-length frame");
   if (length > options_.max_frame_bytes ||
       length > static_cast<std::uint32_t>(std::numeric_limits<int>::max()))
@@ -98,16 +122,27 @@ FrameDecoder::Status FrameDecoder::next(v1::Envelope& envelope) {
                                                 " bytes exceeds the maximum of " +
                                                 std::to_string(options_.max_frame_bytes));
   if (available - kFrameHeaderBytes < length) return Status::kNeedMore;
+  return Status::kFrame;
+}
+
+FrameDecoder::Status FrameDecoder::next_payload(std::string& payload) {
+  std::uint32_t length = 0;
+  const Status status = peek(length);
+  if (status != Status::kFrame) return status;
+  payload.assign(buffer_.data() + read_offset_ + kFrameHeaderBytes, length);
+  read_offset_ += kFrameHeaderBytes + length;
+  return Status::kFrame;
+}
+
+FrameDecoder::Status FrameDecoder::next(v1::Envelope& envelope) {
+  std::uint32_t length = 0;
+  const Status status = peek(length);
+  if (status != Status::kFrame) return status;
 
   // 2. Payload: one Envelope, then the checks every receiver makes.
-  const char* payload = buffer_.data() + read_offset_ + kFrameHeaderBytes;
-  envelope.Clear();
-  if (!envelope.ParseFromArray(payload, static_cast<int>(length)))
-    return fail(FrameErrorKind::kGarbage,
-                "payload of " + std::to_string(length) + " bytes is not a valid Envelope");
-  FrameError check = check_envelope(envelope, options_.team);
+  const std::string_view payload(buffer_.data() + read_offset_ + kFrameHeaderBytes, length);
+  FrameError check = parse_envelope(payload, options_.team, envelope);
   if (check.kind != FrameErrorKind::kNone) return fail(check.kind, std::move(check.reason));
-
   read_offset_ += kFrameHeaderBytes + length;
   return Status::kFrame;
 }

@@ -4,11 +4,14 @@
 
 #include <atomic>
 #include <boost/asio.hpp>
+#include <deque>
 #include <map>
 #include <mutex>
 #include <stdexcept>
 
 #include "concord/net/host_port.h"
+#include "concord/net/log_limiter.h"
+#include "concord/net/secure_channel.h"
 #include "concord/v1/concord.pb.h"
 
 namespace concord::net {
@@ -35,6 +38,7 @@ std::vector<std::string> FrameListenerOptions::validate() const {
   if (idle_timeout.count() < 0)
     problems.push_back("idle_timeout: " + std::to_string(idle_timeout.count()) + " ms is negative");
   if (max_connections == 0) problems.push_back("max_connections: must be at least 1");
+  if (busy_retry.count() <= 0) problems.push_back("busy_retry: must be positive");
   return problems;
 }
 
@@ -52,15 +56,22 @@ class FrameListener::Impl : public std::enable_shared_from_this<FrameListener::I
   void stop(bool detach = false);
   std::uint16_t port() const { return port_.load(); }
   FrameListenerCounters counters() const {
-    std::lock_guard lock(counters_mutex_);
-    return counters_;
+    FrameListenerCounters counters;
+    {
+      std::lock_guard lock(counters_mutex_);
+      counters = counters_;
+    }
+    counters.log_lines_suppressed = log_limiter.suppressed_total();
+    return counters;
   }
+  LogLimiter log_limiter;
 
   EnvelopeHandler envelope_handler;
   CloseHandler close_handler;
 
   // Called by connections, on the strand.
-  void on_envelope(const Connection& connection, const v1::Envelope& envelope);
+  /// False: the handler is busy; offer the envelope again later.
+  bool on_envelope(const Connection& connection, const v1::Envelope& envelope);
   void on_closed(const Connection& connection, const std::string& reason);
   void on_frame_error(const FrameError& error);
   template <class Function>
@@ -100,9 +111,17 @@ class FrameListener::Impl::Connection : public std::enable_shared_from_this<Conn
                                      listener_->options().team.empty()
                                          ? std::nullopt
                                          : std::optional(listener_->options().team)}),
-        buffer_(kReadChunkBytes) {}
+        buffer_(kReadChunkBytes),
+        retry_timer_(socket_.get_executor()) {
+    if (listener_->options().team_key)
+      channel_ = std::make_unique<SecureChannel>(*listener_->options().team_key,
+                                                 SecureChannel::Role::kResponder);
+  }
 
-  void begin() { do_read(); }
+  void begin() {
+    if (channel_) write_channel_message(channel_->hello());
+    do_read();
+  }
 
   void close(const std::string& reason) {
     if (closed_) return;
@@ -110,6 +129,7 @@ class FrameListener::Impl::Connection : public std::enable_shared_from_this<Conn
     ErrorCode ignored;
     socket_.shutdown(tcp::socket::shutdown_both, ignored);
     socket_.close(ignored);
+    retry_timer_.cancel();
     listener_->on_closed(*this, reason);
   }
 
@@ -133,25 +153,102 @@ class FrameListener::Impl::Connection : public std::enable_shared_from_this<Conn
     last_received = Clock::now();
     listener_->update_counters([&](FrameListenerCounters& counters) { counters.bytes += bytes; });
     decoder_.feed(std::string_view(buffer_.data(), bytes));
+    deliver();
+  }
+
+  /// Decodes and hands over buffered frames until more bytes are needed (then reads) or the
+  /// handler is busy (then retries later, without reading: backpressure).
+  void deliver() {
     while (!closed_) {
-      const FrameDecoder::Status status = decoder_.next(envelope_);
-      if (status == FrameDecoder::Status::kNeedMore) break;
-      if (status == FrameDecoder::Status::kError) {
-        listener_->on_frame_error(decoder_.error());
-        spdlog::warn("net: ingest connection #{} from {}: {} frame: {}", id, remote,
-                     to_string(decoder_.error().kind), decoder_.error().reason);
-        return close(decoder_.error().reason);
+      if (!pending_) {
+        const FrameDecoder::Status status = decoder_.next_payload(payload_);
+        if (status == FrameDecoder::Status::kNeedMore) break;
+        if (status == FrameDecoder::Status::kError) return reject(decoder_.error());
+        if (channel_ && !channel_->established()) {
+          if (!on_channel_message()) return;
+          continue;
+        }
+        std::string_view plaintext = payload_;
+        std::optional<std::string> opened;
+        if (channel_) {
+          std::string reason;
+          opened = channel_->open(payload_, reason);
+          if (!opened) return reject({FrameErrorKind::kUnauthenticated, reason});
+          plaintext = *opened;
+        }
+        FrameError check = parse_envelope(plaintext, decoder_.options().team, envelope_);
+        if (check.kind != FrameErrorKind::kNone) return reject(check);
+        pending_ = true;
       }
-      listener_->on_envelope(*this, envelope_);
+      if (!listener_->on_envelope(*this, envelope_)) {
+        // Busy: keep the envelope, stop reading, offer it again shortly.
+        listener_->update_counters([](FrameListenerCounters& c) { ++c.busy_pauses; });
+        retry_timer_.expires_after(listener_->options().busy_retry);
+        retry_timer_.async_wait([self = shared_from_this()](const ErrorCode& wait_error) {
+          if (!wait_error && !self->closed_) self->deliver();
+        });
+        return;
+      }
+      pending_ = false;
     }
     if (!closed_) do_read();
+  }
+
+  bool on_channel_message() {
+    std::string reason;
+    if (channel_->stage() == SecureChannel::Stage::kAwaitingHello) {
+      std::optional<std::string> proof = channel_->accept_hello(payload_, reason);
+      if (!proof) {
+        reject({FrameErrorKind::kUnauthenticated, "channel handshake failed: " + reason});
+        return false;
+      }
+      write_channel_message(*proof);
+      return true;
+    }
+    if (!channel_->accept_proof(payload_, reason)) {
+      reject({FrameErrorKind::kUnauthenticated, "channel handshake failed: " + reason});
+      return false;
+    }
+    return true;
+  }
+
+  void reject(const FrameError& error) {
+    listener_->on_frame_error(error);
+    std::uint64_t suppressed = 0;
+    if (listener_->log_limiter.allow("ingest " + std::string(to_string(error.kind)), suppressed))
+      spdlog::warn("net: ingest connection #{} from {}: {} frame: {}{}", id, remote,
+                   to_string(error.kind), error.reason, suppressed_note(suppressed));
+    close(error.reason);
+  }
+
+  /// Handshake messages only (ingest never sends anything else).
+  void write_channel_message(const std::string& payload) {
+    outgoing_.emplace_back();
+    append_raw_frame(payload, outgoing_.back());
+    if (outgoing_.size() == 1) write_next();
+  }
+
+  void write_next() {
+    if (outgoing_.empty() || closed_) return;
+    asio::async_write(socket_, asio::buffer(outgoing_.front()),
+                      [self = shared_from_this()](const ErrorCode& error, std::size_t) {
+                        if (self->closed_) return;
+                        if (error) return self->close("write failed: " + error.message());
+                        self->outgoing_.pop_front();
+                        self->write_next();
+                      });
   }
 
   std::shared_ptr<Impl> listener_;
   tcp::socket socket_;
   FrameDecoder decoder_;
   std::vector<char> buffer_;
+  asio::steady_timer retry_timer_;
+  std::unique_ptr<SecureChannel> channel_;  // with a team key
+  std::deque<std::string> outgoing_;        // handshake frames being written
+  std::string payload_;
   v1::Envelope envelope_;
+  bool pending_ = false;  // envelope_ decoded but not yet taken by the handler
   bool closed_ = false;
 };
 
@@ -196,8 +293,10 @@ void FrameListener::Impl::do_accept() {
                          : HostPort{remote.address().to_string(), remote.port()}.to_string();
       if (self->connections_.size() >= self->options_.max_connections) {
         self->update_counters([](FrameListenerCounters& c) { ++c.connections_refused; });
-        spdlog::warn("net: ingest connection from {} refused: {} connections open", address,
-                     self->connections_.size());
+        std::uint64_t suppressed = 0;
+        if (self->log_limiter.allow("ingest refused", suppressed))
+          spdlog::warn("net: ingest connection from {} refused: {} connections open{}", address,
+                       self->connections_.size(), suppressed_note(suppressed));
       } else {
         const std::uint64_t id = self->next_id_++;
         auto connection = std::make_shared<Connection>(self, id, std::move(socket), address);
@@ -206,7 +305,10 @@ void FrameListener::Impl::do_accept() {
           ++c.connections_accepted;
           c.open_connections = self->connections_.size();
         });
-        spdlog::info("net: ingest connection #{} from {}", id, address);
+        std::uint64_t suppressed = 0;
+        if (self->log_limiter.allow("ingest connection", suppressed))
+          spdlog::info("net: ingest connection #{} from {}{}", id, address,
+                       suppressed_note(suppressed));
         connection->begin();
       }
     }
@@ -233,22 +335,28 @@ void FrameListener::Impl::arm_idle_check() {
   });
 }
 
-void FrameListener::Impl::on_envelope(const Connection& connection, const v1::Envelope& envelope) {
-  update_counters([](FrameListenerCounters& c) { ++c.frames; });
-  if (!envelope_handler) return;
-  try {
-    envelope_handler(connection.id, envelope);
-  } catch (const std::exception& error) {
-    spdlog::error("net: ingest envelope handler threw: {}", error.what());
-  } catch (...) {
-    spdlog::error("net: ingest envelope handler threw a non-standard exception");
+bool FrameListener::Impl::on_envelope(const Connection& connection, const v1::Envelope& envelope) {
+  bool taken = true;
+  update_counters([](FrameListenerCounters& c) { ++c.frames; });  // before the handler runs
+  if (envelope_handler) {
+    try {
+      taken = envelope_handler(connection.id, envelope);
+    } catch (const std::exception& error) {
+      spdlog::error("net: ingest envelope handler threw: {}", error.what());
+    } catch (...) {
+      spdlog::error("net: ingest envelope handler threw a non-standard exception");
+    }
   }
+  if (!taken) update_counters([](FrameListenerCounters& c) { --c.frames; });
+  return taken;
 }
 
 void FrameListener::Impl::on_frame_error(const FrameError& error) {
   update_counters([&](FrameListenerCounters& c) {
     if (error.kind == FrameErrorKind::kOversized)
       ++c.rejected_oversized;
+    else if (error.kind == FrameErrorKind::kUnauthenticated)
+      ++c.rejected_unauthenticated;
     else
       ++c.rejected_garbage;
   });
@@ -257,8 +365,10 @@ void FrameListener::Impl::on_frame_error(const FrameError& error) {
 void FrameListener::Impl::on_closed(const Connection& connection, const std::string& reason) {
   connections_.erase(connection.id);
   update_counters([&](FrameListenerCounters& c) { c.open_connections = connections_.size(); });
-  spdlog::info("net: ingest connection #{} from {} closed: {}", connection.id, connection.remote,
-               reason);
+  std::uint64_t suppressed = 0;
+  if (log_limiter.allow("ingest closed", suppressed))
+    spdlog::info("net: ingest connection #{} from {} closed: {}{}", connection.id,
+                 connection.remote, reason, suppressed_note(suppressed));
   if (!close_handler) return;
   try {
     close_handler(connection.id, reason);

@@ -440,7 +440,8 @@ std::string got(const nlohmann::json& value) { return std::string("got ") + valu
 
 void reject_unknown_fields(const nlohmann::json& object, const std::string& path,
                            std::initializer_list<const char*> known) {
-  for (const auto& [key, value] : object.items()) {
+  for (const auto& item : object.items()) {
+    const std::string& key = item.key();  // not a structured binding: clang 14 cannot capture one
     if (std::find_if(known.begin(), known.end(), [&](const char* name) { return key == name; }) ==
         known.end()) {
       std::string expected;

@@ -379,7 +379,9 @@ TexturedWorld build_world(const dataset::Dataset& simulated, const RenderOptions
   const double object_clearance = std::sqrt(3.0) * half_size + 0.5;
   TexturedWorld::Quad object_style;
   object_style.texels_per_metre = 250.0;
-  for (const auto& [id, position] : simulated.objects_groundtruth) {
+  for (const auto& [id, object_position] : simulated.objects_groundtruth) {
+    // A named copy: lambdas may not capture structured bindings before C++20 (clang 14).
+    const Eigen::Vector3d position = object_position;
     const bool crossed = std::any_of(path_points.begin(), path_points.end(), [&](const auto& p) {
       return (p - position).norm() < object_clearance;
     });

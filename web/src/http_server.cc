@@ -77,6 +77,7 @@ struct ServerState {
   std::mutex sessions_mutex;
   std::unordered_map<const Session*, std::weak_ptr<Session>> sessions;
   std::size_t serving_sessions = 0;
+  std::unordered_map<std::string, std::size_t> serving_per_client;  // by client address
   bool stopped = false;
 
   void count_response(int status) {
@@ -101,8 +102,13 @@ struct ServerState {
 /// connection, answer 503 and close. Runs on its own strand.
 class Session : public std::enable_shared_from_this<Session> {
  public:
-  Session(tcp::socket&& socket, std::shared_ptr<ServerState> state, bool serving)
-      : stream_(std::move(socket)), state_(std::move(state)), serving_(serving) {
+  Session(tcp::socket&& socket, std::shared_ptr<ServerState> state, bool serving,
+          std::string client, std::string refusal)
+      : stream_(std::move(socket)),
+        state_(std::move(state)),
+        client_(std::move(client)),
+        refusal_(std::move(refusal)),
+        serving_(serving) {
     error_code error;
     const tcp::endpoint peer = stream_.socket().remote_endpoint(error);
     peer_ = error ? std::string("unknown peer") : endpoint_text(peer);
@@ -111,7 +117,12 @@ class Session : public std::enable_shared_from_this<Session> {
   ~Session() {
     std::lock_guard lock(state_->sessions_mutex);
     state_->sessions.erase(this);
-    if (serving_) --state_->serving_sessions;
+    if (serving_) {
+      --state_->serving_sessions;
+      const auto it = state_->serving_per_client.find(client_);
+      if (it != state_->serving_per_client.end() && --it->second == 0)
+        state_->serving_per_client.erase(it);
+    }
   }
 
   Session(const Session&) = delete;
@@ -122,8 +133,7 @@ class Session : public std::enable_shared_from_this<Session> {
       if (self->serving_) {
         self->read_request();
       } else {
-        self->send_error(503, "too many connections (limit " +
-                                  std::to_string(self->state_->options.max_connections) + ")");
+        self->send_error(503, self->refusal_);
       }
     });
   }
@@ -193,15 +203,15 @@ class Session : public std::enable_shared_from_this<Session> {
     if (error == http::error::header_limit || error == http::error::body_limit) {
       ++state_->requests_rejected;
       const bool header = error == http::error::header_limit;
-      spdlog::warn("HTTP: request from {} larger than {} bytes ({} too large)", peer_,
-                   state_->options.max_request_bytes, header ? "header" : "body");
+      spdlog::debug("HTTP: request from {} larger than {} bytes ({} too large)", peer_,
+                    state_->options.max_request_bytes, header ? "header" : "body");
       return send_error(header ? 431 : 413,
                         std::string(header ? "request header" : "request") + " larger than " +
                             std::to_string(state_->options.max_request_bytes) + " bytes");
     }
     if (is_http_error(error) && error != http::error::partial_message) {
       ++state_->requests_rejected;
-      spdlog::warn("HTTP: malformed request from {}: {}", peer_, error.message());
+      spdlog::debug("HTTP: malformed request from {}: {}", peer_, error.message());
       return send_error(400, "malformed HTTP request: " + error.message());
     }
     // Connection reset, or end of stream in the middle of a request: nobody to answer.
@@ -277,6 +287,8 @@ class Session : public std::enable_shared_from_this<Session> {
   std::size_t drained_bytes_ = 0;
   std::shared_ptr<ServerState> state_;
   std::string peer_;
+  const std::string client_;   // client address (no port)
+  const std::string refusal_;  // 503 message when not serving
   const bool serving_;
 };
 
@@ -353,21 +365,44 @@ class Listener : public std::enable_shared_from_this<Listener> {
   /// closes it when as many are already being refused.
   void admit(tcp::socket socket) {
     const std::size_t limit = state_->options.max_connections;
+    const std::size_t client_limit =
+        std::min(state_->options.max_connections_per_client, state_->options.max_connections);
+    error_code error;
+    const tcp::endpoint remote = socket.remote_endpoint(error);
+    const std::string client = error ? std::string("?") : remote.address().to_string();
     std::shared_ptr<Session> session;
     {
       std::lock_guard lock(state_->sessions_mutex);
       if (state_->stopped) return;
-      const bool serving = state_->serving_sessions < limit;
+      const auto per_client = state_->serving_per_client.find(client);
+      const std::size_t client_serving =
+          per_client == state_->serving_per_client.end() ? 0 : per_client->second;
+      const bool serving = state_->serving_sessions < limit && client_serving < client_limit;
       const std::size_t refusing = state_->sessions.size() - state_->serving_sessions;
+      std::string refusal;
       if (!serving) {
         ++state_->connections_rejected;
-        spdlog::warn("HTTP server: refused a connection: {} connections open (limit {})",
-                     state_->serving_sessions, limit);
+        refusal = state_->serving_sessions >= limit
+                      ? "too many connections (limit " + std::to_string(limit) + ")"
+                      : "too many connections from " + client + " (limit " +
+                            std::to_string(client_limit) + " per client)";
+        const auto now = std::chrono::steady_clock::now();
+        if (now - last_refusal_log_ >= std::chrono::seconds(10)) {  // at most one line per 10 s
+          spdlog::warn("HTTP server: refused a connection: {} ({} refusals before it not logged)",
+                       refusal, refusals_not_logged_);
+          last_refusal_log_ = now;
+          refusals_not_logged_ = 0;
+        } else {
+          ++refusals_not_logged_;
+        }
         if (refusing >= limit) return;  // the socket closes here
       }
-      session = std::make_shared<Session>(std::move(socket), state_, serving);
+      session = std::make_shared<Session>(std::move(socket), state_, serving, client, refusal);
       state_->sessions.emplace(session.get(), session);
-      if (serving) ++state_->serving_sessions;
+      if (serving) {
+        ++state_->serving_sessions;
+        ++state_->serving_per_client[client];
+      }
     }
     session->start();
   }
@@ -376,6 +411,8 @@ class Listener : public std::enable_shared_from_this<Listener> {
   tcp::acceptor acceptor_;
   asio::steady_timer retry_timer_;
   std::shared_ptr<ServerState> state_;
+  std::chrono::steady_clock::time_point last_refusal_log_{};
+  std::uint64_t refusals_not_logged_ = 0;
 };
 
 }  // namespace
@@ -394,6 +431,7 @@ void ServerOptions::validate() const {
     fail("request_timeout", std::to_string(request_timeout.count()) + " ms", "must be positive");
   }
   if (max_connections < 1) fail("max_connections", "0", "must be at least 1");
+  if (max_connections_per_client < 1) fail("max_connections_per_client", "0", "must be at least 1");
 }
 
 struct HttpServer::Impl {

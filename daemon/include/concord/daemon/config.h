@@ -12,6 +12,7 @@
 #include <string>
 #include <vector>
 
+#include "concord/daemon/failpoints.h"
 #include "concord/estimator/options.h"
 
 namespace concord::daemon {
@@ -49,6 +50,9 @@ struct SourceConfig {
   std::filesystem::path frontend;
   /// Replay: read features.csv (point features) where present.
   bool point_features = true;
+  /// Replay (source.frame_period_s): seconds between frames of the dataset, for the time stamps
+  /// of a replayed frame (TUM output); KITTI's 10 Hz by default.
+  double frame_period_s = 0.1;
   /// Ingest: where SensorFrame envelopes are accepted.
   std::string ingest_address = "127.0.0.1";
   std::uint16_t ingest_port = 7600;
@@ -57,6 +61,13 @@ struct SourceConfig {
   /// Ingest (and images without ground truth): the known start pose T_world_body:
   /// x y z qw qx qy qz.
   std::vector<double> start_pose{0, 0, 0, 1, 0, 0, 0};
+  /// Ingest (source.ingest_authenticated): senders must run the authenticated channel with the
+  /// team key. Required when ingest_address is not a loopback address.
+  bool ingest_authenticated = false;
+  /// Ingest plausibility limits (source.max_translation_m, source.max_rotation_rad): a frame
+  /// whose odometry moves further or turns more than this is rejected (and counted as a gap).
+  double max_translation_m = 20.0;
+  double max_rotation_rad = 1.5;
 };
 
 struct NetworkConfig {
@@ -70,6 +81,11 @@ struct NetworkConfig {
   bool discovery = false;
   std::string discovery_address = "239.255.76.1";
   std::uint16_t discovery_port = 47600;
+  /// network.max_pending_handshakes: connections not yet authenticated, at most.
+  std::size_t max_pending_handshakes = 16;
+  /// network.receive_bytes_per_second / receive_messages_per_second: per-connection budgets.
+  std::size_t receive_bytes_per_second = std::size_t{32} << 20;
+  std::size_t receive_messages_per_second = 4000;
 };
 
 struct ConsensusConfig {
@@ -82,12 +98,35 @@ struct ConsensusConfig {
   int wait_for_peers = 0;
   /// ... for at most this long.
   std::chrono::milliseconds startup_timeout{30000};
+  /// consensus.future_rounds: messages for rounds further ahead of the robot's own round than
+  /// this are dropped on arrival (counted): memory stays bounded whatever a peer sends.
+  int future_rounds = 4;
+  /// consensus.miss_limit: a peer that misses the deadline this many rounds in a row leaves the
+  /// lockstep waits (it still takes part when its messages are there in time) until it answers
+  /// in time again. A hung peer costs at most miss_limit deadlines in total.
+  int miss_limit = 1;
+  /// consensus.max_marginal_landmarks: larger marginals and landmark sets are rejected.
+  int max_marginal_landmarks = 5000;
+  /// consensus.suspicious_refusal_fraction: a round in which the estimator refuses more than
+  /// this fraction (and at least 2) of the landmarks a peer's marginal offered (they disagree
+  /// with the robot's own beyond the chi-square bound, estimator.consensus.
+  /// neighbour_chi2_probability) counts against the peer. An honest peer with consistent
+  /// covariances has about 0.1 % refused.
+  double suspicious_refusal_fraction = 0.2;
+  /// consensus.quarantine_after: that many suspicious rounds in a row quarantine the peer: its
+  /// marginals are not fused (counted) for consensus.quarantine_rounds of the robot's rounds.
+  int quarantine_after = 3;
+  int quarantine_rounds = 50;
 };
 
 struct HttpConfig {
   bool enabled = true;
   std::string address = "127.0.0.1";
   std::uint16_t port = 8080;
+  /// http.max_connections: connections served at once.
+  std::size_t max_connections = 64;
+  /// http.max_connections_per_client: connections served at once per client address.
+  std::size_t max_connections_per_client = 8;
 };
 
 struct OutputConfig {
@@ -95,11 +134,22 @@ struct OutputConfig {
   std::filesystem::path directory = "out";
   /// Period of the atomic rewrite of the outputs while running (0: only at shutdown).
   std::chrono::milliseconds write_interval{5000};
+  /// output.fsync_interval_ms: outputs written while running are also fsync'ed at most this
+  /// often (0: only the final outputs, which are always fsync'ed).
+  std::chrono::milliseconds fsync_interval{0};
+  /// output.checkpoint: write checkpoint.bin (filter state and round) with the outputs, and
+  /// resume from it at start.
+  bool checkpoint = true;
 };
 
 struct DaemonConfig {
   int robot_id = 0;
   std::string team = "concord";
+  /// team_key_file: the team's key (`concord keygen`); mode 0600. Required unless consensus is
+  /// off and ingest is unauthenticated.
+  std::filesystem::path team_key_file;
+  /// members: robot ids of the team (the membership list). Required when consensus is on.
+  std::vector<int> members;
   /// Estimator options (a file in the format of configs/sensors/*.yaml, or inline keys).
   EstimatorOptions estimator;
   std::filesystem::path estimator_file;  ///< where they came from ("" = inline/defaults)
@@ -112,15 +162,18 @@ struct DaemonConfig {
   std::size_t queue_capacity = 64;
   /// spdlog level: trace, debug, info, warn, error, critical, off.
   std::string log_level = "info";
+  /// Fault injection (command line only: --failpoint).
+  Failpoints failpoints;
 
   /// Problems (cross-field checks), one per line; empty if the config is usable.
-  std::vector<std::string> validate() const;
+  [[nodiscard]] std::vector<std::string> validate() const;
 };
 
 /// Reads a daemon config file. Throws config::ConfigError on any problem.
-DaemonConfig load_daemon_config(const std::filesystem::path& file);
+[[nodiscard]] DaemonConfig load_daemon_config(const std::filesystem::path& file);
 /// As load_daemon_config, from YAML text; relative paths are resolved against base_directory.
-DaemonConfig parse_daemon_config(const std::string& yaml_text, const std::string& source_name,
-                                 const std::filesystem::path& base_directory);
+[[nodiscard]] DaemonConfig parse_daemon_config(const std::string& yaml_text,
+                                               const std::string& source_name,
+                                               const std::filesystem::path& base_directory);
 
 }  // namespace concord::daemon

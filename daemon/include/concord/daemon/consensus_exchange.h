@@ -42,6 +42,10 @@ namespace concord::v1 {
 class Envelope;
 }  // namespace concord::v1
 
+namespace concord::net {
+class LogLimiter;
+}  // namespace concord::net
+
 namespace concord::daemon {
 
 /// What one round did.
@@ -52,6 +56,7 @@ struct RoundReport {
   int fused = 0;         ///< non-empty marginals fused
   int timed_out = 0;     ///< peers given up on at the deadline
   int bad_messages = 0;  ///< malformed marginals dropped in this round
+  int excluded = 0;      ///< live peers not waited for (they missed miss_limit rounds in a row)
   double wait_seconds = 0.0;
   ConsensusReport consensus;
 };
@@ -63,6 +68,31 @@ struct ExchangeCounters {
   std::uint64_t deadline_misses = 0;  ///< (peer, round) pairs given up on at the deadline
   std::uint64_t stale_dropped = 0;    ///< messages of past rounds dropped on arrival
   std::uint64_t malformed = 0;        ///< LandmarkSets and Marginals that could not be used
+  std::uint64_t future_dropped = 0;   ///< messages beyond the future-round window, dropped
+  std::uint64_t exclusions = 0;       ///< times a peer left the lockstep waits
+  std::uint64_t excluded_peers = 0;   ///< peers out of the lockstep waits now (a gauge)
+  std::uint64_t log_lines_suppressed = 0;
+  /// Poisoning defence: neighbours' landmarks refused by the estimator's chi-square test,
+  /// quarantines started, marginals not fused because their sender was in quarantine, and the
+  /// peers in quarantine now (a gauge).
+  std::uint64_t landmarks_refused = 0;
+  std::uint64_t quarantines = 0;
+  std::uint64_t quarantined_dropped = 0;
+  std::uint64_t quarantined_peers = 0;
+};
+
+/// Per-peer poisoning-defence counters (for /metrics and /peers).
+struct PeerTrust {
+  std::uint64_t landmarks_tested = 0;
+  std::uint64_t landmarks_refused = 0;
+  std::uint64_t quarantines = 0;
+  bool quarantined = false;
+};
+
+/// Fault injection for tests (concordd --failpoint, docs/daemon.md).
+struct ExchangeFailpoints {
+  bool marginal_silence = false;  ///< LandmarkSets go out, Marginals never
+  bool marginal_garbage = false;  ///< Marginals go out malformed
 };
 
 class ConsensusExchange {
@@ -70,7 +100,7 @@ class ConsensusExchange {
   /// Queues an envelope (its body and round set) to a robot; false if it could not be queued.
   using Send = std::function<bool(int robot, const v1::Envelope& envelope)>;
 
-  ConsensusExchange(ConsensusConfig config, Send send);
+  ConsensusExchange(ConsensusConfig config, Send send, ExchangeFailpoints failpoints = {});
   ~ConsensusExchange();
 
   /// Network thread: a LandmarkSet, Marginal or Goodbye from `robot` (other bodies ignored).
@@ -90,6 +120,14 @@ class ConsensusExchange {
 
   std::vector<int> live_peers() const;
   ExchangeCounters counters() const;
+  /// Poisoning-defence counters of every peer heard from, by robot id.
+  std::map<int, PeerTrust> peer_trust() const;
+
+  /// The highest round any live peer announced, waiting up to `timeout` until one announced a
+  /// round (-1 if none did): where a restarted robot rejoins the lockstep.
+  std::int64_t wait_for_team_round(std::chrono::milliseconds timeout);
+  /// Before the first run_round of a resumed robot: rounds up to `round` are over.
+  void resume_at(std::uint64_t round);
 
  private:
   struct Peer;
@@ -102,9 +140,22 @@ class ConsensusExchange {
                      const std::vector<LandmarkId>& own_ids,
                      const std::vector<LandmarkId>& peer_ids, int degree);
   void forget_rounds_up_to(std::uint64_t round);
+  /// Whether a message of `round` is beyond the future-round window (lockstep; mutex held).
+  bool beyond_window(std::uint64_t round) const;
+  /// A waited-for peer missed the deadline (mutex held).
+  void count_miss(int robot, Peer& peer, std::uint64_t round);
+  /// A peer answered round `round` in time (mutex held).
+  void count_answer(int robot, Peer& peer, std::uint64_t round);
+  /// Whether `robot` is in quarantine at `round` (mutex held); counts the dropped marginal.
+  bool quarantined(int robot, Peer& peer, std::uint64_t round);
+  /// After a fuse: the estimator's refusals of each sender's landmarks (inbox order), towards
+  /// quarantine.
+  void judge(std::uint64_t round, const std::vector<int>& senders, const ConsensusReport& report);
 
   ConsensusConfig config_;
   Send send_;
+  ExchangeFailpoints failpoints_;
+  std::unique_ptr<net::LogLimiter> log_limiter_;
   mutable std::mutex mutex_;
   std::condition_variable changed_;
   std::map<int, std::unique_ptr<Peer>> peers_;

@@ -12,6 +12,12 @@
 
 namespace concord::daemon {
 
+/// Process exit codes of concordd (docs/daemon.md).
+inline constexpr int kExitOk = 0;            ///< normal end, or after SIGTERM/SIGINT
+inline constexpr int kExitCannotStart = 2;   ///< bad config or command line, key, data, output
+                                             ///< directory, port in use
+inline constexpr int kExitOutputFailed = 3;  ///< ran, but the final outputs could not be written
+
 class Daemon {
  public:
   explicit Daemon(DaemonConfig config);
@@ -20,9 +26,9 @@ class Daemon {
   Daemon& operator=(const Daemon&) = delete;
 
   /// Runs until the source is exhausted or a stop is requested (SIGINT/SIGTERM or
-  /// request_stop()), writes the outputs and returns the process exit code: 0 on a normal end,
-  /// 2 if the daemon could not start (bad data, port in use; the reason is logged).
-  int run();
+  /// request_stop()), writes the outputs and returns the process exit code: kExitOk,
+  /// kExitCannotStart (the reason is logged) or kExitOutputFailed.
+  [[nodiscard]] int run();
 
   /// Asks run() to finish the frame in progress, write the outputs and return. Any thread.
   void request_stop();

@@ -20,16 +20,18 @@ namespace concord::daemon {
 /// Writes `marginal` into `out` (ids, mean, each covariance block as its packed upper triangle).
 void to_wire(const Marginal& marginal, v1::Marginal& out);
 /// The Marginal a message carries, or std::nullopt with `error` saying what is malformed.
-std::optional<Marginal> from_wire(const v1::Marginal& message, std::string& error);
+[[nodiscard]] std::optional<Marginal> from_wire(const v1::Marginal& message, std::string& error);
 
 void to_wire(const Eigen::Isometry3d& pose, v1::Pose& out);
 /// Rejects non-finite values and quaternions far from unit length (normalizes the rest).
-std::optional<Eigen::Isometry3d> from_wire(const v1::Pose& message, std::string& error);
+[[nodiscard]] std::optional<Eigen::Isometry3d> from_wire(const v1::Pose& message,
+                                                         std::string& error);
 
 /// A frame as a SensorFrame message (timestamp = frame index when none is known).
 void to_wire(const FrameInput& frame, double timestamp, v1::SensorFrame& out);
 /// The FrameInput a SensorFrame carries, or std::nullopt with `error` saying what is malformed
 /// (negative frame index, bad odometry pose, non-finite observations).
-std::optional<FrameInput> from_wire(const v1::SensorFrame& message, std::string& error);
+[[nodiscard]] std::optional<FrameInput> from_wire(const v1::SensorFrame& message,
+                                                  std::string& error);
 
 }  // namespace concord::daemon

@@ -28,6 +28,11 @@ std::string format_trajectory_kitti(const std::vector<Eigen::Isometry3d>& poses)
 
 std::vector<Eigen::Isometry3d> read_trajectory_kitti(const std::filesystem::path& file);
 
+/// The TUM trajectory format: one line "t x y z qx qy qz qw" per pose, t in seconds (the frame's
+/// time stamp). `times` and `poses` have the same length.
+std::string format_trajectory_tum(const std::vector<double>& times,
+                                  const std::vector<Eigen::Isometry3d>& poses);
+
 /// Writes object estimates under the header "id,x,y,z,cxx,cxy,cxz,cyy,cyz,czz" (the upper
 /// triangle of the covariance), one row per object, rows sorted by id. Throws std::runtime_error if
 /// the file cannot be written.

@@ -35,6 +35,15 @@ class Estimator {
   Estimator(const EstimatorOptions& options, const StereoCamera& camera,
             const Eigen::Isometry3d& T_world_body_start, int first_frame = 0);
 
+  /// Resumes from a state taken earlier with state() (a checkpoint): the next process() must
+  /// carry the frame after the state's newest pose, with odometry. Throws
+  /// std::invalid_argument if the options are invalid or the state's shapes do not agree.
+  /// `pending` are the object observations waiting for an initialization (pending_objects());
+  /// with them the filter continues exactly as the one the state was taken from. (Point-feature
+  /// tracks in progress are not kept: they start afresh.)
+  Estimator(const EstimatorOptions& options, const StereoCamera& camera, State state,
+            PendingObjects pending = {});
+
   /// Propagates to input.frame (which must be the next frame, with odometry) and updates.
   /// The first call may carry the start frame itself without odometry.
   FrameReport process(const FrameInput& input);
@@ -56,6 +65,7 @@ class Estimator {
   Eigen::Isometry3d current_pose() const { return state_.newest_pose().T_world_body; }
   Eigen::Matrix<double, 6, 6> current_pose_covariance() const;
   std::vector<ObjectEstimate> objects() const { return state_.objects(); }
+  const PendingObjects& pending_objects() const { return object_updater_.pending(); }
 
  private:
   EstimatorOptions options_;

@@ -15,19 +15,23 @@ namespace concord {
 /// What one frame's object processing did (counters for logs and metrics).
 struct ObjectUpdateStats {
   int observations = 0;
-  int updated = 0;      ///< observations used in the update
-  int rejected = 0;     ///< observations rejected by the chi-square gate or not projectable
-  int initialized = 0;  ///< new objects added to the state
-  int init_failed = 0;  ///< initialization attempts rejected (triangulation, depth, error)
-  int init_gated = 0;   ///< initializations rejected by the chi-square test of their other rows
-  int reactivated = 0;  ///< archived objects that rejoined the state (fused back by CI)
-  int archived = 0;     ///< objects that left the joint state this frame
+  int updated = 0;          ///< observations used in the update
+  int rejected = 0;         ///< observations rejected by the chi-square gate or not projectable
+  int initialized = 0;      ///< new objects added to the state
+  int init_failed = 0;      ///< initialization attempts rejected (triangulation, depth, error)
+  int init_gated = 0;       ///< initializations rejected by the chi-square test of their other rows
+  int reactivated = 0;      ///< archived objects that rejoined the state (fused back by CI)
+  int archived = 0;         ///< objects that left the joint state this frame
   int update_failures = 0;  ///< Kalman updates refused (innovation not positive definite)
 };
 
+/// Observations of objects not yet in the state, by object id (normalized coordinates).
+using PendingObjects = std::map<LandmarkId, std::vector<TrackObservation>>;
+
 class ObjectUpdater {
  public:
-  ObjectUpdater(const EstimatorOptions& options, const StereoCamera& camera);
+  ObjectUpdater(const EstimatorOptions& options, const StereoCamera& camera,
+                PendingObjects pending = {});
 
   /// Processes the objects observed at the state's newest frame: 1. update with observations
   /// of in-state objects (chi-square gated), 2. initialize objects with enough observations in
@@ -35,6 +39,10 @@ class ObjectUpdater {
   /// marginal fused in by covariance intersection), 3. archive objects not observed for
   /// object_archive_after_frames.
   ObjectUpdateStats process(State& state, const std::vector<StereoObservation>& objects);
+
+  /// The observations waiting for an initialization (part of what a checkpoint must keep for
+  /// the filter to continue exactly).
+  const PendingObjects& pending() const { return pending_; }
 
  private:
   enum class InitResult { kInitialized, kFailed, kGated };
@@ -49,7 +57,7 @@ class ObjectUpdater {
   /// Whitens an observation's four rows (normalized units): its noise becomes the identity.
   Eigen::Matrix4d whitening_;
   /// Observations of objects not yet in the state, within the window.
-  std::map<LandmarkId, std::vector<TrackObservation>> pending_;
+  PendingObjects pending_;
 };
 
 }  // namespace concord

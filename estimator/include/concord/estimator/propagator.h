@@ -16,7 +16,9 @@ class Propagator {
   /// Appends the pose of `frame` = newest pose * T_previous_current, drops the oldest pose
   /// beyond the window, and propagates the covariance (eq. 23 in the state's left perturbation):
   ///   eps_new = eps_newest - Ad(T_new) w,  w ~ N(0, W) the right perturbation of the odometry.
-  void propagate(State& state, const Eigen::Isometry3d& T_previous_current, int frame) const;
+  /// `noise`, when given, replaces W for this step.
+  void propagate(State& state, const Eigen::Isometry3d& T_previous_current, int frame,
+                 const Eigen::Matrix<double, 6, 6>* noise = nullptr) const;
 
   /// W, the per-frame odometry noise covariance on [rho; phi] (right perturbation of dT).
   const Eigen::Matrix<double, 6, 6>& odometry_noise() const { return odometry_noise_; }

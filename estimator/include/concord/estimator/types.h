@@ -51,6 +51,9 @@ struct FrameInput {
   /// Measured motion from the previous frame to this one, T_body(k-1)_body(k). Absent at the
   /// first frame (the known start).
   std::optional<Eigen::Isometry3d> T_previous_current;
+  /// Covariance of that motion's right perturbation [rho; phi] (T_true = T_measured exp(-w^)),
+  /// when the odometry reports one; it replaces the configured W for this frame.
+  std::optional<Eigen::Matrix<double, 6, 6>> odometry_covariance;
   /// Object detections with global ids (persistent features, kept in the state).
   std::vector<StereoObservation> objects;
   /// Point-feature observations with robot-private track ids (opportunistic, MSCKF update).

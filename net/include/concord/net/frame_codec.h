@@ -21,8 +21,9 @@ class Envelope;
 
 namespace concord::net {
 
-/// `Envelope.protocol_version` of the concord.v1 schema; receivers reject any other value.
-inline constexpr std::uint32_t kProtocolVersion = 1;
+/// `Envelope.protocol_version`: 2 since peer connections run in the authenticated channel of
+/// secure_channel.h (the concord.v1 messages are unchanged); receivers reject any other value.
+inline constexpr std::uint32_t kProtocolVersion = 2;
 /// Size of the big-endian length prefix.
 inline constexpr std::size_t kFrameHeaderBytes = 4;
 /// Default hard maximum of one frame's payload.
@@ -31,11 +32,12 @@ inline constexpr std::size_t kDefaultMaxFrameBytes = std::size_t{16} << 20;
 /// Why a frame was rejected.
 enum class FrameErrorKind {
   kNone,
-  kZeroLength,    ///< length prefix 0 (an Envelope with protocol_version set is never empty)
-  kOversized,     ///< length prefix above the maximum
-  kGarbage,       ///< payload is not a parsable Envelope
-  kWrongVersion,  ///< Envelope.protocol_version differs from kProtocolVersion
-  kWrongTeam,     ///< Envelope.team differs from the expected team
+  kZeroLength,       ///< length prefix 0 (an Envelope with protocol_version set is never empty)
+  kOversized,        ///< length prefix above the maximum
+  kGarbage,          ///< payload is not a parsable Envelope
+  kWrongVersion,     ///< Envelope.protocol_version differs from kProtocolVersion
+  kWrongTeam,        ///< Envelope.team differs from the expected team
+  kUnauthenticated,  ///< the channel handshake failed or a message failed authentication
 };
 
 /// Short stable name of an error kind ("oversized", "garbage", ...), for logs and counters.
@@ -57,6 +59,14 @@ void append_frame(const v1::Envelope& envelope, std::string& out);
 /// set, the team. Returns kNone when the envelope is acceptable.
 FrameError check_envelope(const v1::Envelope& envelope,
                           const std::optional<std::string>& expected_team);
+
+/// Parses one frame payload as an Envelope and checks it like check_envelope(); kNone on success.
+[[nodiscard]] FrameError parse_envelope(std::string_view payload,
+                                        const std::optional<std::string>& expected_team,
+                                        v1::Envelope& envelope);
+
+/// Appends one frame holding `payload` as it is (handshake messages, ciphertext).
+void append_raw_frame(std::string_view payload, std::string& out);
 
 /// What a decoder accepts.
 struct FrameDecoderOptions {
@@ -81,7 +91,14 @@ class FrameDecoder {
   void feed(std::string_view bytes);
 
   /// Extracts the next complete frame into `envelope` (call until it stops returning kFrame).
-  Status next(v1::Envelope& envelope);
+  [[nodiscard]] Status next(v1::Envelope& envelope);
+
+  /// Extracts the next complete frame's payload without parsing it (for channel messages and
+  /// ciphertext); the length checks are the same as next()'s.
+  [[nodiscard]] Status next_payload(std::string& payload);
+
+  /// Marks the stream failed with `kind` (a layer above found the payload invalid).
+  void fail_with(FrameErrorKind kind, std::string reason) { fail(kind, std::move(reason)); }
 
   /// The reason of the first error (kind kNone while the stream is valid).
   const FrameError& error() const { return error_; }
@@ -94,6 +111,8 @@ class FrameDecoder {
 
  private:
   Status fail(FrameErrorKind kind, std::string reason);
+  /// Length-checks the next frame; kFrame with its payload length when complete.
+  Status peek(std::uint32_t& length);
 
   FrameDecoderOptions options_;
   std::string buffer_;

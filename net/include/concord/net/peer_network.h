@@ -19,6 +19,7 @@
 
 #include "concord/net/frame_codec.h"
 #include "concord/net/host_port.h"
+#include "concord/net/team_key.h"
 
 namespace boost::asio {
 class io_context;
@@ -44,6 +45,9 @@ struct DiscoveryOptions {
 
 /// Configuration of one daemon's network. Every field has a usable default except robot_id.
 struct PeerNetworkOptions {
+  /// The team's pre-shared key (required). Every connection runs the authenticated channel of
+  /// secure_channel.h; nothing about the team is sent before the peer proved this key.
+  std::shared_ptr<const TeamKey> team_key;
   std::string team = "concord";            ///< daemons of different teams never talk
   int robot_id = 0;                        ///< this robot's id, unique in the team (>= 0)
   std::string listen_address = "0.0.0.0";  ///< IP literal to accept connections on
@@ -66,6 +70,17 @@ struct PeerNetworkOptions {
   std::chrono::milliseconds stop_linger{500};
   std::vector<std::string> capabilities;  ///< announced in Hello, e.g. "consensus.lockstep"
   DiscoveryOptions discovery;
+  /// The membership list: robot ids allowed in the team. A Hello with another id is refused
+  /// (counted in rejected_handshake). Empty = any id (tests; a daemon always sets it).
+  std::vector<int> members;
+  /// Admission cap: connections not yet through the handshake, at most; a further connection is
+  /// closed at once (counted in rejected_admission).
+  std::size_t max_pending_handshakes = 16;
+  /// Receive budget of one connection: bytes per second. Reading pauses while a connection is
+  /// over budget (bursts of two seconds' worth pass), so a flooding peer is slowed by TCP.
+  std::size_t receive_bytes_per_second = std::size_t{32} << 20;
+  /// Receive budget of one connection: envelopes per second (same rule).
+  std::size_t receive_messages_per_second = 4000;
 
   /// Problems with the options, one message per bad field naming it and its value; empty if OK.
   std::vector<std::string> validate() const;
@@ -109,6 +124,15 @@ struct NetworkCounters {
   /// Connections closed during the handshake: other team or protocol version, our own robot id,
   /// first message not a Hello, no Hello within hello_timeout.
   std::uint64_t rejected_handshake = 0;
+  /// Connections closed at once because max_pending_handshakes were in the handshake.
+  std::uint64_t rejected_admission = 0;
+  /// Connections whose peer failed the channel handshake (no key, wrong key, not Concord v2) or
+  /// sent a message that failed authentication. Also counted in rejected_handshake/garbage.
+  std::uint64_t rejected_unauthenticated = 0;
+  /// Times reading from a connection paused because it was over its receive budget.
+  std::uint64_t budget_pauses = 0;
+  /// Log lines held back by the per-peer, per-kind rate limit.
+  std::uint64_t log_lines_suppressed = 0;
   std::uint64_t duplicates_closed = 0;   ///< second connections to a robot closed by tie-break
   std::uint64_t heartbeat_timeouts = 0;  ///< connections closed for silence
   std::uint64_t write_stalls = 0;        ///< ... for a write without progress for heartbeat_timeout

@@ -75,6 +75,10 @@ struct ServerOptions {
   std::chrono::milliseconds request_timeout{5000};
   /// Connections served at once; one more is answered with 503 and closed. At least 1.
   std::size_t max_connections = 64;
+  /// Connections served at once for one client address; one more is answered with 503 and
+  /// closed, so one client cannot hold every slot. At least 1 (above max_connections it is
+  /// max_connections).
+  std::size_t max_connections_per_client = 8;
   /// The Server header field.
   std::string server_name = "concordd";
 
@@ -86,7 +90,8 @@ struct ServerOptions {
 struct ServerCounters {
   /// Connections accepted, including those refused with 503.
   std::uint64_t connections_accepted = 0;
-  /// Connections refused because max_connections were being served.
+  /// Connections refused because max_connections (or max_connections_per_client for that
+  /// client) were being served.
   std::uint64_t connections_rejected = 0;
   /// Connections closed because a request or a keep-alive wait exceeded request_timeout.
   std::uint64_t connections_timed_out = 0;

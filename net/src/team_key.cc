@@ -1,0 +1,116 @@
+#include "concord/net/team_key.h"
+
+#include <fcntl.h>
+#include <sodium.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstring>
+#include <string_view>
+
+namespace concord::net {
+
+namespace {
+
+constexpr std::string_view kHeader = "concord-team-key-v1 ";
+constexpr std::size_t kMaxKeyFileBytes = 4096;
+
+void ensure_sodium() {
+  if (sodium_init() < 0) throw TeamKeyError("libsodium could not be initialized");
+}
+
+}  // namespace
+
+TeamKey::TeamKey() = default;
+TeamKey::~TeamKey() { sodium_memzero(bytes_.data(), bytes_.size()); }
+TeamKey::TeamKey(const TeamKey& other) = default;
+TeamKey& TeamKey::operator=(const TeamKey& other) = default;
+
+TeamKey TeamKey::generate() {
+  ensure_sodium();
+  TeamKey key;
+  randombytes_buf(key.bytes_.data(), key.bytes_.size());
+  return key;
+}
+
+TeamKey TeamKey::from_seed_for_tests(const std::string& seed) {
+  ensure_sodium();
+  TeamKey key;
+  crypto_generichash(key.bytes_.data(), key.bytes_.size(),
+                     reinterpret_cast<const unsigned char*>(seed.data()), seed.size(), nullptr, 0);
+  return key;
+}
+
+TeamKey TeamKey::parse(const std::string& text, const std::string& source_name) {
+  ensure_sodium();
+  std::string_view rest(text);
+  if (rest.substr(0, kHeader.size()) != kHeader)
+    throw TeamKeyError(source_name + ": not a Concord team key (expected a line starting with '" +
+                       std::string(kHeader) + "')");
+  rest.remove_prefix(kHeader.size());
+  while (!rest.empty() && (rest.back() == '\n' || rest.back() == '\r' || rest.back() == ' '))
+    rest.remove_suffix(1);
+  TeamKey key;
+  std::size_t decoded = 0;
+  const char* end = nullptr;
+  if (rest.size() != 2 * kBytes ||
+      sodium_hex2bin(key.bytes_.data(), key.bytes_.size(), rest.data(), rest.size(), nullptr,
+                     &decoded, &end) != 0 ||
+      decoded != kBytes)
+    throw TeamKeyError(source_name + ": malformed team key (expected " +
+                       std::to_string(2 * kBytes) + " hex digits)");
+  return key;
+}
+
+std::string TeamKey::format() const {
+  std::string hex(2 * kBytes + 1, '\0');
+  sodium_bin2hex(hex.data(), hex.size(), bytes_.data(), bytes_.size());
+  hex.pop_back();
+  std::string text = std::string(kHeader) + hex + "\n";
+  sodium_memzero(hex.data(), hex.size());
+  return text;
+}
+
+TeamKey load_team_key(const std::filesystem::path& path) {
+  const std::string name = "team key " + path.string();
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC | O_NOFOLLOW);
+  if (fd < 0) throw TeamKeyError(name + ": cannot open: " + std::strerror(errno));
+  struct stat info {};
+  if (::fstat(fd, &info) != 0 || !S_ISREG(info.st_mode)) {
+    ::close(fd);
+    throw TeamKeyError(name + ": not a regular file");
+  }
+  if ((info.st_mode & (S_IRWXG | S_IRWXO)) != 0) {
+    ::close(fd);
+    char mode[8];
+    std::snprintf(mode, sizeof mode, "%04o", static_cast<unsigned>(info.st_mode & 07777));
+    throw TeamKeyError(name + ": mode " + mode +
+                       " lets other users read or change it; run chmod 600 on it");
+  }
+  std::string text(kMaxKeyFileBytes, '\0');
+  const ssize_t bytes = ::read(fd, text.data(), text.size());
+  ::close(fd);
+  if (bytes < 0) throw TeamKeyError(name + ": cannot read: " + std::strerror(errno));
+  text.resize(static_cast<std::size_t>(bytes));
+  TeamKey key = TeamKey::parse(text, name);
+  sodium_memzero(text.data(), text.size());
+  return key;
+}
+
+void write_team_key(const std::filesystem::path& path, const TeamKey& key) {
+  const std::string name = "team key " + path.string();
+  const int fd = ::open(path.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC | O_NOFOLLOW, 0600);
+  if (fd < 0) throw TeamKeyError(name + ": cannot create: " + std::strerror(errno));
+  std::string text = key.format();
+  const ssize_t written = ::write(fd, text.data(), text.size());
+  sodium_memzero(text.data(), text.size());
+  const bool synced = ::fsync(fd) == 0;
+  ::close(fd);
+  if (written != static_cast<ssize_t>(2 * TeamKey::kBytes + 21) || !synced) {
+    ::unlink(path.c_str());
+    throw TeamKeyError(name + ": cannot write");
+  }
+}
+
+}  // namespace concord::net

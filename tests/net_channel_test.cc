@@ -1,0 +1,198 @@
+// The authenticated channel (secure_channel.h) and the team key file, without sockets: mutual
+// proof of the key, encryption both ways, forged / replayed / reordered messages, another key,
+// reflected hellos, malformed handshake messages; key files readable by others are refused.
+#include <gtest/gtest.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+
+#include "concord/net/log_limiter.h"
+#include "concord/net/secure_channel.h"
+#include "concord/net/team_key.h"
+
+namespace concord::net {
+namespace {
+
+struct Pair {
+  explicit Pair(const TeamKey& initiator_key, const TeamKey& responder_key)
+      : initiator(initiator_key, SecureChannel::Role::kInitiator),
+        responder(responder_key, SecureChannel::Role::kResponder) {}
+  /// Runs the handshake; true when both sides are established.
+  bool handshake() {
+    std::string error;
+    const auto initiator_proof = initiator.accept_hello(responder.hello(), error);
+    const auto responder_proof = responder.accept_hello(initiator.hello(), error);
+    if (!initiator_proof || !responder_proof) return false;
+    const bool a = responder.accept_proof(*initiator_proof, error);
+    const bool b = initiator.accept_proof(*responder_proof, error);
+    return a && b;
+  }
+  SecureChannel initiator;
+  SecureChannel responder;
+};
+
+TEST(SecureChannel, PeersWithTheKeyExchangeMessagesBothWays) {
+  const TeamKey key = TeamKey::generate();
+  Pair pair(key, key);
+  ASSERT_TRUE(pair.handshake());
+  std::string error;
+  for (int i = 0; i < 3; ++i) {
+    const std::string sealed = pair.initiator.seal("to the responder " + std::to_string(i));
+    EXPECT_EQ(sealed.find("responder"), std::string::npos);  // encrypted
+    EXPECT_EQ(pair.responder.open(sealed, error), "to the responder " + std::to_string(i));
+    EXPECT_EQ(pair.initiator.open(pair.responder.seal("back"), error), "back");
+  }
+}
+
+TEST(SecureChannel, AnotherKeyFailsTheProofOnBothSides) {
+  Pair pair(TeamKey::generate(), TeamKey::generate());
+  std::string error;
+  const auto initiator_proof = pair.initiator.accept_hello(pair.responder.hello(), error);
+  const auto responder_proof = pair.responder.accept_hello(pair.initiator.hello(), error);
+  ASSERT_TRUE(initiator_proof && responder_proof);  // hellos carry nothing secret
+  EXPECT_FALSE(pair.responder.accept_proof(*initiator_proof, error));
+  EXPECT_NE(error.find("did not prove"), std::string::npos) << error;
+  EXPECT_FALSE(pair.initiator.accept_proof(*responder_proof, error));
+  EXPECT_EQ(pair.responder.stage(), SecureChannel::Stage::kFailed);
+}
+
+TEST(SecureChannel, ForgedReplayedAndReorderedMessagesFail) {
+  const TeamKey key = TeamKey::generate();
+  std::string error;
+  {
+    Pair pair(key, key);
+    ASSERT_TRUE(pair.handshake());
+    std::string sealed = pair.initiator.seal("payload");
+    sealed[sealed.size() / 2] ^= 1;
+    EXPECT_FALSE(pair.responder.open(sealed, error));
+  }
+  {
+    Pair pair(key, key);
+    ASSERT_TRUE(pair.handshake());
+    const std::string first = pair.initiator.seal("one");
+    ASSERT_TRUE(pair.responder.open(first, error));
+    EXPECT_FALSE(pair.responder.open(first, error));  // replayed
+  }
+  {
+    Pair pair(key, key);
+    ASSERT_TRUE(pair.handshake());
+    const std::string first = pair.initiator.seal("one");
+    const std::string second = pair.initiator.seal("two");
+    EXPECT_FALSE(pair.responder.open(second, error));  // reordered
+  }
+  {
+    Pair pair(key, key);
+    ASSERT_TRUE(pair.handshake());
+    Pair other(key, key);  // a message of another connection with the same key
+    ASSERT_TRUE(other.handshake());
+    EXPECT_FALSE(pair.responder.open(other.initiator.seal("elsewhere"), error));
+  }
+}
+
+TEST(SecureChannel, AProofCannotBeReflectedNorAHelloEchoed) {
+  const TeamKey key = TeamKey::generate();
+  std::string error;
+  SecureChannel responder(key, SecureChannel::Role::kResponder);
+  EXPECT_FALSE(responder.accept_hello(responder.hello(), error));  // our own hello, echoed
+  SecureChannel a(key, SecureChannel::Role::kInitiator);
+  SecureChannel b(key, SecureChannel::Role::kInitiator);  // both claim to be the initiator
+  const auto proof_a = a.accept_hello(b.hello(), error);
+  const auto proof_b = b.accept_hello(a.hello(), error);
+  ASSERT_TRUE(proof_a && proof_b);
+  EXPECT_FALSE(a.accept_proof(*proof_b, error));  // transcripts differ
+  SecureChannel c(key, SecureChannel::Role::kResponder);
+  SecureChannel d(key, SecureChannel::Role::kInitiator);
+  const auto proof_d = d.accept_hello(c.hello(), error);
+  ASSERT_TRUE(proof_d);
+  EXPECT_FALSE(d.accept_proof(*proof_d, error));  // our own proof sent back
+}
+
+TEST(SecureChannel, MalformedHandshakeMessagesAreRejected) {
+  const TeamKey key = TeamKey::generate();
+  std::string error;
+  for (const std::string& bad :
+       {std::string(), std::string(71, 'x'), std::string(72, 'x'), std::string(73, '\0')}) {
+    SecureChannel channel(key, SecureChannel::Role::kResponder);
+    EXPECT_FALSE(channel.accept_hello(bad, error)) << bad.size();
+    EXPECT_EQ(channel.stage(), SecureChannel::Stage::kFailed);
+  }
+  SecureChannel other(key, SecureChannel::Role::kInitiator);
+  std::string version_one = other.hello();
+  version_one[7] = 1;
+  SecureChannel channel(key, SecureChannel::Role::kResponder);
+  EXPECT_FALSE(channel.accept_hello(version_one, error));
+  EXPECT_NE(error.find("protocol version 1"), std::string::npos) << error;
+  SecureChannel early(key, SecureChannel::Role::kResponder);
+  EXPECT_FALSE(early.accept_proof(std::string(56, 'x'), error));
+  EXPECT_FALSE(early.open("anything at all here", error));
+}
+
+TEST(SecureChannel, BeaconsOpenOnlyWithTheTeamKey) {
+  const TeamKey key = TeamKey::generate();
+  const std::string sealed = seal_beacon(key, "robot 3 at 10.0.0.3:7100");
+  EXPECT_EQ(sealed.find("robot"), std::string::npos);
+  EXPECT_EQ(open_beacon(key, sealed), "robot 3 at 10.0.0.3:7100");
+  EXPECT_FALSE(open_beacon(TeamKey::generate(), sealed));
+  EXPECT_FALSE(open_beacon(key, sealed.substr(0, 10)));
+  EXPECT_NE(seal_beacon(key, "x"), seal_beacon(key, "x"));  // fresh nonce every time
+}
+
+class TeamKeyFile : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    folder_ =
+        std::filesystem::temp_directory_path() / ("concord-key-test-" + std::to_string(::getpid()));
+    std::filesystem::remove_all(folder_);
+    std::filesystem::create_directories(folder_);
+  }
+  void TearDown() override { std::filesystem::remove_all(folder_); }
+  std::filesystem::path folder_;
+};
+
+TEST_F(TeamKeyFile, RoundTripsWithMode0600AndIsNeverOverwritten) {
+  const auto path = folder_ / "team.key";
+  const TeamKey key = TeamKey::generate();
+  write_team_key(path, key);
+  struct stat info {};
+  ASSERT_EQ(::stat(path.c_str(), &info), 0);
+  EXPECT_EQ(info.st_mode & 0777, 0600u);
+  const TeamKey loaded = load_team_key(path);
+  EXPECT_EQ(loaded.format(), key.format());
+  EXPECT_THROW(write_team_key(path, TeamKey::generate()), TeamKeyError);
+  EXPECT_EQ(load_team_key(path).format(), key.format());
+}
+
+TEST_F(TeamKeyFile, AKeyOthersCanReadIsRefusedNamingThePath) {
+  const auto path = folder_ / "team.key";
+  write_team_key(path, TeamKey::generate());
+  ::chmod(path.c_str(), 0644);
+  try {
+    (void)load_team_key(path);
+    FAIL() << "a world-readable key was accepted";
+  } catch (const TeamKeyError& error) {
+    EXPECT_NE(std::string(error.what()).find(path.string()), std::string::npos) << error.what();
+    EXPECT_NE(std::string(error.what()).find("0644"), std::string::npos) << error.what();
+  }
+  EXPECT_THROW((void)load_team_key(folder_ / "missing.key"), TeamKeyError);
+  const auto malformed = folder_ / "malformed.key";
+  std::ofstream(malformed) << "concord-team-key-v1 zz\n";
+  ::chmod(malformed.c_str(), 0600);
+  EXPECT_THROW((void)load_team_key(malformed), TeamKeyError);
+}
+
+TEST(LogLimiter, AllowsABurstThenCountsWhatItHoldsBack) {
+  LogLimiter limiter({3, std::chrono::hours(1), 2});
+  std::uint64_t suppressed = 0;
+  for (int i = 0; i < 3; ++i) EXPECT_TRUE(limiter.allow("peer 1 garbage", suppressed));
+  for (int i = 0; i < 10; ++i) EXPECT_FALSE(limiter.allow("peer 1 garbage", suppressed));
+  EXPECT_TRUE(limiter.allow("peer 2 garbage", suppressed));  // another key has its own burst
+  EXPECT_EQ(limiter.suppressed_total(), 10u);
+  // Beyond max_keys, new keys share one bucket: memory stays bounded.
+  for (int i = 0; i < 100; ++i) (void)limiter.allow("key " + std::to_string(i), suppressed);
+  EXPECT_GT(limiter.suppressed_total(), 10u + 90u);
+}
+
+}  // namespace
+}  // namespace concord::net
