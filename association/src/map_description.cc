@@ -70,8 +70,11 @@ MapDescription describe_map(const State& state, int robot, int frame, const Obse
     entry.id = object.id;
     entry.object_class = tally.object_class(object.id);
     entry.position = object.p_world;
-    entry.covariance = object.covariance;
-    entry.local_covariance = object.covariance;
+    entry.covariance = 0.5 * (object.covariance + object.covariance.transpose());
+    // An object whose covariance round-off made indefinite cannot be compared (and a neighbour
+    // would refuse the description): left out.
+    if (Eigen::LLT<Eigen::Matrix3d>(entry.covariance).info() != Eigen::Success) continue;
+    entry.local_covariance = entry.covariance;
     entry.observations = observations;
     const int slot = state.landmark_slot(object.id);
     if (slot >= 0 && condition) {

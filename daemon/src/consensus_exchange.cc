@@ -7,6 +7,8 @@
 #include <optional>
 #include <set>
 
+#include "concord/daemon/association_session.h"
+#include "concord/daemon/negotiation_wire.h"
 #include "concord/daemon/wire.h"
 #include "concord/estimator/estimator.h"
 #include "concord/net/log_limiter.h"
@@ -50,6 +52,8 @@ struct ConsensusExchange::Peer {
     int degree = 0;
     bool used = false;
     bool rejected = false;  ///< malformed: the peer's answer for its round, nothing to fuse
+    /// Negotiated association: the receiver's id of each landmark and the sender's frame.
+    std::optional<std::pair<std::vector<LandmarkId>, int>> relabelling;
   };
   bool up = false;
   /// Lockstep liveness: deadlines missed in a row, and whether it left the waits.
@@ -63,6 +67,10 @@ struct ConsensusExchange::Peer {
   bool ids_known = false;
   std::map<std::uint64_t, std::vector<LandmarkId>> landmark_sets;
   std::map<std::uint64_t, Received> marginals;
+  /// Negotiated association: its negotiation message of each round (checked on arrival).
+  std::map<std::uint64_t, association::NegotiationMessage> negotiations;
+  /// A new connection: the owner records sent to its previous life are sent again.
+  bool fresh = true;
   /// Async: the newest marginal received, and the robot's own round when it arrived (rounds of
   /// different robots need not be aligned: a restarted robot, or live sensors numbering frames
   /// independently).
@@ -82,6 +90,11 @@ ConsensusExchange::ConsensusExchange(ConsensusConfig config, Send send,
       log_limiter_(std::make_unique<net::LogLimiter>()) {}
 
 ConsensusExchange::~ConsensusExchange() = default;
+
+void ConsensusExchange::set_association(AssociationSession* session) {
+  std::lock_guard lock(mutex_);
+  association_ = session;
+}
 
 void ConsensusExchange::on_peer(int robot, bool up) {
   std::lock_guard lock(mutex_);
@@ -163,6 +176,20 @@ void ConsensusExchange::on_message(int robot, const v1::Envelope& envelope) {
         ++counters_.stale_dropped;
         break;
       }
+      if (association_ && message.has_negotiation()) {
+        std::string error;
+        auto negotiation =
+            from_wire(message.negotiation(), robot, config_.negotiation_limits, error);
+        if (negotiation) {
+          peer.negotiations[message.round()] = std::move(*negotiation);
+        } else {
+          // Refused whole; the LandmarkSet still answers the round, so nobody waits for it.
+          ++counters_.negotiations_refused;
+          warn_limited(*log_limiter_, robot, "negotiation",
+                       "association: robot {} round {}: {}; refused", robot, message.round(),
+                       error);
+        }
+      }
       peer.landmark_sets[message.round()] = std::move(ids);
       break;
     }
@@ -199,7 +226,7 @@ void ConsensusExchange::on_message(int robot, const v1::Envelope& envelope) {
         return;
       }
       if (config_.mode == ConsensusMode::kAsync) {
-        peer.latest = Peer::Received{std::move(*marginal), static_cast<int>(message.degree()), false};
+        peer.latest = Peer::Received{std::move(*marginal), static_cast<int>(message.degree()), false, false, std::nullopt};
         peer.latest_received_at = current_round_;
         break;
       }
@@ -207,8 +234,24 @@ void ConsensusExchange::on_message(int robot, const v1::Envelope& envelope) {
         ++counters_.stale_dropped;
         break;
       }
-      peer.marginals[message.round()] =
-          Peer::Received{std::move(*marginal), static_cast<int>(message.degree()), false};
+      Peer::Received received{std::move(*marginal), static_cast<int>(message.degree()), false, false, std::nullopt};
+      if (association_) {
+        const auto& relabelling = message.relabelling();
+        if (message.has_relabelling() &&
+            relabelling.receiver_ids_size() == message.landmark_ids_size()) {
+          received.relabelling.emplace(
+              std::vector<LandmarkId>(relabelling.receiver_ids().begin(),
+                                      relabelling.receiver_ids().end()),
+              relabelling.frame());
+        } else if (!received.marginal.ids.empty()) {
+          ++counters_.relabellings_refused;
+          warn_limited(*log_limiter_, robot, "relabelling",
+                       "association: robot {} round {}: a marginal without the receiver's ids; "
+                       "not fused",
+                       robot, message.round());
+        }
+      }
+      peer.marginals[message.round()] = std::move(received);
       break;
     }
     case v1::Envelope::kGoodbye:
@@ -315,6 +358,11 @@ void ConsensusExchange::send_landmark_set(int robot, std::uint64_t round,
   v1::LandmarkSet* message = envelope.mutable_landmark_set();
   message->set_round(round);
   message->mutable_ids()->Assign(ids.begin(), ids.end());
+  if (association_) {
+    to_wire(association_->negotiation_for(robot, round), *message->mutable_negotiation());
+    std::lock_guard lock(mutex_);
+    counters_.negotiation_bytes += message->negotiation().ByteSizeLong();
+  }
   send_(robot, envelope);
 }
 
@@ -327,8 +375,17 @@ void ConsensusExchange::send_marginal(int robot, std::uint64_t round, const Esti
   message->set_round(round);
   message->set_degree(static_cast<std::uint32_t>(degree));
   if (failpoints_.marginal_silence) return;  // failpoint: heartbeats and LandmarkSets only
-  const std::vector<LandmarkId> common = intersection(own_ids, peer_ids);
-  if (!common.empty()) to_wire(estimator.marginal(common), *message);
+  if (association_) {
+    // Negotiated: the objects shared with this neighbour, with its ids and this robot's frame.
+    auto [marginal, receiver_ids] = association_->marginal_for(robot, estimator);
+    if (!marginal.ids.empty()) to_wire(marginal, *message);
+    v1::Relabelling* relabelling = message->mutable_relabelling();
+    relabelling->mutable_receiver_ids()->Assign(receiver_ids.begin(), receiver_ids.end());
+    relabelling->set_frame(association_->frame());
+  } else if (const std::vector<LandmarkId> common = intersection(own_ids, peer_ids);
+             !common.empty()) {
+    to_wire(estimator.marginal(common), *message);
+  }
   if (failpoints_.marginal_garbage) {  // failpoint: one mean value too many
     message->add_landmark_ids(1);
     message->add_mean(0.0);
@@ -341,7 +398,10 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
   report.round = round;
   const auto start = Clock::now();
   const auto k = static_cast<std::int64_t>(round);
-  const std::vector<LandmarkId> ids = estimator.object_ids();
+  // Negotiated: private ids mean nothing to a neighbour; the LandmarkSet carries the negotiation.
+  const std::vector<LandmarkId> ids =
+      association_ ? std::vector<LandmarkId>{} : estimator.object_ids();
+  std::vector<int> reconnected;
 
   // Live peers take part; those that missed miss_limit rounds in a row are not waited for (they
   // take part when their messages are there in time, and are waited for again once they are).
@@ -352,6 +412,8 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
     for (const auto& [robot, peer] : peers_) {
       if (!peer->up || peer->goodbye) continue;
       candidates.push_back(robot);
+      if (peer->fresh) reconnected.push_back(robot);
+      peer->fresh = false;
       if (peer->excluded)
         ++report.excluded;
       else
@@ -359,6 +421,10 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
     }
   }
   report.live = static_cast<int>(candidates.size());
+  if (association_) {
+    for (int robot : reconnected) association_->missed(robot);
+    association_->begin_round(round, estimator);
+  }
   for (int robot : candidates) send_landmark_set(robot, round, ids);
 
   // Phase 1: every waited-for candidate's LandmarkSet(k), or evidence it is not in round k.
@@ -392,6 +458,7 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
   }
   const int degree = static_cast<int>(neighbours.size());
   report.neighbours = degree;
+  if (association_) negotiate(round, estimator, candidates, neighbours);
   for (int robot : neighbours) {
     send_marginal(robot, round, estimator, ids, neighbour_ids[robot], degree);
   }
@@ -430,6 +497,15 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
         continue;
       }
       if (it->second.marginal.ids.empty() || quarantined(robot, peer, round)) continue;
+      if (association_) {
+        // Negotiated: the pairs both robots' views agree on, in this robot's ids, one frame.
+        if (!it->second.relabelling) continue;
+        std::optional<Marginal> relabelled = association_->accept_marginal(
+            robot, it->second.marginal, it->second.relabelling->first,
+            it->second.relabelling->second);
+        if (!relabelled) continue;
+        it->second.marginal = std::move(*relabelled);
+      }
       inbox.push_back({Consensus::metropolis_weight(degree, it->second.degree),
                        std::move(it->second.marginal)});
       senders.push_back(robot);
@@ -572,6 +648,33 @@ void ConsensusExchange::forget_rounds_up_to(std::uint64_t round) {
     peer->landmark_sets.erase(peer->landmark_sets.begin(),
                               peer->landmark_sets.upper_bound(round));
     peer->marginals.erase(peer->marginals.begin(), peer->marginals.upper_bound(round));
+    peer->negotiations.erase(peer->negotiations.begin(), peer->negotiations.upper_bound(round));
+  }
+}
+
+void ConsensusExchange::negotiate(std::uint64_t round, Estimator& estimator,
+                                  const std::vector<int>& candidates,
+                                  const std::vector<int>& neighbours) {
+  // Messages of this round's neighbours, in ascending robot id (the replay's order).
+  std::vector<association::NegotiationMessage> messages;
+  {
+    std::lock_guard lock(mutex_);
+    for (int robot : neighbours) {
+      Peer& peer = *peers_.at(robot);
+      const auto it = peer.negotiations.find(round);
+      if (it == peer.negotiations.end()) continue;
+      messages.push_back(std::move(it->second));
+      peer.negotiations.erase(it);
+    }
+  }
+  for (const auto& message : messages) association_->receive(message, round);
+  for (int robot : candidates) {
+    if (std::find(neighbours.begin(), neighbours.end(), robot) == neighbours.end())
+      association_->missed(robot);
+  }
+  if (const auto move = association_->finish_round(round, estimator)) {
+    spdlog::info("association: round {}: moved from frame {} into the team frame {}", round,
+                 move->from_frame, move->to_frame);
   }
 }
 

@@ -7,6 +7,7 @@
 #include <random>
 #include <stdexcept>
 
+#include "concord/association/relabelling.h"
 #include "concord/estimator/estimator.h"
 
 namespace concord::replay {
@@ -101,21 +102,15 @@ long long marginal_bytes(const Marginal& marginal) {
 }
 
 /// Marginal of robot j's objects that robot i (the receiver) shares with it, relabelled with i's
-/// ids: only pairs both robots' views agree on.
+/// ids: only pairs both robots' views agree on (what a daemon receiving j's marginal keeps).
 Marginal relabelled_marginal(const Estimator& sender, const association::Negotiator& sender_view,
                              const association::Negotiator& receiver_view) {
   const auto sent = sender_view.shared_objects(receiver_view.robot());      // (j id, i id)
   const auto received = receiver_view.shared_objects(sender_view.robot());  // (i id, j id)
-  std::map<LandmarkId, LandmarkId> receiver_id;                             // j id -> i id
-  for (const auto& [own, theirs] : received) receiver_id[theirs] = own;
   std::vector<LandmarkId> ids;
-  for (const auto& [own, theirs] : sent) {
-    const auto it = receiver_id.find(own);
-    if (it != receiver_id.end() && it->second == theirs) ids.push_back(own);
-  }
-  Marginal marginal = sender.marginal(ids);
-  for (LandmarkId& id : marginal.ids) id = receiver_id.at(id);
-  return marginal;
+  for (const auto& [own, theirs] : sent) ids.push_back(own);
+  return association::relabel_marginal(sender.marginal(ids),
+                                       association::agreed_labels(sent, received));
 }
 
 }  // namespace

@@ -42,32 +42,12 @@
 #include <vector>
 
 #include "concord/association/map_description.h"
+#include "concord/association/options.h"
 #include "concord/association/pairwise_association.h"
 #include "concord/association/team_ids.h"
 #include "concord/estimator/lie.h"
 
 namespace concord::association {
-
-/// Tunables of the negotiation (YAML keys: association.<name>, as AssociationOptions).
-struct NegotiationOptions {
-  AssociationOptions association;
-  /// description_interval: a robot describes its map every this many rounds.
-  int description_interval = 5;
-  /// confirmations: consecutive descriptions in which a transform (across frames) or a
-  /// correspondence (in one frame) must be found before it is acted on.
-  int confirmations = 3;
-  /// transform_agreement_chi2_probability: two successive transforms of a pair agree when the
-  /// 6-D difference is within this chi-square quantile under the sum of their covariances.
-  double transform_agreement_chi2_probability = 0.999;
-  /// split_chi2_probability: the objects of an accepted correspondence disagree when their
-  /// squared Mahalanobis distance (marginal covariances) exceeds this quantile (3 dof).
-  double split_chi2_probability = 0.9999;
-  /// split_after: consecutive descriptions of disagreement that undo a correspondence.
-  int split_after = 2;
-
-  /// Every problem with the values (and with association's), naming the key; empty when valid.
-  std::vector<std::string> validate() const;
-};
 
 /// A transform between two frames, accepted by the owner of the pair whose maps gave it.
 struct FrameEdge {
@@ -150,6 +130,9 @@ class Negotiator {
   NegotiationMessage message_for(int neighbour, int round);
   /// A neighbour's message of this round.
   void receive(const NegotiationMessage& message, int round);
+  /// The neighbour may not have had what was sent to it (it missed a round, or reconnected): every
+  /// owner record goes to it again (receivers ignore versions they have).
+  void forget_sent(int neighbour) { sent_versions_.erase(neighbour); }
   /// Pairs, team ids and frame (see the file comment); the move to apply to the state, if any.
   std::optional<Reanchoring> finish_round(int round);
 
