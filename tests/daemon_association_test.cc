@@ -23,6 +23,7 @@
 #include "concord/estimator/estimator.h"
 #include "concord/v1/concord.pb.h"
 #include "launch/launch.h"
+#include "launch/process.h"
 #include "replay/team_replay.h"
 #include "sim/simulator.h"
 
@@ -395,7 +396,29 @@ TEST(DaemonAssociation, DaemonsInLockstepMatchTheNegotiatedReplay) {
   options.base_port = port_base(25);
   options.http_base_port = port_base(28) + 10;
   options.timeout = 240s;
-  const launch::LaunchResult result = launch::launch_team(options, 3, nullptr);
+  options.rate_hz =
+      60.0;  // pacing (the lockstep results do not depend on it): time to ask /objects
+  // While the team runs, robot 0 serves team ids in /objects (polled with a deadline).
+  launch::LaunchResult result;
+  std::atomic<bool> finished{false};
+  std::thread team([&] {
+    result = launch::launch_team(options, 3, nullptr);
+    finished = true;
+  });
+  bool served_team_id = false;
+  const auto deadline = std::chrono::steady_clock::now() + 240s;
+  while (!finished && !served_team_id && std::chrono::steady_clock::now() < deadline) {
+    if (const auto body =
+            launch::http_get("127.0.0.1", options.http_base_port, "/objects", 1000ms)) {
+      const auto objects = nlohmann::json::parse(*body, nullptr, false);
+      if (!objects.is_discarded() && objects.contains("objects"))
+        for (const auto& object : objects["objects"])
+          served_team_id = served_team_id || object.value("team_id", -1) >= 0;
+    }
+    if (!served_team_id) std::this_thread::sleep_for(20ms);
+  }
+  team.join();
+  EXPECT_TRUE(served_team_id) << "no object with a team id in robot 0's /objects";
   ASSERT_FALSE(result.timed_out);
   for (int code : result.exit_codes) ASSERT_EQ(code, 0);
 
