@@ -1,11 +1,13 @@
 // libFuzzer target: the validators of what peers and sensors send, on arbitrary protobuf bytes:
-// Marginal -> from_wire (sizes, blocks, finiteness) and SensorFrame -> from_wire. Never crash,
-// and an accepted marginal is well formed.
+// Marginal -> from_wire (sizes, blocks, finiteness), SensorFrame -> from_wire and Negotiation ->
+// from_wire (the negotiated association's descriptions and owner records). Never crash, and what
+// is accepted is well formed.
 #include <cstddef>
 #include <cstdint>
 #include <cstdlib>
 #include <string>
 
+#include "concord/daemon/negotiation_wire.h"
 #include "concord/daemon/wire.h"
 #include "concord/v1/concord.pb.h"
 
@@ -21,6 +23,19 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   if (frame.ParseFromArray(data, static_cast<int>(size))) {
     const auto parsed = concord::daemon::from_wire(frame, error);
     if (parsed && parsed->frame < 0) std::abort();
+  }
+  concord::v1::Negotiation negotiation;
+  if (negotiation.ParseFromArray(data, static_cast<int>(size))) {
+    const auto parsed =
+        concord::daemon::from_wire(negotiation, 1, concord::daemon::NegotiationLimits{}, error);
+    if (parsed && parsed->map) {
+      for (std::size_t n = 0; n < parsed->map->objects.size(); ++n) {
+        const auto& object = parsed->map->objects[n];
+        if (!object.position.allFinite() || !object.covariance.allFinite() ||
+            (n > 0 && parsed->map->objects[n - 1].id >= object.id))
+          std::abort();
+      }
+    }
   }
   return 0;
 }

@@ -113,3 +113,45 @@ TEST(DaemonConfig, TrustAndBoundsAreChecked) {
 
 }  // namespace
 }  // namespace concord::daemon
+
+namespace concord::daemon {
+namespace {
+
+TEST(DaemonConfig, AssociationModeLimitsAndInlineAssociationOptions) {
+  const DaemonConfig config = parse_daemon_config(
+      "team_key_file: k\nmembers: [0, 1]\nsource: {dataset: d}\n"
+      "consensus: {association: negotiated, max_description_objects: 50}\n"
+      "estimator: {window_size: 7, association: {min_observations: 9}}\n",
+      "inline", "/");
+  EXPECT_EQ(config.consensus.association, AssociationMode::kNegotiated);
+  EXPECT_EQ(config.consensus.negotiation_limits.max_description_objects, 50);
+  EXPECT_EQ(config.negotiation.association.min_observations, 9);
+  EXPECT_EQ(config.estimator.window_size, 7);
+
+  std::string message;
+  try {
+    (void)parse_daemon_config(
+        "team_key_file: k\nmembers: [0]\nsource: {dataset: d}\n"
+        "consensus: {mode: async, association: negotiated, max_owner_records: 0}\n",
+        "robot.yaml", "/");
+  } catch (const config::ConfigError& error) {
+    message = error.what();
+  }
+  EXPECT_NE(message.find("consensus.association: negotiated needs consensus.mode lockstep"),
+            std::string::npos)
+      << message;
+  EXPECT_NE(message.find("max_owner_records"), std::string::npos) << message;
+  try {
+    message.clear();
+    (void)parse_daemon_config("consensus: {mode: off, association: guessed}\nsource: {dataset: d}\n",
+                              "robot.yaml", "/");
+  } catch (const config::ConfigError& error) {
+    message = error.what();
+  }
+  EXPECT_NE(message.find("consensus.association: expected auto, given or negotiated, got 'guessed'"),
+            std::string::npos)
+      << message;
+}
+
+}  // namespace
+}  // namespace concord::daemon

@@ -522,8 +522,8 @@ Dataset random_dataset() {
   std::mt19937 generator(42);
   std::uniform_real_distribution<double> uniform(-100.0, 100.0);
   const auto random_rotation = [&] {
-    Eigen::Quaterniond rotation(uniform(generator), uniform(generator), uniform(generator),
-                                uniform(generator));
+    Eigen::Quaterniond rotation{uniform(generator), uniform(generator), uniform(generator),
+                                uniform(generator)};  // braces: evaluated in order
     return rotation.normalized().toRotationMatrix();
   };
   const auto random_pose = [&] {

@@ -97,7 +97,9 @@ TEST(FrontendRendered, TrackPositionsMatchTheTrueProjections) {
   // Pixels at this small image size (the bench measures full-size images).
   EXPECT_LT(accuracy.left.median, 0.5);    // along the tracks
   EXPECT_LT(accuracy.right.median, 0.75);  // stereo matches
-  EXPECT_LT(accuracy.all.p90, 4.0);
+  // The tail is corners on occlusion boundaries (a box edge in front of a far wall), which slide
+  // as the view changes: 3.7-4.6 px on this small sequence depending on the texture draw.
+  EXPECT_LT(accuracy.all.p90, 5.0);
 }
 
 /// Tracks the first frames with a hook that corrupts every fourth match at `stage` on frame 3: by

@@ -1,8 +1,10 @@
 /// `concord`: the team replay, evaluation and dataset tools on the command line.
 ///   concord replay --dataset DIR --out DIR [--separate] [--config FILE] [--graph G] [--loss R]
 ///                  [--seed S] [--frames N] [--no-point-features] [--set KEY=VALUE ...]
-///   concord eval --dataset DIR --result DIR
-///   concord slice --dataset DIR --out DIR --frames N [--robots R]
+///                  [--association given|negotiated]
+///   concord eval --dataset DIR --result DIR [--first-frames-from DIR]
+///   concord slice --dataset DIR --out DIR --frames N [--robots R] [--private-ids]
+///   [--unknown-start] concord convert --dataset DIR --out DIR [--private-ids] [--unknown-start]
 ///   concord calibrate --dataset DIR [--robot R] [--first F] [--frames N]
 ///   concord launch --dataset DIR --out DIR [--lockstep|--async|--separate] [--base-port P]
 ///                  [--http-base-port P] [--config FILE] [--robots R] [--frames N] [--rate HZ]
@@ -15,6 +17,8 @@
 ///               [--odometry-translation-noise T] [--odometry-rotation-noise R] [--pixel-noise S]
 ///               ... (camera, path and object-placement parameters: concord sim --help)
 
+#include <yaml-cpp/yaml.h>
+
 #include <CLI/CLI.hpp>
 #include <chrono>
 #include <cmath>
@@ -22,14 +26,15 @@
 #include <exception>
 #include <filesystem>
 #include <iostream>
+#include <limits>
 #include <nlohmann/json.hpp>
-#include <yaml-cpp/yaml.h>
 #include <numbers>
+#include <set>
 
+#include "calibration/calibration.h"
 #include "concord/config/options_file.h"
 #include "concord/dataset/dataset.h"
 #include "concord/dataset/result_io.h"
-#include "calibration/calibration.h"
 #include "concord/frontend/frontend.h"
 #include "concord/frontend/frontend_options_file.h"
 #include "concord/frontend/frontend_run.h"
@@ -81,12 +86,36 @@ std::optional<fs::path> dataset_config(const dataset::Dataset& data) {
   return candidate;
 }
 
-/// One robot's outputs in a result folder: trajectory.kitti, objects.csv and, when present,
-/// pose_covariance.csv (one row per trajectory pose, frames 0, 1, ...).
+/// The frame of every trajectory pose from alignment.json's segments.
+std::vector<std::optional<int>> frames_of_segments(const dataset::AlignmentRecord& record,
+                                                   std::size_t poses) {
+  std::vector<std::optional<int>> frames(poses, record.team_frame_robot);
+  for (std::size_t s = 0; s < record.segments.size(); ++s) {
+    const auto first = static_cast<std::size_t>(std::max(0, record.segments[s].first));
+    const std::size_t last = s + 1 < record.segments.size()
+                                 ? static_cast<std::size_t>(record.segments[s + 1].first)
+                                 : poses;
+    for (std::size_t k = first; k < std::min(last, poses); ++k)
+      frames[k] = record.segments[s].second;
+  }
+  return frames;
+}
+
+/// One robot's outputs in a result folder: trajectory.kitti, objects.csv (with its team_id column
+/// when present) and, when present, pose_covariance.csv (one row per trajectory pose, frames 0, 1,
+/// ...) and alignment.json.
 evaluation::RobotResult read_robot_result(const fs::path& folder) {
-  evaluation::RobotResult result{dataset::read_trajectory_kitti(folder / "trajectory.kitti"),
-                                 dataset::read_objects_csv(folder / "objects.csv"),
-                                 {}};
+  evaluation::RobotResult result;
+  result.trajectory = dataset::read_trajectory_kitti(folder / "trajectory.kitti");
+  result.objects = dataset::read_objects_csv(folder / "objects.csv", &result.team_ids);
+  if (fs::exists(folder / "alignment.json")) {
+    const dataset::AlignmentRecord alignment =
+        dataset::read_alignment_json(folder / "alignment.json");
+    result.trajectory_frames = frames_of_segments(alignment, result.trajectory.size());
+    result.aligned_at_frame = alignment.aligned_at_frame;
+    result.moved = alignment.moved;
+    result.T_team_own = alignment.T_team_own;
+  }
   const fs::path covariance_file = folder / "pose_covariance.csv";
   if (!fs::exists(covariance_file)) return result;
   const auto covariances = dataset::read_pose_covariances_csv(covariance_file);
@@ -111,9 +140,26 @@ std::vector<dataset::PoseCovariance> numbered(
   return out;
 }
 
+/// The evaluation's truth: ground truth, odometry, truth ids (private ids) and how many frames each
+/// robot observed each ground-truth object.
 std::vector<evaluation::RobotTruth> truths_of(const dataset::Dataset& data) {
   std::vector<evaluation::RobotTruth> truths;
-  for (const auto& robot : data.robots) truths.push_back({robot.groundtruth, robot.odometry});
+  for (const auto& robot : data.robots) {
+    evaluation::RobotTruth truth{robot.groundtruth, robot.odometry};
+    if (data.object_ids == dataset::ObjectIds::kPrivate) truth.truth_ids = robot.object_truth_ids;
+    for (const auto& frame : robot.objects) {
+      std::set<LandmarkId> seen;
+      for (const StereoObservation& observation : frame) {
+        LandmarkId truth_id = observation.id;
+        if (data.object_ids == dataset::ObjectIds::kPrivate) {
+          const auto it = robot.object_truth_ids.find(observation.id);
+          truth_id = it == robot.object_truth_ids.end() ? dataset::kNoTruthId : it->second;
+        }
+        if (truth_id >= 0 && seen.insert(truth_id).second) ++truth.frames_observed[truth_id];
+      }
+    }
+    truths.push_back(std::move(truth));
+  }
   return truths;
 }
 
@@ -121,9 +167,10 @@ std::vector<evaluation::RobotTruth> truths_of(const dataset::Dataset& data) {
 evaluation::TeamMetrics report(const dataset::Dataset& data,
                                const std::vector<evaluation::RobotResult>& results,
                                const fs::path& out, const std::string& title,
-                               nlohmann::json run_information) {
+                               nlohmann::json run_information,
+                               const evaluation::EvaluationOptions& options = {}) {
   const auto truths = truths_of(data);
-  const auto metrics = evaluation::evaluate(truths, results, data.objects_groundtruth);
+  const auto metrics = evaluation::evaluate(truths, results, data.objects_groundtruth, options);
   std::cout << evaluation::format_table(metrics, title) << std::flush;
   nlohmann::json document = evaluation::to_json(metrics);
   document["run"] = std::move(run_information);
@@ -143,10 +190,32 @@ evaluation::TeamMetrics report(const dataset::Dataset& data,
   return metrics;
 }
 
+/// alignment.json of a replay's robot output.
+dataset::AlignmentRecord alignment_record(const replay::RobotOutput& output) {
+  const auto robot_or_world = [](int frame) {
+    return frame == association::kWorldFrame ? std::optional<int>() : std::optional<int>(frame);
+  };
+  dataset::AlignmentRecord record;
+  record.team_frame_robot =
+      robot_or_world(output.trajectory_frames.empty() ? association::kWorldFrame
+                                                      : output.trajectory_frames.back());
+  record.aligned_at_frame = output.aligned_at_frame;
+  record.moved = output.moved;
+  record.T_team_own = output.T_team_own;
+  record.covariance = output.alignment_covariance;
+  for (std::size_t k = 0; k < output.trajectory_frames.size(); ++k) {
+    if (k == 0 || output.trajectory_frames[k] != output.trajectory_frames[k - 1]) {
+      record.segments.emplace_back(static_cast<int>(k),
+                                   robot_or_world(output.trajectory_frames[k]));
+    }
+  }
+  return record;
+}
+
 int run_replay(const fs::path& dataset_dir, const fs::path& out, bool separate,
                const std::string& config_file, const std::string& graph, double loss,
                std::uint64_t seed, int frames, bool no_point_features,
-               const std::vector<std::string>& overrides) {
+               const std::vector<std::string>& overrides, const std::string& association_mode) {
   dataset::ReadOptions read_options;
   if (frames > 0) read_options.max_frames = frames;
   read_options.load_features = !no_point_features;
@@ -159,8 +228,13 @@ int run_replay(const fs::path& dataset_dir, const fs::path& out, bool separate,
   } else if (auto found = dataset_config(data)) {
     config_path = *found;
   }
-  if (!config_path.empty()) options = config::load_estimator_options(config_path);
+  association::NegotiationOptions negotiation;
+  if (!config_path.empty()) {
+    options = config::load_estimator_options(config_path);
+    negotiation = config::load_negotiation_options(config_path);
+  }
   options = config::apply_overrides(options, overrides);
+  negotiation = config::apply_association_overrides(negotiation, overrides);
   if (no_point_features) options.use_point_features = false;
   std::cerr << "concord replay: dataset " << data.name << " (" << data.robots.size()
             << " robots), config "
@@ -174,8 +248,17 @@ int run_replay(const fs::path& dataset_dir, const fs::path& out, bool separate,
   replay_options.graph = replay::parse_graph_kind(graph);
   replay_options.link_loss = loss;
   replay_options.seed = seed;
+  replay_options.negotiation = negotiation;
+  if (!association_mode.empty()) {
+    replay_options.association = replay::parse_association_mode(association_mode);
+  }
+  std::cerr << "  object ids " << dataset::to_string(data.object_ids) << ", start poses "
+            << dataset::to_string(data.start_poses) << "\n"
+            << config::to_yaml(negotiation);
   int last_percent = -1;
-  const auto result = replay::run_team(data, options, replay_options, [&](int step, int steps) {
+  // The replay gets what the robots measure; the ground truth only goes to the evaluation.
+  const dataset::TeamInputs inputs = dataset::sensor_inputs(data);
+  const auto result = replay::run_team(inputs, options, replay_options, [&](int step, int steps) {
     const int percent = 100 * step / steps;
     if (percent / 10 != last_percent / 10 || step == steps) {
       std::cerr << "  step " << step << "/" << steps << " (" << percent << " %)\n";
@@ -189,11 +272,20 @@ int run_replay(const fs::path& dataset_dir, const fs::path& out, bool separate,
     const fs::path folder = out / dataset::robot_folder_name(static_cast<int>(i));
     fs::create_directories(folder);
     dataset::write_trajectory_kitti(folder / "trajectory.kitti", result.robots[i].trajectory);
-    dataset::write_objects_csv(folder / "objects.csv", result.robots[i].objects);
+    dataset::write_objects_csv(folder / "objects.csv", result.robots[i].objects,
+                               result.robots[i].team_ids);
     dataset::write_pose_covariances_csv(folder / "pose_covariance.csv",
                                         numbered(result.robots[i].pose_covariances));
-    results.push_back({result.robots[i].trajectory, result.robots[i].objects,
-                       result.robots[i].pose_covariances});
+    const dataset::AlignmentRecord alignment = alignment_record(result.robots[i]);
+    dataset::write_alignment_json(folder / "alignment.json", alignment);
+    evaluation::RobotResult robot_result{result.robots[i].trajectory, result.robots[i].objects,
+                                         result.robots[i].pose_covariances};
+    robot_result.trajectory_frames = frames_of_segments(alignment, robot_result.trajectory.size());
+    robot_result.team_ids = result.robots[i].team_ids;
+    robot_result.aligned_at_frame = alignment.aligned_at_frame;
+    robot_result.moved = alignment.moved;
+    robot_result.T_team_own = alignment.T_team_own;
+    results.push_back(std::move(robot_result));
   }
   const auto& s = result.statistics;
   nlohmann::json run = {
@@ -216,13 +308,42 @@ int run_replay(const fs::path& dataset_dir, const fs::path& out, bool separate,
       {"feature_tracks_used", s.feature_tracks_used},
       {"update_seconds", s.update_seconds},
       {"consensus_seconds", s.consensus_seconds},
+      {"negotiation_seconds", s.negotiation_seconds},
       {"total_seconds", s.total_seconds},
+      {"association", replay::to_string(result.association)},
+      {"object_ids", dataset::to_string(data.object_ids)},
+      {"start_poses", dataset::to_string(data.start_poses)},
+      {"negotiation_robot_rounds", s.negotiation_robot_rounds},
+      {"negotiation_messages", s.negotiation_messages},
+      {"negotiation_bytes", s.negotiation_bytes},
+      {"description_bytes", s.description_bytes},
+      {"marginal_bytes", s.marginal_bytes},
+      {"negotiation_bytes_per_robot_round",
+       s.negotiation_robot_rounds > 0
+           ? static_cast<double>(s.negotiation_bytes) / s.negotiation_robot_rounds
+           : 0.0},
+      {"searches", s.searches},
+      {"ambiguous", s.ambiguous},
+      {"frame_edges", s.frame_edges},
+      {"reanchorings", s.reanchorings},
+      {"links_accepted", s.links_accepted},
+      {"links_split", s.links_split},
+      {"link_conflicts", s.link_conflicts},
+      {"team_id_conflicts", s.team_id_conflicts},
       {"consensus_ms_per_robot_step",
        s.consensus_robot_steps > 0 ? 1e3 * s.consensus_seconds / s.robot_steps : 0.0},
   };
   std::cerr << "concord replay: " << s.robot_steps << " robot-steps in " << s.total_seconds
             << " s (update " << s.update_seconds << " s, consensus " << s.consensus_seconds
-            << " s)\n";
+            << " s, negotiation " << s.negotiation_seconds << " s)\n";
+  if (result.association == replay::AssociationMode::kNegotiated) {
+    std::cerr << "concord replay: negotiation: " << s.searches << " searches (" << s.ambiguous
+              << " ambiguous), " << s.frame_edges << " frame edges, " << s.reanchorings
+              << " moves into a team frame, " << s.links_accepted << " links accepted, "
+              << s.links_split << " split, " << s.link_conflicts << " refused as conflicts, "
+              << s.team_id_conflicts << " left out by the team ids; " << s.negotiation_bytes
+              << " bytes in " << s.negotiation_messages << " messages\n";
+  }
   report(data, results, out,
          data.name + (separate ? " separate" : " consensus") +
              (frames > 0 ? " (" + std::to_string(frames) + " frames)" : ""),
@@ -230,7 +351,8 @@ int run_replay(const fs::path& dataset_dir, const fs::path& out, bool separate,
   return 0;
 }
 
-int run_eval(const fs::path& dataset_dir, const fs::path& result_dir) {
+int run_eval(const fs::path& dataset_dir, const fs::path& result_dir,
+             const fs::path& first_frames_from) {
   dataset::ReadOptions read_options;
   read_options.load_features = false;
   const dataset::Dataset data = dataset::read_dataset(dataset_dir, read_options);
@@ -239,8 +361,21 @@ int run_eval(const fs::path& dataset_dir, const fs::path& result_dir) {
     results.push_back(
         read_robot_result(result_dir / dataset::robot_folder_name(static_cast<int>(i))));
   }
+  evaluation::EvaluationOptions options;
+  if (!first_frames_from.empty()) {
+    for (std::size_t i = 0; i < data.robots.size(); ++i) {
+      options.first_frames.push_back(
+          dataset::read_alignment_json(first_frames_from /
+                                       dataset::robot_folder_name(static_cast<int>(i)) /
+                                       "alignment.json")
+              .aligned_at_frame);
+    }
+  }
   report(data, results, result_dir, data.name + " eval of " + result_dir.filename().string(),
-         {{"dataset", data.name}, {"result", result_dir.string()}});
+         {{"dataset", data.name},
+          {"result", result_dir.string()},
+          {"first_frames_from", first_frames_from.string()}},
+         options);
   return 0;
 }
 
@@ -250,12 +385,32 @@ int run_calibrate(const fs::path& dataset_dir, const calibration::CalibrationOpt
   return 0;
 }
 
-int run_slice(const fs::path& dataset_dir, const fs::path& out, int frames, int robots) {
+int run_slice(const fs::path& dataset_dir, const fs::path& out, int frames, int robots,
+              bool private_ids, bool unknown_start) {
   const dataset::Dataset data = dataset::read_dataset(dataset_dir);
   dataset::write_dataset(
-      dataset::slice(data, frames, robots > 0 ? robots : static_cast<int>(data.robots.size())),
+      dataset::make_variant(
+          dataset::slice(data, frames > 0 ? frames : std::numeric_limits<int>::max(),
+                         robots > 0 ? robots : static_cast<int>(data.robots.size())),
+          private_ids, unknown_start),
       out);
   std::cerr << "concord slice: wrote " << out.string() << "\n";
+  return 0;
+}
+
+/// A dataset's private-ids and/or unknown-starts variant (the whole set).
+int run_convert(const fs::path& dataset_dir, const fs::path& out, bool private_ids,
+                bool unknown_start) {
+  if (!private_ids && !unknown_start) {
+    std::cerr << "concord convert: nothing to do: give --private-ids and/or --unknown-start\n";
+    return 1;
+  }
+  const dataset::Dataset data = dataset::read_dataset(dataset_dir);
+  const dataset::Dataset variant = dataset::make_variant(data, private_ids, unknown_start);
+  dataset::write_dataset(variant, out);
+  std::cerr << "concord convert: wrote " << out.string() << " (object_ids "
+            << dataset::to_string(variant.object_ids) << ", start_poses "
+            << dataset::to_string(variant.start_poses) << ")\n";
   return 0;
 }
 
@@ -484,6 +639,12 @@ int main(int argc, char** argv) {
   replay_command->add_flag("--no-point-features", no_point_features,
                            "Ignore features.csv (object-only run)");
   std::vector<std::string> overrides;
+  std::string association_mode;
+  replay_command
+      ->add_option("--association", association_mode,
+                   "given (the dataset's global ids, known starts) or negotiated (robots find "
+                   "common objects and frames); default: given for global ids and known starts")
+      ->check(CLI::IsMember({"given", "negotiated"}));
   replay_command->add_option("--set", overrides,
                              "KEY=VALUE: an estimator option over the config (repeatable), e.g. "
                              "--set odometry_rotation_sigma=0.02 --set "
@@ -496,6 +657,12 @@ int main(int argc, char** argv) {
       ->check(CLI::ExistingDirectory);
   eval_command->add_option("--result", result_dir, "Result folder (robot_XX/trajectory.kitti...)")
       ->required()
+      ->check(CLI::ExistingDirectory);
+  std::string first_frames_from;
+  eval_command
+      ->add_option("--first-frames-from", first_frames_from,
+                   "Result folder whose alignment.json frames start traj RMSE from alignment (to "
+                   "compare a known-start run over the same frames)")
       ->check(CLI::ExistingDirectory);
 
   auto* calibrate_command = app.add_subcommand(
@@ -526,6 +693,23 @@ int main(int argc, char** argv) {
       ->check(CLI::PositiveNumber);
   slice_command->add_option("--robots", robots, "Robots to keep (default all)")
       ->check(CLI::PositiveNumber);
+  bool variant_private_ids = false, variant_unknown_start = false;
+  slice_command->add_flag("--private-ids", variant_private_ids,
+                          "Also renumber each robot's objects privately (object_ids_truth.csv)");
+  slice_command->add_flag("--unknown-start", variant_unknown_start,
+                          "Also mark the start poses unknown");
+
+  auto* convert_command =
+      app.add_subcommand("convert", "Write a dataset's private-ids and/or unknown-starts variant");
+  convert_command->add_option("--dataset", dataset_dir, "Dataset folder")
+      ->required()
+      ->check(CLI::ExistingDirectory);
+  convert_command->add_option("--out", out_dir, "Output folder")->required();
+  convert_command->add_flag("--private-ids", variant_private_ids,
+                            "Renumber each robot's objects privately; robot_XX/"
+                            "object_ids_truth.csv maps them to objects_gt.csv (evaluation only)");
+  convert_command->add_flag("--unknown-start", variant_unknown_start,
+                            "Start poses unknown: every filter starts at its own frame");
 
   auto* sim_command = app.add_subcommand(
       "sim", "Simulate a multi-robot dataset (Lissajous paths, docs/simulator.md)");
@@ -620,6 +804,20 @@ int main(int argc, char** argv) {
       ->add_option("--object-max-depth", sim_options.object_max_depth,
                    "Largest depth of an object in view of the pose it is placed around, metres")
       ->capture_default_str();
+  sim_command
+      ->add_option("--classes", sim_options.classes,
+                   "Detector classes: objects get a class in [0, K) (objects.csv class column); "
+                   "0: no class column")
+      ->capture_default_str();
+  sim_command
+      ->add_option("--false-detections", sim_options.false_detection_rate,
+                   "Fraction of object detections that are false (phantom objects), in [0, 0.5]")
+      ->capture_default_str();
+  sim_command->add_flag("--private-ids", sim_options.private_ids,
+                        "Each robot numbers its objects its own way (object_ids_truth.csv for "
+                        "evaluation)");
+  sim_command->add_flag("--unknown-start", sim_options.unknown_start,
+                        "Start poses unknown to the robots (filters start at their own frames)");
 
   bool render_images = false;
   sim::RenderOptions render_options;
@@ -805,10 +1003,16 @@ int main(int argc, char** argv) {
     }
     if (replay_command->parsed()) {
       return run_replay(dataset_dir, out_dir, separate, config_file, graph, loss, seed, frames,
-                        no_point_features, overrides);
+                        no_point_features, overrides, association_mode);
     }
-    if (eval_command->parsed()) return run_eval(dataset_dir, result_dir);
-    if (slice_command->parsed()) return run_slice(dataset_dir, out_dir, frames, robots);
+    if (eval_command->parsed()) return run_eval(dataset_dir, result_dir, first_frames_from);
+    if (slice_command->parsed()) {
+      return run_slice(dataset_dir, out_dir, frames, robots, variant_private_ids,
+                       variant_unknown_start);
+    }
+    if (convert_command->parsed()) {
+      return run_convert(dataset_dir, out_dir, variant_private_ids, variant_unknown_start);
+    }
     if (calibrate_command->parsed()) return run_calibrate(dataset_dir, calibration_options);
     if (sim_command->parsed()) {
       return run_sim(

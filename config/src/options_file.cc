@@ -16,6 +16,37 @@ namespace concord::config {
 namespace {
 
 constexpr std::string_view kConsensusKey = "consensus";
+/// The section of a sensor config read by load_negotiation_options (skipped by the estimator's).
+constexpr std::string_view kAssociationKey = "association";
+
+/// Calls visit(key, field) for every association option (NegotiationOptions and its
+/// AssociationOptions, one flat namespace): the one list of association keys.
+template <typename Negotiation, typename Visitor>
+void for_each_association_field(Negotiation& options, Visitor&& visit) {
+  auto& association = options.association;
+  visit("min_observations", association.min_observations);
+  visit("search_max_sigma", association.search_max_sigma);
+  visit("descriptor_neighbours", association.descriptor_neighbours);
+  visit("descriptor_chi2_probability", association.descriptor_chi2_probability);
+  visit("candidates_per_object", association.candidates_per_object);
+  visit("min_descriptor_matches", association.min_descriptor_matches);
+  visit("consistency_chi2_probability", association.consistency_chi2_probability);
+  visit("distance_noise", association.distance_noise);
+  visit("min_inliers", association.min_inliers);
+  visit("min_spread", association.min_spread);
+  visit("ambiguity_ratio", association.ambiguity_ratio);
+  visit("match_chi2_probability", association.match_chi2_probability);
+  visit("match_margin", association.match_margin);
+  visit("max_hypotheses", association.max_hypotheses);
+  visit("max_candidates", association.max_candidates);
+  visit("max_clique_expansions", association.max_clique_expansions);
+  visit("use_classes", association.use_classes);
+  visit("description_interval", options.description_interval);
+  visit("confirmations", options.confirmations);
+  visit("transform_agreement_chi2_probability", options.transform_agreement_chi2_probability);
+  visit("split_chi2_probability", options.split_chi2_probability);
+  visit("split_after", options.split_after);
+}
 
 /// Calls visit(key, field) for every field of ConsensusOptions (const or not): the one list of
 /// consensus keys, shared by the loader and the writer.
@@ -142,10 +173,33 @@ class Loader {
         map, "", [&](const std::string& name, const YAML::Node& key_node, const YAML::Node& value) {
           if (name == kConsensusKey) {
             read_consensus(value, options.consensus);
+          } else if (name == kAssociationKey) {
+            // Read by load_negotiation_options.
           } else if (!read_field(options, name, name, value, [](auto& target, auto&& visit) {
                        for_each_field(target, visit);
                      })) {
             add(key_node, "unknown key " + name);
+          }
+        });
+  }
+
+  /// Reads the `association:` section of a map of option keys (other keys are ignored).
+  void read_association_section(const YAML::Node& root, association::NegotiationOptions& options) {
+    const YAML::Node section = root[std::string(kAssociationKey)];
+    if (!section) return;
+    const std::string prefix = std::string(kAssociationKey) + ".";
+    if (!section.IsMap()) {
+      add(section, std::string(kAssociationKey) + " = " + describe(section) +
+                       ": expected a map of association options");
+      return;
+    }
+    for_each_entry(
+        section, prefix,
+        [&](const std::string& name, const YAML::Node& key_node, const YAML::Node& value) {
+          if (!read_field(options, name, prefix + name, value, [](auto& target, auto&& visit) {
+                for_each_association_field(target, visit);
+              })) {
+            add(key_node, "unknown key " + prefix + name);
           }
         });
   }
@@ -299,9 +353,77 @@ EstimatorOptions parse_estimator_options(const std::string& yaml_text,
   return options;
 }
 
+namespace {
+
+/// Reads the association section of YAML text into `options`, then validates; throws ConfigError
+/// naming source_name and every problem.
+void read_association_into(association::NegotiationOptions& options, const std::string& yaml_text,
+                           const std::string& source_name) {
+  YAML::Node root;
+  try {
+    root = YAML::Load(yaml_text);
+  } catch (const YAML::ParserException& error) {
+    throw ConfigError(source_name + ":" + std::to_string(error.mark.line + 1) +
+                      ": invalid YAML: " + error.msg);
+  }
+  Loader loader;
+  if (root.IsMap()) {
+    loader.read_association_section(root, options);
+  } else if (!root.IsNull()) {
+    loader.add(root, "expected a map of option keys, found " + describe(root));
+  }
+  for (const std::string& problem : options.validate()) loader.add(problem);
+  if (!loader.problems().empty()) {
+    std::string message = source_name + ": invalid association options:";
+    for (const std::string& problem : loader.problems()) message += "\n  " + problem;
+    throw ConfigError(message);
+  }
+}
+
+bool is_association_override(const std::string& entry) {
+  return entry.starts_with(std::string(kAssociationKey) + ".");
+}
+
+}  // namespace
+
+association::NegotiationOptions parse_negotiation_options(const std::string& yaml_text,
+                                                          const std::string& source_name) {
+  association::NegotiationOptions options;
+  read_association_into(options, yaml_text, source_name);
+  return options;
+}
+
+association::NegotiationOptions load_negotiation_options(const std::filesystem::path& file) {
+  return parse_negotiation_options(read_config_text(file, "options file"), file.string());
+}
+
+association::NegotiationOptions apply_association_overrides(
+    association::NegotiationOptions options, const std::vector<std::string>& overrides) {
+  for (const std::string& entry : overrides) {
+    if (!is_association_override(entry)) continue;
+    const auto equals = entry.find('=');
+    if (equals == std::string::npos) throw ConfigError("--set " + entry + ": expected KEY=VALUE");
+    const std::string key = entry.substr(0, equals);
+    const std::string yaml = std::string(kAssociationKey) + ":\n  " +
+                             key.substr(kAssociationKey.size() + 1) + ": " +
+                             entry.substr(equals + 1) + "\n";
+    read_association_into(options, yaml, "--set " + entry);
+  }
+  return options;
+}
+
+std::string to_yaml(const association::NegotiationOptions& options) {
+  std::string text = std::string(kAssociationKey) + ":\n";
+  for_each_association_field(options, [&](std::string_view key, const auto& field) {
+    text += "  " + std::string(key) + ": " + format_value(field) + "\n";
+  });
+  return text;
+}
+
 EstimatorOptions apply_overrides(EstimatorOptions options,
                                  const std::vector<std::string>& overrides) {
   for (const std::string& entry : overrides) {
+    if (is_association_override(entry)) continue;
     const auto equals = entry.find('=');
     if (equals == std::string::npos || equals == 0) {
       throw ConfigError("--set " + entry + ": expected KEY=VALUE");

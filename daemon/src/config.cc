@@ -201,6 +201,25 @@ std::string to_string(ConsensusMode mode) {
   return "unknown";
 }
 
+std::optional<AssociationMode> parse_association_mode(const std::string& text) {
+  if (text == "auto") return AssociationMode::kAuto;
+  if (text == "given") return AssociationMode::kGiven;
+  if (text == "negotiated") return AssociationMode::kNegotiated;
+  return std::nullopt;
+}
+
+std::string to_string(AssociationMode mode) {
+  switch (mode) {
+    case AssociationMode::kAuto:
+      return "auto";
+    case AssociationMode::kGiven:
+      return "given";
+    case AssociationMode::kNegotiated:
+      return "negotiated";
+  }
+  return "unknown";
+}
+
 std::vector<std::string> DaemonConfig::validate() const {
   std::vector<std::string> problems;
   if (robot_id < 0) problems.push_back("robot_id: expected >= 0, got " + std::to_string(robot_id));
@@ -255,6 +274,15 @@ std::vector<std::string> DaemonConfig::validate() const {
                        " is below 1000 bytes per second (not even a landmark set per round)");
   if (consensus.max_marginal_landmarks < 1)
     problems.push_back("consensus.max_marginal_landmarks: expected >= 1");
+  if (consensus.association == AssociationMode::kNegotiated &&
+      consensus.mode == ConsensusMode::kAsync)
+    problems.push_back("consensus.association: negotiated needs consensus.mode lockstep");
+  const NegotiationLimits& limits = consensus.negotiation_limits;
+  if (limits.max_description_objects < 1 || limits.max_records < 1 ||
+      limits.max_links_per_record < 1 || limits.max_frame_edges_per_record < 1)
+    problems.push_back("consensus.max_description_objects, max_owner_records, max_record_links, "
+                       "max_record_frame_edges: expected >= 1");
+  for (const std::string& problem : negotiation.validate()) problems.push_back(problem);
   if (http.max_connections_per_client > http.max_connections)
     problems.push_back("http.max_connections_per_client: above http.max_connections");
   if (source.kind == SourceKind::kReplay) {
@@ -320,10 +348,13 @@ DaemonConfig parse_daemon_config(const std::string& yaml_text, const std::string
     if (estimator && estimator.IsScalar()) {
       config.estimator_file = Section::resolve(estimator.Scalar(), base_directory);
       config.estimator = config::load_estimator_options(config.estimator_file);
+      config.negotiation = config::load_negotiation_options(config.estimator_file);
     } else if (estimator && estimator.IsMap()) {
       YAML::Emitter emitter;
       emitter << estimator;
       config.estimator = config::parse_estimator_options(emitter.c_str(), source_name + " estimator");
+      config.negotiation =
+          config::parse_negotiation_options(emitter.c_str(), source_name + " estimator");
     } else if (estimator && !estimator.IsNull()) {
       problems.push_back(line_of(estimator) + "estimator: expected a file name or a map of options");
     }
@@ -359,6 +390,7 @@ DaemonConfig parse_daemon_config(const std::string& yaml_text, const std::string
   source.read("ingest_authenticated", config.source.ingest_authenticated);
   source.read("max_translation_m", config.source.max_translation_m);
   source.read("max_rotation_rad", config.source.max_rotation_rad);
+  source.read("unknown_start", config.source.unknown_start);
   source.finish();
 
   Section network(top.child("network"), "network.", problems);
@@ -396,6 +428,19 @@ DaemonConfig parse_daemon_config(const std::string& yaml_text, const std::string
   consensus.read("quarantine_rounds", config.consensus.quarantine_rounds);
   consensus.read("max_marginal_landmarks", config.consensus.max_marginal_landmarks);
   consensus.read("link_budget_bytes_per_second", config.consensus.link_budget_bytes_per_second);
+  std::string association = to_string(config.consensus.association);
+  consensus.read("association", association);
+  if (const auto parsed = parse_association_mode(association)) {
+    config.consensus.association = *parsed;
+  } else {
+    problems.push_back("consensus.association: expected auto, given or negotiated, got '" +
+                       association + "'");
+  }
+  NegotiationLimits& limits = config.consensus.negotiation_limits;
+  consensus.read("max_description_objects", limits.max_description_objects);
+  consensus.read("max_owner_records", limits.max_records);
+  consensus.read("max_record_links", limits.max_links_per_record);
+  consensus.read("max_record_frame_edges", limits.max_frame_edges_per_record);
   consensus.finish();
 
   Section http(top.child("http"), "http.", problems);

@@ -7,6 +7,8 @@
 #include <optional>
 #include <set>
 
+#include "concord/daemon/association_session.h"
+#include "concord/daemon/negotiation_wire.h"
 #include "concord/daemon/wire.h"
 #include "concord/estimator/estimator.h"
 #include "concord/net/log_limiter.h"
@@ -51,6 +53,8 @@ struct ConsensusExchange::Peer {
     int degree = 0;
     bool used = false;
     bool rejected = false;  ///< malformed: the peer's answer for its round, nothing to fuse
+    /// Negotiated association: the receiver's id of each landmark and the sender's frame.
+    std::optional<std::pair<std::vector<LandmarkId>, int>> relabelling;
   };
   bool up = false;
   /// Lockstep liveness: deadlines missed in a row, and whether it left the waits.
@@ -64,6 +68,10 @@ struct ConsensusExchange::Peer {
   bool ids_known = false;
   std::map<std::uint64_t, std::vector<LandmarkId>> landmark_sets;
   std::map<std::uint64_t, Received> marginals;
+  /// Negotiated association: its negotiation message of each round (checked on arrival).
+  std::map<std::uint64_t, association::NegotiationMessage> negotiations;
+  /// A new connection: the owner records sent to its previous life are sent again.
+  bool fresh = true;
   /// Async: the newest marginal received, and the robot's own round when it arrived (rounds of
   /// different robots need not be aligned: a restarted robot, or live sensors numbering frames
   /// independently).
@@ -84,6 +92,11 @@ ConsensusExchange::ConsensusExchange(ConsensusConfig config, Send send,
       budget_(std::make_unique<LinkBudget>(config_.link_budget_bytes_per_second)) {}
 
 ConsensusExchange::~ConsensusExchange() = default;
+
+void ConsensusExchange::set_association(AssociationSession* session) {
+  std::lock_guard lock(mutex_);
+  association_ = session;
+}
 
 void ConsensusExchange::on_peer(int robot, bool up) {
   std::lock_guard lock(mutex_);
@@ -165,6 +178,20 @@ void ConsensusExchange::on_message(int robot, const v1::Envelope& envelope) {
         ++counters_.stale_dropped;
         break;
       }
+      if (association_ && message.has_negotiation()) {
+        std::string error;
+        auto negotiation =
+            from_wire(message.negotiation(), robot, config_.negotiation_limits, error);
+        if (negotiation) {
+          peer.negotiations[message.round()] = std::move(*negotiation);
+        } else {
+          // Refused whole; the LandmarkSet still answers the round, so nobody waits for it.
+          ++counters_.negotiations_refused;
+          warn_limited(*log_limiter_, robot, "negotiation",
+                       "association: robot {} round {}: {}; refused", robot, message.round(),
+                       error);
+        }
+      }
       peer.landmark_sets[message.round()] = std::move(ids);
       break;
     }
@@ -201,7 +228,7 @@ void ConsensusExchange::on_message(int robot, const v1::Envelope& envelope) {
         return;
       }
       if (config_.mode == ConsensusMode::kAsync) {
-        peer.latest = Peer::Received{std::move(*marginal), static_cast<int>(message.degree()), false};
+        peer.latest = Peer::Received{std::move(*marginal), static_cast<int>(message.degree()), false, false, std::nullopt};
         peer.latest_received_at = current_round_;
         break;
       }
@@ -209,8 +236,24 @@ void ConsensusExchange::on_message(int robot, const v1::Envelope& envelope) {
         ++counters_.stale_dropped;
         break;
       }
-      peer.marginals[message.round()] =
-          Peer::Received{std::move(*marginal), static_cast<int>(message.degree()), false};
+      Peer::Received received{std::move(*marginal), static_cast<int>(message.degree()), false, false, std::nullopt};
+      if (association_) {
+        const auto& relabelling = message.relabelling();
+        if (message.has_relabelling() &&
+            relabelling.receiver_ids_size() == message.landmark_ids_size()) {
+          received.relabelling.emplace(
+              std::vector<LandmarkId>(relabelling.receiver_ids().begin(),
+                                      relabelling.receiver_ids().end()),
+              relabelling.frame());
+        } else if (!received.marginal.ids.empty()) {
+          ++counters_.relabellings_refused;
+          warn_limited(*log_limiter_, robot, "relabelling",
+                       "association: robot {} round {}: a marginal without the receiver's ids; "
+                       "not fused",
+                       robot, message.round());
+        }
+      }
+      peer.marginals[message.round()] = std::move(received);
       break;
     }
     case v1::Envelope::kGoodbye:
@@ -317,6 +360,11 @@ void ConsensusExchange::send_landmark_set(int robot, std::uint64_t round,
   v1::LandmarkSet* message = envelope.mutable_landmark_set();
   message->set_round(round);
   message->mutable_ids()->Assign(ids.begin(), ids.end());
+  if (association_) {
+    to_wire(association_->negotiation_for(robot, round), *message->mutable_negotiation());
+    std::lock_guard lock(mutex_);
+    counters_.negotiation_bytes += message->negotiation().ByteSizeLong();
+  }
   send_counted(robot, envelope);
 }
 
@@ -340,31 +388,41 @@ void ConsensusExchange::send_marginal(int robot, std::uint64_t round, const Esti
   message->set_round(round);
   message->set_degree(static_cast<std::uint32_t>(degree));
   if (failpoints_.marginal_silence) return;  // failpoint: heartbeats and LandmarkSets only
-  std::vector<LandmarkId> common = intersection(own_ids, peer_ids);
-  if (!budget_->unlimited() && !common.empty()) {
-    // Under the link budget: what fits in this neighbour's share, least valuable left out.
-    const double allowance = budget_->share(links_left);
-    if (static_cast<double>(estimated_marginal_bytes(common.size(), 0)) > allowance) {
-      std::vector<std::pair<LandmarkId, bool>> candidates;
-      candidates.reserve(common.size());
-      for (const LandmarkId id : common)
-        candidates.emplace_back(id, estimator.state().landmark_slot(id) >= 0);
-      std::map<LandmarkId, std::uint64_t>& sent = last_sent_[robot];
-      std::vector<LandmarkId> chosen = choose_within_budget(candidates, sent, allowance);
-      {
-        std::lock_guard lock(mutex_);
-        ++(chosen.empty() ? counters_.budget_marginals_empty : counters_.budget_marginals_trimmed);
-        counters_.budget_landmarks_dropped += common.size() - chosen.size();
+  if (association_) {
+    // Negotiated: the objects shared with this neighbour, with its ids and this robot's frame.
+    // (The link budget does not trim negotiated marginals: their relabelling is per message.)
+    auto [marginal, receiver_ids] = association_->marginal_for(robot, estimator);
+    if (!marginal.ids.empty()) to_wire(marginal, *message);
+    v1::Relabelling* relabelling = message->mutable_relabelling();
+    relabelling->mutable_receiver_ids()->Assign(receiver_ids.begin(), receiver_ids.end());
+    relabelling->set_frame(association_->frame());
+  } else {
+    std::vector<LandmarkId> common = intersection(own_ids, peer_ids);
+    if (!budget_->unlimited() && !common.empty()) {
+      // Under the link budget: what fits in this neighbour's share, least valuable left out.
+      const double allowance = budget_->share(links_left);
+      if (static_cast<double>(estimated_marginal_bytes(common.size(), 0)) > allowance) {
+        std::vector<std::pair<LandmarkId, bool>> candidates;
+        candidates.reserve(common.size());
+        for (const LandmarkId id : common)
+          candidates.emplace_back(id, estimator.state().landmark_slot(id) >= 0);
+        std::map<LandmarkId, std::uint64_t>& sent = last_sent_[robot];
+        std::vector<LandmarkId> chosen = choose_within_budget(candidates, sent, allowance);
+        {
+          std::lock_guard lock(mutex_);
+          ++(chosen.empty() ? counters_.budget_marginals_empty : counters_.budget_marginals_trimmed);
+          counters_.budget_landmarks_dropped += common.size() - chosen.size();
+        }
+        // Forget ids no longer shared (bounded memory), then remember what goes out now.
+        for (auto it = sent.begin(); it != sent.end();)
+          it = std::binary_search(common.begin(), common.end(), it->first) ? std::next(it)
+                                                                            : sent.erase(it);
+        common = std::move(chosen);
       }
-      // Forget ids no longer shared (bounded memory), then remember what goes out now.
-      for (auto it = sent.begin(); it != sent.end();)
-        it = std::binary_search(common.begin(), common.end(), it->first) ? std::next(it)
-                                                                          : sent.erase(it);
-      common = std::move(chosen);
+      for (const LandmarkId id : common) last_sent_[robot][id] = round;
     }
-    for (const LandmarkId id : common) last_sent_[robot][id] = round;
+    if (!common.empty()) to_wire(estimator.marginal(common), *message);
   }
-  if (!common.empty()) to_wire(estimator.marginal(common), *message);
   if (failpoints_.marginal_garbage) {  // failpoint: one mean value too many
     message->add_landmark_ids(1);
     message->add_mean(0.0);
@@ -377,7 +435,10 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
   report.round = round;
   const auto start = Clock::now();
   const auto k = static_cast<std::int64_t>(round);
-  const std::vector<LandmarkId> ids = estimator.object_ids();
+  // Negotiated: private ids mean nothing to a neighbour; the LandmarkSet carries the negotiation.
+  const std::vector<LandmarkId> ids =
+      association_ ? std::vector<LandmarkId>{} : estimator.object_ids();
+  std::vector<int> reconnected;
 
   // Live peers take part; those that missed miss_limit rounds in a row are not waited for (they
   // take part when their messages are there in time, and are waited for again once they are).
@@ -388,6 +449,8 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
     for (const auto& [robot, peer] : peers_) {
       if (!peer->up || peer->goodbye) continue;
       candidates.push_back(robot);
+      if (peer->fresh) reconnected.push_back(robot);
+      peer->fresh = false;
       if (peer->excluded)
         ++report.excluded;
       else
@@ -395,6 +458,10 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
     }
   }
   report.live = static_cast<int>(candidates.size());
+  if (association_) {
+    for (int robot : reconnected) association_->missed(robot);
+    association_->begin_round(round, estimator);
+  }
   for (int robot : candidates) send_landmark_set(robot, round, ids);
 
   // Phase 1: every waited-for candidate's LandmarkSet(k), or evidence it is not in round k.
@@ -430,6 +497,7 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
   report.neighbours = degree;
   budget_->refill(Clock::now());
   int links_left = degree;
+  if (association_) negotiate(round, estimator, candidates, neighbours);
   for (int robot : neighbours) {
     send_marginal(robot, round, estimator, ids, neighbour_ids[robot], degree, links_left--);
   }
@@ -468,6 +536,15 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
         continue;
       }
       if (it->second.marginal.ids.empty() || quarantined(robot, peer, round)) continue;
+      if (association_) {
+        // Negotiated: the pairs both robots' views agree on, in this robot's ids, one frame.
+        if (!it->second.relabelling) continue;
+        std::optional<Marginal> relabelled = association_->accept_marginal(
+            robot, it->second.marginal, it->second.relabelling->first,
+            it->second.relabelling->second);
+        if (!relabelled) continue;
+        it->second.marginal = std::move(*relabelled);
+      }
       inbox.push_back({Consensus::metropolis_weight(degree, it->second.degree),
                        std::move(it->second.marginal)});
       senders.push_back(robot);
@@ -612,6 +689,33 @@ void ConsensusExchange::forget_rounds_up_to(std::uint64_t round) {
     peer->landmark_sets.erase(peer->landmark_sets.begin(),
                               peer->landmark_sets.upper_bound(round));
     peer->marginals.erase(peer->marginals.begin(), peer->marginals.upper_bound(round));
+    peer->negotiations.erase(peer->negotiations.begin(), peer->negotiations.upper_bound(round));
+  }
+}
+
+void ConsensusExchange::negotiate(std::uint64_t round, Estimator& estimator,
+                                  const std::vector<int>& candidates,
+                                  const std::vector<int>& neighbours) {
+  // Messages of this round's neighbours, in ascending robot id (the replay's order).
+  std::vector<association::NegotiationMessage> messages;
+  {
+    std::lock_guard lock(mutex_);
+    for (int robot : neighbours) {
+      Peer& peer = *peers_.at(robot);
+      const auto it = peer.negotiations.find(round);
+      if (it == peer.negotiations.end()) continue;
+      messages.push_back(std::move(it->second));
+      peer.negotiations.erase(it);
+    }
+  }
+  for (const auto& message : messages) association_->receive(message, round);
+  for (int robot : candidates) {
+    if (std::find(neighbours.begin(), neighbours.end(), robot) == neighbours.end())
+      association_->missed(robot);
+  }
+  if (const auto move = association_->finish_round(round, estimator)) {
+    spdlog::info("association: round {}: moved from frame {} into the team frame {}", round,
+                 move->from_frame, move->to_frame);
   }
 }
 

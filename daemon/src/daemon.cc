@@ -21,7 +21,9 @@
 
 #include "bounded_queue.h"
 #include "checkpoint.h"
+#include "concord/daemon/association_session.h"
 #include "concord/daemon/consensus_exchange.h"
+#include "concord/config/options_file.h"
 #include "concord/daemon/wire.h"
 #include "concord/dataset/dataset.h"
 #include "concord/dataset/result_io.h"
@@ -56,6 +58,8 @@ struct QueuedFrame {
   FrameInput input;  ///< input.frame is the source's frame index (the consensus round)
   double timestamp = 0.0;
   Clock::time_point arrival;
+  /// The detector's class of each object observation (parallel to input.objects), or empty.
+  std::vector<int> object_classes;
 };
 
 /// Samples kept for percentiles: the latest ones only (a daemon runs for days).
@@ -122,6 +126,14 @@ struct LiveState {
   TrajectoryHistory trajectory;  ///< processed frames (snapshots are cheap; see its header)
   Eigen::Matrix<double, 6, 6> pose_covariance = Eigen::Matrix<double, 6, 6>::Zero();
   std::vector<ObjectEstimate> objects;
+  /// Team id of each object (parallel to objects): the object's id when ids are given, -1 while
+  /// unshared when they are negotiated.
+  std::vector<LandmarkId> team_ids;
+  /// Where the estimates are (alignment.json), and the frame of each stretch of the trajectory:
+  /// (first trajectory entry, frame robot or nullopt for the world).
+  AlignmentState alignment;
+  std::vector<std::pair<int, std::optional<int>>> segments;
+  association::NegotiationCounters negotiation;
   std::uint64_t frames_rejected = 0;
   std::uint64_t frames_dropped = 0;
   std::uint64_t frames_gap = 0;          ///< frames never processed: rejected, missing, skipped
@@ -194,7 +206,12 @@ class Daemon::Impl {
   Eigen::Matrix<double, 6, 6> odometry_noise_;
   Eigen::Matrix<double, 6, 6> unknown_motion_noise_;
   Eigen::Isometry3d start_pose_ = Eigen::Isometry3d::Identity();
+  /// Whether the start pose is known (else the filter starts at the identity of its own frame),
+  /// and whether the association is negotiated (resolved from consensus.association).
+  bool start_known_ = true;
+  bool negotiated_ = false;
   std::optional<Estimator> estimator_;
+  std::unique_ptr<AssociationSession> association_;
 
   boost::asio::io_context io_;
   boost::asio::io_context http_io_;  // HTTP on its own thread: a flood never delays the peers
@@ -243,7 +260,12 @@ bool Daemon::Impl::load_source() {
       dataset::Dataset data = dataset::read_dataset(config_.source.dataset, options);
       camera_ = data.camera;
       robot_ = std::move(data.robots.front());
-      start_pose_ = robot_->groundtruth.front();
+      // What the robot may use: its start pose only when the dataset says it is known.
+      start_known_ = data.start_poses == dataset::StartPoses::kKnown;
+      start_pose_ = start_known_ ? robot_->groundtruth.front() : Eigen::Isometry3d::Identity();
+      negotiated_ = config_.consensus.association == AssociationMode::kNegotiated ||
+                    (config_.consensus.association == AssociationMode::kAuto &&
+                     (data.object_ids == dataset::ObjectIds::kPrivate || !start_known_));
       spdlog::info("source: replay of {} robot {} ({} frames{})", config_.source.dataset.string(),
                    config_.source.robot, robot_->num_frames(),
                    robot_->has_features ? ", point features" : "");
@@ -287,6 +309,40 @@ bool Daemon::Impl::load_source() {
     spdlog::error("source: {}", error.what());
     return false;
   }
+  if (config_.source.kind != SourceKind::kReplay) {
+    start_known_ = !config_.source.unknown_start;
+    if (!start_known_) start_pose_ = Eigen::Isometry3d::Identity();
+    negotiated_ = config_.consensus.association == AssociationMode::kNegotiated ||
+                  (config_.consensus.association == AssociationMode::kAuto && !start_known_);
+  }
+  if (config_.consensus.mode == ConsensusMode::kOff) negotiated_ = false;
+  if (negotiated_ && config_.consensus.mode != ConsensusMode::kLockstep) {
+    spdlog::error("consensus.association: the negotiated association needs consensus.mode "
+                  "lockstep");
+    return false;
+  }
+  if (!negotiated_ && !start_known_ && config_.consensus.mode != ConsensusMode::kOff) {
+    spdlog::error("consensus.association given: the start pose is unknown, so the robots' frames "
+                  "differ; use the negotiated association");
+    return false;
+  }
+  if (negotiated_) {
+    try {
+      association_ = std::make_unique<AssociationSession>(
+          config_.robot_id, start_known_ ? association::kWorldFrame : config_.robot_id,
+          config_.negotiation);
+    } catch (const std::invalid_argument& error) {
+      spdlog::error("association: {}", error.what());
+      return false;
+    }
+  }
+  {
+    std::lock_guard lock(live_.mutex);
+    live_.alignment.frame = start_known_ ? association::kWorldFrame : config_.robot_id;
+  }
+  spdlog::info("association: {}, start pose {}{}", negotiated_ ? "negotiated" : "given",
+               start_known_ ? "known" : "unknown (the robot's own frame)",
+               negotiated_ ? "\n" + config::to_yaml(config_.negotiation) : std::string());
   return true;
 }
 
@@ -327,6 +383,7 @@ bool Daemon::Impl::start_services() {
           },
           ExchangeFailpoints{config_.failpoints.marginal_silence,
                              config_.failpoints.marginal_garbage});
+      if (association_) exchange_->set_association(association_.get());
       network_->set_message_handler([this](int robot, const v1::Envelope& envelope) {
         exchange_->on_message(robot, envelope);
       });
@@ -458,7 +515,8 @@ void Daemon::Impl::replay_frames() {
       if (!wait_or_stop(next - Clock::now())) return;
       next += period;
     }
-    QueuedFrame item{robot_->frame_input(k), k * config_.source.frame_period_s, Clock::now()};
+    QueuedFrame item{robot_->frame_input(k), k * config_.source.frame_period_s, Clock::now(),
+                     robot_->has_object_classes ? robot_->object_classes[k] : std::vector<int>{}};
     if (k == first_replay_frame_ && first_replay_frame_ > 0) {
       // Resumed: the motion from the checkpoint's frame to this one, composed from the
       // odometry of the frames skipped (reported as a gap), with its covariance.
@@ -506,7 +564,7 @@ void Daemon::Impl::image_frames() {
       spdlog::warn("source: no visual odometry at frame {} (the previous motion is repeated)",
                    frame.input.frame);
     }
-    QueuedFrame item{std::move(frame.input), frame.timestamp, Clock::now()};
+    QueuedFrame item{std::move(frame.input), frame.timestamp, Clock::now(), {}};
     if (!queue_.push(std::move(item))) return;
   }
   queue_.close();
@@ -607,7 +665,7 @@ bool Daemon::Impl::on_ingest(const v1::Envelope& envelope) {
     return true;
   }
   // 4. A usable frame: bridge what was skipped.
-  QueuedFrame item{std::move(*frame), message.timestamp(), Clock::now()};
+  QueuedFrame item{std::move(*frame), message.timestamp(), Clock::now(), {}};
   if (ingest_started_) {
     if (missing > 0 || !item.input.T_previous_current) {
       limited("gap", fmt::format("frames {}..{} missing or without odometry: motion over the gap "
@@ -698,6 +756,7 @@ bool Daemon::Impl::process(QueuedFrame& item) {
     spdlog::warn("frame {} rejected: {}", item.input.frame, error.what());
     return false;
   }
+  if (association_) association_->observe(item.input.objects, item.object_classes);
   const auto updated = Clock::now();
   RoundReport round;
   std::uint64_t bytes = 0;
@@ -714,6 +773,19 @@ bool Daemon::Impl::process(QueuedFrame& item) {
                            estimator_->current_pose_covariance()});
     live_.pose_covariance = estimator_->current_pose_covariance();
     live_.objects = estimator_->objects();
+    if (association_) {
+      live_.team_ids = association_->team_ids(live_.objects);
+      live_.alignment = association_->alignment();
+      live_.negotiation = association_->counters();
+    } else {
+      live_.team_ids.clear();
+      for (const ObjectEstimate& object : live_.objects) live_.team_ids.push_back(object.id);
+    }
+    const int frame = live_.alignment.frame;
+    const std::optional<int> frame_robot =
+        frame == association::kWorldFrame ? std::nullopt : std::optional<int>(frame);
+    if (live_.segments.empty() || live_.segments.back().second != frame_robot)
+      live_.segments.emplace_back(static_cast<int>(live_.trajectory.size()) - 1, frame_robot);
     live_.objects_initialized += static_cast<std::uint64_t>(report.objects.initialized);
     live_.object_observations_rejected += static_cast<std::uint64_t>(report.objects.rejected);
     live_.object_initializations_gated += static_cast<std::uint64_t>(report.objects.init_gated);
@@ -800,6 +872,13 @@ void Daemon::Impl::estimator_loop() {
 void Daemon::Impl::load_checkpoint() {
   const std::filesystem::path file = config_.output.directory / "checkpoint.bin";
   if (!config_.output.checkpoint || !robot_ || !std::filesystem::exists(file)) return;
+  if (negotiated_) {
+    // The negotiation's state (pairs, records, team frame) is not checkpointed: a restarted robot
+    // negotiates afresh from frame 0 rather than resume a state in a frame it no longer knows.
+    spdlog::warn("resume: ignoring {}: the negotiated association does not resume",
+                 file.string());
+    return;
+  }
   std::ifstream stream(file, std::ios::binary);
   std::string bytes((std::istreambuf_iterator<char>(stream)), std::istreambuf_iterator<char>());
   std::string error;
@@ -832,11 +911,22 @@ bool Daemon::Impl::write_outputs(bool final) {
   if (durable) last_fsync_ = now;
   Checkpoint checkpoint;
   std::vector<ObjectEstimate> objects;
+  std::vector<LandmarkId> team_ids;
+  dataset::AlignmentRecord alignment;
   TrajectoryHistory::Snapshot trajectory;
   {
     std::lock_guard lock(live_.mutex);
     trajectory = live_.trajectory.snapshot();
     objects = live_.objects;
+    team_ids = live_.team_ids;
+    const AlignmentState& state = live_.alignment;
+    if (state.frame != association::kWorldFrame) alignment.team_frame_robot = state.frame;
+    alignment.aligned_at_frame = static_cast<int>(state.aligned_at_round);
+    alignment.moved = state.moved;
+    alignment.T_team_own = state.T_frame_start;
+    alignment.covariance = state.covariance;
+    alignment.segments = live_.segments;
+    if (alignment.segments.empty()) alignment.segments.emplace_back(0, alignment.team_frame_robot);
   }
   checkpoint.frames = trajectory.frames();
   checkpoint.timestamps = trajectory.timestamps();
@@ -851,7 +941,11 @@ bool Daemon::Impl::write_outputs(bool final) {
     write_output_file(folder / "pose_covariance.csv",
                       dataset::format_pose_covariances_csv(trajectory.pose_covariances()), durable);
     const std::filesystem::path objects_file = folder / "objects.csv";
-    dataset::write_objects_csv(objects_file, objects);
+    if (team_ids.size() == objects.size())
+      dataset::write_objects_csv(objects_file, objects, team_ids);
+    else
+      dataset::write_objects_csv(objects_file, objects);
+    dataset::write_alignment_json(folder / "alignment.json", alignment);
     if (config_.output.checkpoint && estimator_ && !checkpoint.frames.empty()) {
       checkpoint.robot_id = config_.robot_id;
       checkpoint.round = static_cast<std::uint64_t>(checkpoint.frames.back());
@@ -906,6 +1000,25 @@ json Daemon::Impl::stats_json() const {
        {{"median", percentile(live_.bytes_per_round, 50)},
         {"max", percentile(live_.bytes_per_round, 100)}}},
   };
+  stats["association"] = negotiated_ ? "negotiated" : "given";
+  if (negotiated_) {
+    const association::NegotiationCounters& n = live_.negotiation;
+    const ExchangeCounters c = exchange_->counters();
+    stats["negotiation"] = {{"searches", n.searches},
+                            {"aligned", n.aligned},
+                            {"ambiguous", n.ambiguous},
+                            {"frame_edges", n.frame_edges},
+                            {"reanchorings", n.reanchorings},
+                            {"links_accepted", n.links_accepted},
+                            {"links_split", n.links_split},
+                            {"link_conflicts", n.link_conflicts},
+                            {"team_id_conflicts", n.team_id_conflicts},
+                            {"messages", n.messages},
+                            {"bytes_sent", c.negotiation_bytes},
+                            {"negotiations_refused", c.negotiations_refused},
+                            {"relabellings_refused", c.relabellings_refused},
+                            {"frame", live_.alignment.frame}};
+  }
   if (exchange_) {
     const ExchangeCounters c = exchange_->counters();
     stats["consensus"] = {{"deadline_misses", c.deadline_misses},
@@ -999,8 +1112,10 @@ void Daemon::Impl::register_routes() {
   http_->get("/objects", [this](const web::Request&) {
     std::lock_guard lock(live_.mutex);
     json objects = json::array();
-    for (const ObjectEstimate& object : live_.objects) {
+    for (std::size_t n = 0; n < live_.objects.size(); ++n) {
+      const ObjectEstimate& object = live_.objects[n];
       objects.push_back({{"id", object.id},
+                         {"team_id", n < live_.team_ids.size() ? live_.team_ids[n] : -1},
                          {"position", {object.p_world.x(), object.p_world.y(), object.p_world.z()}},
                          {"covariance", matrix_json(object.covariance)}});
     }
@@ -1082,6 +1197,15 @@ void Daemon::Impl::register_routes() {
       text.counter("concord_update_failures_total",
                    "Kalman updates refused (innovation covariance not positive definite)", robot,
                    static_cast<double>(live_.update_failures));
+      text.counter("concord_association_links_accepted_total",
+                   "Object correspondences accepted as the owner of a pair", robot,
+                   static_cast<double>(live_.negotiation.links_accepted));
+      text.counter("concord_association_links_split_total",
+                   "Accepted correspondences undone (a wrong merge split)", robot,
+                   static_cast<double>(live_.negotiation.links_split));
+      text.counter("concord_association_reanchorings_total",
+                   "Moves of the state into a team frame", robot,
+                   static_cast<double>(live_.negotiation.reanchorings));
       text.gauge("concord_frame_latency_p50_seconds", "Median frame latency (update + round)",
                  robot, 1e-3 * percentile(live_.latencies_ms, 50));
       text.gauge("concord_frame_latency_p99_seconds", "99th percentile frame latency", robot,
@@ -1130,6 +1254,15 @@ void Daemon::Impl::register_routes() {
       text.counter("concord_consensus_budget_landmarks_dropped_total",
                    "Landmarks left out of marginals by the link budget", robot,
                    static_cast<double>(c.budget_landmarks_dropped));
+      text.counter("concord_association_negotiations_refused_total",
+                   "Peers' negotiation messages refused (malformed or over the bounds)", robot,
+                   static_cast<double>(c.negotiations_refused));
+      text.counter("concord_association_relabellings_refused_total",
+                   "Peers' marginals without usable receiver ids (negotiated association)", robot,
+                   static_cast<double>(c.relabellings_refused));
+      text.counter("concord_association_bytes_sent_total",
+                   "Bytes of this robot's negotiation messages", robot,
+                   static_cast<double>(c.negotiation_bytes));
       suppressed += c.log_lines_suppressed;
     }
     if (ingest_) {

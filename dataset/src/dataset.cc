@@ -5,7 +5,9 @@
 #include <algorithm>
 #include <array>
 #include <charconv>
+#include <limits>
 #include <nlohmann/json.hpp>
+#include <span>
 #include <stdexcept>
 #include <string_view>
 #include <utility>
@@ -29,12 +31,15 @@ constexpr std::string_view kOdometryFile = "odometry.kitti";
 constexpr std::string_view kObjectsFile = "objects.csv";
 constexpr std::string_view kFeaturesFile = "features.csv";
 constexpr std::string_view kOdometryCovarianceFile = "odometry_covariance.csv";
+constexpr std::string_view kObjectTruthIdsFile = "object_ids_truth.csv";
 constexpr std::string_view kRobotFolderPrefix = "robot_";
 
 constexpr std::array<std::string_view, 4> kObjectsGroundtruthColumns{"id", "x", "y", "z"};
 constexpr std::array<std::string_view, 6> kObservationColumns{"frame",  "id",      "u_left",
                                                               "v_left", "u_right", "v_right"};
-
+/// objects.csv may carry the detector's class after the observation columns.
+constexpr std::array<std::string_view, 1> kObjectClassColumn{"class"};
+constexpr std::array<std::string_view, 2> kObjectTruthIdsColumns{"id", "truth_id"};
 
 /// The NN of a robot_NN folder name (two or more digits); nullopt if the name does not start
 /// with "robot_"; DatasetError if it does but is not of that form.
@@ -69,6 +74,8 @@ struct Description {
   std::string sensor;
   std::optional<int> robots;
   StereoCamera camera;
+  ObjectIds object_ids = ObjectIds::kGlobal;
+  StartPoses start_poses = StartPoses::kKnown;
 };
 
 /// A rows x columns matrix stored as a JSON array of rows at camera.<key>.
@@ -134,6 +141,20 @@ Description read_description(const std::filesystem::path& file) {
     }
     description.robots = root["robots"].get<int>();
   }
+  if (root.contains("object_ids")) {
+    const nlohmann::json& value = root["object_ids"];
+    if (!value.is_string() || (value != "global" && value != "private")) {
+      fail_in_file(file, "\"object_ids\" must be \"global\" or \"private\", got " + value.dump());
+    }
+    description.object_ids = value == "private" ? ObjectIds::kPrivate : ObjectIds::kGlobal;
+  }
+  if (root.contains("start_poses")) {
+    const nlohmann::json& value = root["start_poses"];
+    if (!value.is_string() || (value != "known" && value != "unknown")) {
+      fail_in_file(file, "\"start_poses\" must be \"known\" or \"unknown\", got " + value.dump());
+    }
+    description.start_poses = value == "unknown" ? StartPoses::kUnknown : StartPoses::kKnown;
+  }
   if (!root.contains("camera") || !root["camera"].is_object()) {
     fail_in_file(file, "missing \"camera\" object");
   }
@@ -162,11 +183,18 @@ std::map<LandmarkId, Eigen::Vector3d> read_objects_groundtruth(const std::filesy
   return objects;
 }
 
-/// Observations per frame, for frames 0..num_frames-1.
-std::vector<std::vector<StereoObservation>> read_observations(const std::filesystem::path& file,
-                                                              int num_frames) {
+/// Observations per frame, for frames 0..num_frames-1; with `classes`, the optional class column
+/// is accepted and its values go to *classes (parallel to the observations; all empty without the
+/// column).
+std::vector<std::vector<StereoObservation>> read_observations(
+    const std::filesystem::path& file, int num_frames,
+    std::vector<std::vector<int>>* classes = nullptr, bool* has_classes = nullptr) {
   std::vector<std::vector<StereoObservation>> per_frame(num_frames);
-  CsvReader table(file, kObservationColumns);
+  CsvReader table(file, kObservationColumns,
+                  classes != nullptr ? std::span<const std::string_view>(kObjectClassColumn)
+                                     : std::span<const std::string_view>());
+  if (classes != nullptr) classes->assign(num_frames, {});
+  if (has_classes != nullptr) *has_classes = table.has_optional_columns();
   while (table.next_row()) {
     const std::int64_t frame = table.integer(0);
     if (frame < 0 || frame >= num_frames) {
@@ -179,6 +207,13 @@ std::vector<std::vector<StereoObservation>> read_observations(const std::filesys
     observation.uv =
         Eigen::Vector4d(table.number(2), table.number(3), table.number(4), table.number(5));
     per_frame[frame].push_back(observation);
+    if (classes != nullptr && table.has_optional_columns()) {
+      const std::int64_t object_class = table.integer(6);
+      if (object_class < 0 || object_class > std::numeric_limits<int>::max()) {
+        table.fail("class " + std::to_string(object_class) + " must be an integer >= 0");
+      }
+      (*classes)[frame].push_back(static_cast<int>(object_class));
+    }
   }
   return per_frame;
 }
@@ -215,6 +250,20 @@ std::string format_odometry_covariance(
   return format_pose_covariances_csv(entries);
 }
 
+std::map<LandmarkId, LandmarkId> read_object_truth_ids(const std::filesystem::path& file) {
+  std::map<LandmarkId, LandmarkId> truth_ids;
+  CsvReader table(file, kObjectTruthIdsColumns);
+  while (table.next_row()) {
+    const LandmarkId id = table.integer(0);
+    const LandmarkId truth_id = table.integer(1);
+    if (truth_id < kNoTruthId) {
+      table.fail("truth_id " + std::to_string(truth_id) + " must be >= -1 (-1: false detection)");
+    }
+    if (!truth_ids.emplace(id, truth_id).second) table.fail("duplicate id " + std::to_string(id));
+  }
+  return truth_ids;
+}
+
 /// Keeps the first `frames` frames (all if there are fewer).
 void cut_to_frames(RobotData& robot, int frames) {
   if (frames >= robot.num_frames()) return;
@@ -223,6 +272,7 @@ void cut_to_frames(RobotData& robot, int frames) {
   robot.objects.resize(frames);
   robot.features.resize(frames);
   if (!robot.odometry_covariance.empty()) robot.odometry_covariance.resize(std::max(frames - 1, 0));
+  if (robot.has_object_classes) robot.object_classes.resize(frames);
 }
 
 RobotData read_robot(const std::filesystem::path& folder, int index, const ReadOptions& options) {
@@ -240,7 +290,12 @@ RobotData read_robot(const std::filesystem::path& folder, int index, const ReadO
                                     std::to_string(num_frames) + " poses of " +
                                     groundtruth_file.string() + ")");
   }
-  robot.objects = read_observations(folder / kObjectsFile, num_frames);
+  robot.objects = read_observations(folder / kObjectsFile, num_frames, &robot.object_classes,
+                                    &robot.has_object_classes);
+  if (!robot.has_object_classes) robot.object_classes.assign(num_frames, {});
+  const std::filesystem::path truth_ids_file = folder / kObjectTruthIdsFile;
+  robot.has_object_truth_ids = std::filesystem::exists(truth_ids_file);
+  if (robot.has_object_truth_ids) robot.object_truth_ids = read_object_truth_ids(truth_ids_file);
   const std::filesystem::path features_file = folder / kFeaturesFile;
   robot.has_features = options.load_features && std::filesystem::exists(features_file);
   if (robot.has_features) {
@@ -256,10 +311,14 @@ RobotData read_robot(const std::filesystem::path& folder, int index, const ReadO
   return robot;
 }
 
-std::string format_observations(const std::vector<std::vector<StereoObservation>>& per_frame) {
-  std::string out = text_parsing::csv_header(kObservationColumns) + '\n';
+std::string format_observations(const std::vector<std::vector<StereoObservation>>& per_frame,
+                                const std::vector<std::vector<int>>* classes = nullptr) {
+  std::string out = text_parsing::csv_header(kObservationColumns);
+  if (classes != nullptr) out += "," + std::string(kObjectClassColumn[0]);
+  out += '\n';
   for (std::size_t frame = 0; frame < per_frame.size(); ++frame) {
-    for (const StereoObservation& observation : per_frame[frame]) {
+    for (std::size_t n = 0; n < per_frame[frame].size(); ++n) {
+      const StereoObservation& observation = per_frame[frame][n];
       append_integer(out, static_cast<std::int64_t>(frame));
       out += ',';
       append_integer(out, observation.id);
@@ -267,8 +326,23 @@ std::string format_observations(const std::vector<std::vector<StereoObservation>
         out += ',';
         append_number(out, observation.uv[coordinate]);
       }
+      if (classes != nullptr) {
+        out += ',';
+        append_integer(out, (*classes)[frame][n]);
+      }
       out += '\n';
     }
+  }
+  return out;
+}
+
+std::string format_object_truth_ids(const std::map<LandmarkId, LandmarkId>& truth_ids) {
+  std::string out = text_parsing::csv_header(kObjectTruthIdsColumns) + '\n';
+  for (const auto& [id, truth_id] : truth_ids) {
+    append_integer(out, id);
+    out += ',';
+    append_integer(out, truth_id);
+    out += '\n';
   }
   return out;
 }
@@ -304,6 +378,8 @@ std::string format_description(const Dataset& dataset) {
   root["name"] = dataset.name;
   if (!dataset.sensor.empty()) root["sensor"] = dataset.sensor;
   root["robots"] = dataset.robots.size();
+  root["object_ids"] = to_string(dataset.object_ids);
+  root["start_poses"] = to_string(dataset.start_poses);
   root["camera"] = {{"K", matrix_to_json(camera.K)},
                     {"T_cam_body", matrix_to_json(camera.T_cam0_body.matrix())},
                     {"T_cam0_cam1", matrix_to_json(camera.T_cam0_cam1.matrix())},
@@ -326,28 +402,46 @@ void check_consistent(const RobotData& robot, std::size_t position) {
   if (robot.has_features && robot.features.size() != frames) {
     fail("features must have one entry per frame");
   }
+  if (robot.has_object_classes) {
+    if (robot.object_classes.size() != frames) fail("object_classes must have one entry per frame");
+    for (std::size_t k = 0; k < frames; ++k) {
+      if (robot.object_classes[k].size() != robot.objects[k].size()) {
+        fail("object_classes must have one class per object observation (frame " +
+             std::to_string(k) + ")");
+      }
+    }
+  }
 }
 
 }  // namespace
 
 int RobotData::num_frames() const { return static_cast<int>(groundtruth.size()); }
 
-FrameInput RobotData::frame_input(int frame) const {
-  if (frame < 0 || frame >= num_frames()) {
+namespace {
+
+/// Frame k's inputs of one robot (RobotData and RobotInputs share the layout).
+template <typename Robot>
+FrameInput robot_frame_input(const Robot& robot, int frame) {
+  if (frame < 0 || frame >= robot.num_frames()) {
     throw std::out_of_range("frame " + std::to_string(frame) + " outside [0, " +
-                            std::to_string(num_frames()) + ")");
+                            std::to_string(robot.num_frames()) + ")");
   }
   FrameInput input;
   input.frame = frame;
   if (frame > 0) {
-    input.T_previous_current = odometry.at(frame - 1);
-    if (static_cast<std::size_t>(frame - 1) < odometry_covariance.size())
-      input.odometry_covariance = odometry_covariance[static_cast<std::size_t>(frame - 1)];
+    const auto step = static_cast<std::size_t>(frame - 1);
+    input.T_previous_current = robot.odometry.at(step);
+    if (step < robot.odometry_covariance.size())
+      input.odometry_covariance = robot.odometry_covariance[step];
   }
-  input.objects = objects.at(frame);
-  if (frame < static_cast<int>(features.size())) input.features = features[frame];
+  input.objects = robot.objects.at(frame);
+  if (frame < static_cast<int>(robot.features.size())) input.features = robot.features[frame];
   return input;
 }
+
+}  // namespace
+
+FrameInput RobotData::frame_input(int frame) const { return robot_frame_input(*this, frame); }
 
 std::string robot_folder_name(int index) {
   std::string name(kRobotFolderPrefix);
@@ -379,6 +473,8 @@ Dataset read_dataset(const std::filesystem::path& directory, const ReadOptions& 
   dataset.root = directory;
   dataset.camera = description.camera;
   dataset.sensor = description.sensor;
+  dataset.object_ids = description.object_ids;
+  dataset.start_poses = description.start_poses;
   if (description.name) {
     dataset.name = *description.name;
   } else {
@@ -446,7 +542,16 @@ void write_dataset(const Dataset& dataset, const std::filesystem::path& director
     write_file_atomically(folder / kGroundtruthFile,
                           text_parsing::format_kitti_poses(robot.groundtruth));
     write_file_atomically(folder / kOdometryFile, text_parsing::format_kitti_poses(robot.odometry));
-    write_file_atomically(folder / kObjectsFile, format_observations(robot.objects));
+    write_file_atomically(
+        folder / kObjectsFile,
+        format_observations(robot.objects,
+                            robot.has_object_classes ? &robot.object_classes : nullptr));
+    if (robot.has_object_truth_ids) {
+      write_file_atomically(folder / kObjectTruthIdsFile,
+                            format_object_truth_ids(robot.object_truth_ids));
+    } else {
+      std::filesystem::remove(folder / kObjectTruthIdsFile);
+    }
     if (robot.has_features) {
       write_file_atomically(folder / kFeaturesFile, format_observations(robot.features));
     } else {
@@ -471,10 +576,86 @@ Dataset slice(const Dataset& dataset, int frames, int robots) {
   cut.root = dataset.root;
   cut.camera = dataset.camera;
   cut.objects_groundtruth = dataset.objects_groundtruth;
+  cut.object_ids = dataset.object_ids;
+  cut.start_poses = dataset.start_poses;
   const std::size_t kept_robots = std::min(dataset.robots.size(), static_cast<std::size_t>(robots));
   cut.robots.assign(dataset.robots.begin(), dataset.robots.begin() + kept_robots);
   for (RobotData& robot : cut.robots) cut_to_frames(robot, frames);
   return cut;
+}
+
+std::string to_string(ObjectIds object_ids) {
+  return object_ids == ObjectIds::kPrivate ? "private" : "global";
+}
+
+std::string to_string(StartPoses start_poses) {
+  return start_poses == StartPoses::kUnknown ? "unknown" : "known";
+}
+
+FrameInput RobotInputs::frame_input(int frame) const { return robot_frame_input(*this, frame); }
+
+TeamInputs sensor_inputs(const Dataset& dataset) {
+  TeamInputs team;
+  team.name = dataset.name;
+  team.sensor = dataset.sensor;
+  team.camera = dataset.camera;
+  team.object_ids = dataset.object_ids;
+  team.start_poses = dataset.start_poses;
+  team.robots.reserve(dataset.robots.size());
+  for (const RobotData& robot : dataset.robots) {
+    RobotInputs inputs;
+    inputs.index = robot.index;
+    if (dataset.start_poses == StartPoses::kKnown && !robot.groundtruth.empty()) {
+      inputs.T_world_body_start = robot.groundtruth.front();
+    }
+    inputs.odometry = robot.odometry;
+    inputs.objects = robot.objects;
+    inputs.has_object_classes = robot.has_object_classes;
+    inputs.object_classes = robot.object_classes;
+    inputs.object_classes.resize(robot.objects.size());
+    inputs.features = robot.features;
+    inputs.odometry_covariance = robot.odometry_covariance;
+    team.robots.push_back(std::move(inputs));
+  }
+  return team;
+}
+
+Dataset make_variant(const Dataset& dataset, bool private_ids, bool unknown_starts) {
+  Dataset variant = dataset;
+  if (unknown_starts) variant.start_poses = StartPoses::kUnknown;
+  if (!private_ids) return variant;
+  variant.object_ids = ObjectIds::kPrivate;
+  for (RobotData& robot : variant.robots) {
+    // The truth of an id as the dataset has it: a global id is its own truth when it has ground
+    // truth (or no ground truth is given at all), a private id goes through the truth map.
+    const auto truth_of = [&](LandmarkId id) {
+      if (dataset.object_ids == ObjectIds::kPrivate) {
+        const auto found = robot.object_truth_ids.find(id);
+        return found == robot.object_truth_ids.end() ? kNoTruthId : found->second;
+      }
+      if (dataset.objects_groundtruth.empty() || dataset.objects_groundtruth.contains(id)) {
+        return id;
+      }
+      return kNoTruthId;
+    };
+    std::map<LandmarkId, LandmarkId> private_of;
+    std::map<LandmarkId, LandmarkId> truth_ids;
+    for (auto& frame : robot.objects) {
+      std::vector<LandmarkId> ids;
+      for (const StereoObservation& observation : frame) ids.push_back(observation.id);
+      std::sort(ids.begin(), ids.end());
+      for (LandmarkId id : ids) {
+        if (private_of.contains(id)) continue;
+        const auto next = static_cast<LandmarkId>(private_of.size());
+        private_of[id] = next;
+        truth_ids[next] = truth_of(id);
+      }
+      for (StereoObservation& observation : frame) observation.id = private_of.at(observation.id);
+    }
+    robot.object_truth_ids = std::move(truth_ids);
+    robot.has_object_truth_ids = true;
+  }
+  return variant;
 }
 
 }  // namespace concord::dataset

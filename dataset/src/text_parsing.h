@@ -254,27 +254,44 @@ inline std::string csv_header(std::span<const std::string_view> columns) {
 }
 
 /// Reads a comma-separated table whose first line must be exactly the expected header (fields
-/// are trimmed of blanks). Each row must have as many fields as the header. The column names must
+/// are trimmed of blanks), or the expected header followed by the optional trailing columns (all
+/// of them, in order). Each row must have as many fields as the header. The column names must
 /// outlive the reader.
 class CsvReader {
  public:
-  CsvReader(std::filesystem::path file, std::span<const std::string_view> columns)
+  CsvReader(std::filesystem::path file, std::span<const std::string_view> columns,
+            std::span<const std::string_view> optional_columns = {})
       : text_(std::move(file)), columns_(columns.begin(), columns.end()) {
-    fields_.reserve(columns_.size());
+    fields_.reserve(columns_.size() + optional_columns.size());
     const std::string expected = csv_header(columns);
+    std::vector<std::string_view> with_optional = columns_;
+    with_optional.insert(with_optional.end(), optional_columns.begin(), optional_columns.end());
+    const std::string expected_with_optional = csv_header(with_optional);
     std::string_view line;
     if (!text_.next_line(line)) {
       fail_in_file(text_.path(), "empty file, expected the header '" + expected + "'");
     }
     split(line);
-    bool header_matches = fields_.size() == columns_.size();
-    for (std::size_t index = 0; header_matches && index < fields_.size(); ++index) {
-      header_matches = fields_[index] == columns_[index];
-    }
-    if (!header_matches) {
-      text_.fail("expected the header '" + expected + "', found '" + std::string(line) + "'");
+    const auto header_is = [&](const std::vector<std::string_view>& names) {
+      if (fields_.size() != names.size()) return false;
+      for (std::size_t index = 0; index < fields_.size(); ++index) {
+        if (fields_[index] != names[index]) return false;
+      }
+      return true;
+    };
+    if (!optional_columns.empty() && header_is(with_optional)) {
+      columns_ = std::move(with_optional);
+      has_optional_columns_ = true;
+    } else if (!header_is(columns_)) {
+      text_.fail("expected the header '" + expected + "', found '" + std::string(line) + "'" +
+                 (optional_columns.empty()
+                      ? std::string()
+                      : " (or with optional columns: '" + expected_with_optional + "')"));
     }
   }
+
+  /// Whether the header carried the optional trailing columns.
+  bool has_optional_columns() const { return has_optional_columns_; }
 
   /// Moves to the next row; false at the end. Throws on a wrong number of fields.
   bool next_row() {
@@ -319,6 +336,7 @@ class CsvReader {
   TextFile text_;
   std::vector<std::string_view> columns_;
   std::vector<std::string_view> fields_;
+  bool has_optional_columns_ = false;
 };
 
 }  // namespace concord::dataset::text_parsing

@@ -5,6 +5,7 @@
 #include <string>
 
 #include "concord/estimator/lie.h"
+#include "concord/estimator/state_helper.h"
 
 namespace concord {
 
@@ -117,6 +118,11 @@ Marginal Estimator::marginal(const std::vector<LandmarkId>& ids) const {
 
 ConsensusReport Estimator::fuse(const std::vector<WeightedMarginal>& neighbours) {
   return Consensus::fuse(state_, neighbours, options_.consensus);
+}
+
+void Estimator::reanchor(const Eigen::Isometry3d& T_new_old,
+                         const Eigen::Matrix<double, 6, 6>& covariance) {
+  StateHelper::reanchor(state_, T_new_old, covariance);
 }
 
 Eigen::Matrix<double, 6, 6> Estimator::current_pose_covariance() const {

@@ -144,6 +144,49 @@ std::vector<int> StateHelper::nonzero_columns(const Eigen::MatrixXd& H) {
   return columns;
 }
 
+void StateHelper::reanchor(State& state, const Eigen::Isometry3d& T_new_old,
+                           const lie::Matrix6d& covariance) {
+  const Eigen::Matrix3d& R = T_new_old.linear();
+  const lie::Matrix6d adjoint = lie::adjoint(T_new_old);
+  // 1. Means.
+  for (PoseClone& pose : state.poses) {
+    pose.T_world_body = lie::orthonormalized(T_new_old * pose.T_world_body);
+  }
+  for (ObjectLandmark& landmark : state.landmarks) {
+    landmark.p_world = T_new_old * landmark.p_world;
+    landmark.p_linearization = T_new_old * landmark.p_linearization;
+  }
+  // 2. Joint covariance: P <- G P G^T + J covariance J^T, G block diagonal.
+  const int n = state.dimension();
+  Eigen::MatrixXd& P = state.covariance;
+  Eigen::MatrixXd J(n, 6);
+  for (int slot = 0; slot < state.num_poses(); ++slot) {
+    const int index = state.pose_index(slot);
+    P.middleRows(index, 6) = (adjoint * P.middleRows(index, 6)).eval();
+    P.middleCols(index, 6) = (P.middleCols(index, 6) * adjoint.transpose()).eval();
+    J.middleRows(index, 6).setIdentity();
+  }
+  for (int slot = 0; slot < state.num_landmarks(); ++slot) {
+    const int index = state.landmark_index(slot);
+    P.middleRows(index, 3) = (R * P.middleRows(index, 3)).eval();
+    P.middleCols(index, 3) = (P.middleCols(index, 3) * R.transpose()).eval();
+    J.block<3, 3>(index, 0).setIdentity();
+    J.block<3, 3>(index, 3) = -lie::skew(state.landmarks[slot].p_world);
+  }
+  P += J * covariance * J.transpose();
+  symmetrize(state);
+  // 3. Archived objects, each with its own share of the transform's error.
+  for (auto& [id, estimate] : state.archived) {
+    estimate.p_world = T_new_old * estimate.p_world;
+    Eigen::Matrix<double, 3, 6> J_object;
+    J_object.leftCols<3>().setIdentity();
+    J_object.rightCols<3>() = -lie::skew(estimate.p_world);
+    estimate.covariance =
+        R * estimate.covariance * R.transpose() + J_object * covariance * J_object.transpose();
+    estimate.covariance = 0.5 * (estimate.covariance + estimate.covariance.transpose()).eval();
+  }
+}
+
 void StateHelper::symmetrize(State& state) {
   state.covariance = 0.5 * (state.covariance + state.covariance.transpose()).eval();
 }

@@ -44,11 +44,6 @@ double median_of(std::vector<double> values) {
   return *middle;
 }
 
-void append_number(std::string& out, double value) {
-  char buffer[32];
-  const auto result = std::to_chars(buffer, buffer + sizeof(buffer), value);
-  out.append(buffer, result.ptr);
-}
 
 
 nlohmann::ordered_json percentiles_json(const Percentiles& p) {

@@ -1,10 +1,12 @@
 #include "evaluation/metrics.h"
 
+#include <Eigen/Cholesky>
 #include <algorithm>
 #include <cassert>
 #include <cmath>
-#include <Eigen/Cholesky>
 #include <cstdio>
+#include <numbers>
+#include <set>
 #include <sstream>
 #include <stdexcept>
 
@@ -16,14 +18,49 @@ namespace {
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
-/// A robot's object estimates by id; rejects ids listed twice.
-std::map<LandmarkId, Eigen::Vector3d> objects_by_id(const RobotResult& result, int robot) {
+/// The ground-truth id of a robot's object id (the id itself when ids are global), or -1.
+LandmarkId truth_id_of(const RobotTruth& truth, LandmarkId id) {
+  if (truth.truth_ids.empty()) return id;
+  const auto it = truth.truth_ids.find(id);
+  return it == truth.truth_ids.end() ? -1 : it->second;
+}
+
+/// T_F_world of a frame: identity for the world, the inverse of robot F's first true pose.
+Eigen::Isometry3d frame_from_world(const std::vector<RobotTruth>& truths,
+                                   const std::optional<int>& frame) {
+  if (!frame) return Eigen::Isometry3d::Identity();
+  if (*frame < 0 || *frame >= static_cast<int>(truths.size()) ||
+      truths[*frame].groundtruth.empty()) {
+    throw std::invalid_argument("frame of robot " + std::to_string(*frame) +
+                                " has no ground truth");
+  }
+  return truths[*frame].groundtruth.front().inverse();
+}
+
+/// The frame of a robot's pose k (world when none are given).
+std::optional<int> frame_at(const RobotResult& result, std::size_t k) {
+  return result.trajectory_frames.empty() ? std::nullopt : result.trajectory_frames[k];
+}
+
+/// The frame of a robot's final estimates.
+std::optional<int> final_frame(const RobotResult& result) {
+  return result.trajectory_frames.empty() ? std::nullopt : result.trajectory_frames.back();
+}
+
+/// A robot's object estimates by truth id, in the world frame when `to_world` is given (rejects ids
+/// listed twice; objects without truth are left out).
+std::map<LandmarkId, Eigen::Vector3d> objects_by_id(const RobotResult& result,
+                                                    const RobotTruth& truth, int robot) {
   std::map<LandmarkId, Eigen::Vector3d> positions;
+  std::set<LandmarkId> seen;
   for (const ObjectEstimate& object : result.objects) {
-    if (!positions.emplace(object.id, object.p_world).second) {
+    if (!seen.insert(object.id).second) {
       throw std::invalid_argument("robot " + std::to_string(robot) + " lists object " +
                                   std::to_string(object.id) + " more than once");
     }
+    const LandmarkId truth_id = truth_id_of(truth, object.id);
+    if (truth_id < 0) continue;
+    positions.emplace(truth_id, object.p_world);
   }
   return positions;
 }
@@ -48,6 +85,18 @@ void check_inputs(const std::vector<RobotTruth>& truths, const std::vector<Robot
                                   std::to_string(covariance_length) + " pose covariances for " +
                                   std::to_string(trajectory_length) + " poses");
     }
+    const std::size_t frames_length = results[robot].trajectory_frames.size();
+    if (frames_length != 0 && frames_length != trajectory_length) {
+      throw std::invalid_argument("robot " + std::to_string(robot) + ": " +
+                                  std::to_string(frames_length) + " trajectory frames for " +
+                                  std::to_string(trajectory_length) + " poses");
+    }
+    if (!results[robot].team_ids.empty() &&
+        results[robot].team_ids.size() != results[robot].objects.size()) {
+      throw std::invalid_argument(
+          "robot " + std::to_string(robot) + ": " + std::to_string(results[robot].team_ids.size()) +
+          " team ids for " + std::to_string(results[robot].objects.size()) + " objects");
+    }
     const std::size_t odometry_length = truths[robot].odometry.size();
     if (odometry_length != 0 && odometry_length + 1 != truth_length) {
       throw std::invalid_argument("robot " + std::to_string(robot) + ": odometry has " +
@@ -57,16 +106,17 @@ void check_inputs(const std::vector<RobotTruth>& truths, const std::vector<Robot
   }
 }
 
-/// Mean ||p_est - p_gt|| over the estimated objects that have ground truth (Table II).
+/// Mean ||p_est - p_gt|| over the estimated objects that have ground truth (Table II), the truth
+/// moved into the estimates' frame by T_frame_world.
 void fill_object_error(const std::map<LandmarkId, Eigen::Vector3d>& estimated,
                        const std::map<LandmarkId, Eigen::Vector3d>& objects_groundtruth,
-                       RobotMetrics& metrics) {
+                       const Eigen::Isometry3d& T_frame_world, RobotMetrics& metrics) {
   double error_sum = 0.0;
   int count = 0;
   for (const auto& [id, p_world] : estimated) {
     const auto truth = objects_groundtruth.find(id);
     if (truth == objects_groundtruth.end()) continue;
-    error_sum += (p_world - truth->second).norm();
+    error_sum += (p_world - T_frame_world * truth->second).norm();
     ++count;
   }
   metrics.objects_evaluated = count;
@@ -74,17 +124,19 @@ void fill_object_error(const std::map<LandmarkId, Eigen::Vector3d>& estimated,
 }
 
 /// Object NEES of the estimated objects that have ground truth, in id order.
-NeesSummary object_nees_of(const RobotResult& result,
-                           const std::map<LandmarkId, Eigen::Vector3d>& objects_groundtruth) {
+NeesSummary object_nees_of(const RobotResult& result, const RobotTruth& robot_truth,
+                           const std::map<LandmarkId, Eigen::Vector3d>& objects_groundtruth,
+                           const Eigen::Isometry3d& T_frame_world) {
   std::vector<const ObjectEstimate*> sorted;
   for (const ObjectEstimate& object : result.objects) sorted.push_back(&object);
   std::sort(sorted.begin(), sorted.end(),
             [](const ObjectEstimate* a, const ObjectEstimate* b) { return a->id < b->id; });
   std::vector<double> samples;
   for (const ObjectEstimate* object : sorted) {
-    const auto truth = objects_groundtruth.find(object->id);
+    const auto truth = objects_groundtruth.find(truth_id_of(robot_truth, object->id));
     if (truth == objects_groundtruth.end()) continue;
-    samples.push_back(point_nees(object->p_world, object->covariance, truth->second));
+    samples.push_back(
+        point_nees(object->p_world, object->covariance, T_frame_world * truth->second));
   }
   return summarize_nees(samples, 3);
 }
@@ -120,14 +172,15 @@ void aggregate(const std::vector<RobotMetrics>& robots, NeesSummary RobotMetrics
 }
 
 /// Mean ||p_i - p_j|| over every (object, other robot j) pair where robot j also holds the object
-/// (Table III).
+/// (Table III), robots whose estimates are in one frame only.
 void fill_disagreement(const std::vector<std::map<LandmarkId, Eigen::Vector3d>>& estimated,
-                       std::size_t robot, RobotMetrics& metrics) {
+                       const std::vector<std::optional<int>>& frames, std::size_t robot,
+                       RobotMetrics& metrics) {
   double distance_sum = 0.0;
   int pairs = 0;
   for (const auto& [id, p_world] : estimated[robot]) {
     for (std::size_t other = 0; other < estimated.size(); ++other) {
-      if (other == robot) continue;
+      if (other == robot || frames[other] != frames[robot]) continue;
       const auto other_estimate = estimated[other].find(id);
       if (other_estimate == estimated[other].end()) continue;
       distance_sum += (p_world - other_estimate->second).norm();
@@ -199,6 +252,16 @@ nlohmann::json robot_to_json(const RobotMetrics& metrics) {
       {"disagreement", number_or_null(metrics.disagreement)},
       {"disagreement_pairs", metrics.disagreement_pairs},
       {"frames", metrics.frames},
+      {"trajectory_rmse_aligned", number_or_null(metrics.trajectory_rmse_aligned)},
+      {"first_frame", metrics.first_frame},
+      {"moved", metrics.moved},
+      {"aligned_at_frame", metrics.aligned_at_frame},
+      {"alignment_translation_error", number_or_null(metrics.alignment_translation_error)},
+      {"alignment_rotation_error_degrees",
+       number_or_null(metrics.alignment_rotation_error_degrees)},
+      {"aligned_pose_error", number_or_null(metrics.aligned_pose_error)},
+      {"aligned_pose_rotation_error_degrees",
+       number_or_null(metrics.aligned_pose_rotation_error_degrees)},
   };
 }
 
@@ -311,39 +374,122 @@ std::vector<Eigen::Isometry3d> dead_reckoning(const Eigen::Isometry3d& start,
   return trajectory;
 }
 
+namespace {
+
+double degrees_of(const Eigen::Matrix3d& rotation) {
+  return Eigen::AngleAxisd(rotation).angle() * 180.0 / std::numbers::pi;
+}
+
+/// Precision and recall of the team ids against the truth ids (AssociationMetrics).
+AssociationMetrics association_of(const std::vector<RobotTruth>& truths,
+                                  const std::vector<RobotResult>& results,
+                                  const std::vector<std::optional<int>>& frames, int min_frames) {
+  AssociationMetrics metrics;
+  const std::size_t n = results.size();
+  // Per robot: team id -> truth id of its object, and truth ids it linked.
+  std::vector<std::map<LandmarkId, LandmarkId>> truth_of_team(n);
+  for (std::size_t r = 0; r < n; ++r) {
+    for (std::size_t k = 0; k < results[r].objects.size(); ++k) {
+      const LandmarkId team = results[r].team_ids[k];
+      if (team < 0) continue;
+      truth_of_team[r][team] = truth_id_of(truths[r], results[r].objects[k].id);
+    }
+  }
+  for (std::size_t i = 0; i < n; ++i) {
+    for (std::size_t j = i + 1; j < n; ++j) {
+      ++metrics.robot_pairs;
+      const bool one_frame = frames[i] == frames[j];
+      if (one_frame) ++metrics.pairs_in_one_frame;
+      std::set<LandmarkId> linked_truths;
+      for (const auto& [team, truth_i] : truth_of_team[i]) {
+        const auto other = truth_of_team[j].find(team);
+        if (other == truth_of_team[j].end()) continue;
+        ++metrics.linked_pairs;
+        if (truth_i >= 0 && truth_i == other->second) {
+          ++metrics.correct_pairs;
+          linked_truths.insert(truth_i);
+        }
+      }
+      for (const auto& [truth, frames_i] : truths[i].frames_observed) {
+        if (truth < 0 || frames_i < min_frames) continue;
+        const auto other = truths[j].frames_observed.find(truth);
+        if (other == truths[j].frames_observed.end() || other->second < min_frames) continue;
+        const bool found = linked_truths.contains(truth);
+        ++metrics.common_objects;
+        metrics.found += found;
+        if (one_frame) {
+          ++metrics.common_objects_aligned;
+          metrics.found_aligned += found;
+        }
+      }
+    }
+  }
+  const auto ratio = [](int a, int b) {
+    return b > 0 ? static_cast<double>(a) / static_cast<double>(b) : kNaN;
+  };
+  metrics.precision = ratio(metrics.correct_pairs, metrics.linked_pairs);
+  metrics.recall = ratio(metrics.found, metrics.common_objects);
+  metrics.recall_aligned = ratio(metrics.found_aligned, metrics.common_objects_aligned);
+  return metrics;
+}
+
+}  // namespace
+
 TeamMetrics evaluate(const std::vector<RobotTruth>& truths, const std::vector<RobotResult>& results,
-                     const std::map<LandmarkId, Eigen::Vector3d>& objects_groundtruth) {
+                     const std::map<LandmarkId, Eigen::Vector3d>& objects_groundtruth,
+                     const EvaluationOptions& options) {
   check_inputs(truths, results);
+  if (!options.first_frames.empty() && options.first_frames.size() != results.size()) {
+    throw std::invalid_argument("evaluation: " + std::to_string(options.first_frames.size()) +
+                                " first frames for " + std::to_string(results.size()) + " robots");
+  }
 
   std::vector<std::map<LandmarkId, Eigen::Vector3d>> estimated_objects;
+  std::vector<std::optional<int>> frames;
   estimated_objects.reserve(results.size());
   for (std::size_t robot = 0; robot < results.size(); ++robot) {
-    estimated_objects.push_back(objects_by_id(results[robot], static_cast<int>(robot)));
+    estimated_objects.push_back(
+        objects_by_id(results[robot], truths[robot], static_cast<int>(robot)));
+    frames.push_back(final_frame(results[robot]));
   }
 
   TeamMetrics team;
   for (std::size_t robot = 0; robot < truths.size(); ++robot) {
     const RobotTruth& truth = truths[robot];
+    const RobotResult& result = results[robot];
     RobotMetrics metrics;
     metrics.robot = static_cast<int>(robot);
     metrics.frames = static_cast<int>(truth.groundtruth.size());
-    // 1. Trajectory RMSE without alignment (Table I).
-    metrics.trajectory_rmse = translation_rmse(results[robot].trajectory, truth.groundtruth);
+    // The ground truth of every frame in the frame of that frame's estimate.
+    std::vector<Eigen::Isometry3d> truth_in_frames;
+    truth_in_frames.reserve(truth.groundtruth.size());
+    for (std::size_t frame = 0; frame < truth.groundtruth.size(); ++frame) {
+      truth_in_frames.push_back(frame_from_world(truths, frame_at(result, frame)) *
+                                truth.groundtruth[frame]);
+    }
+    // 1. Trajectory RMSE without alignment (Table I), and from the alignment frame on.
+    metrics.trajectory_rmse = translation_rmse(result.trajectory, truth_in_frames);
+    metrics.first_frame =
+        options.first_frames.empty() ? result.aligned_at_frame : options.first_frames[robot];
+    metrics.first_frame = std::clamp(metrics.first_frame, 0, metrics.frames);
+    metrics.trajectory_rmse_aligned =
+        translation_rmse({result.trajectory.begin() + metrics.first_frame, result.trajectory.end()},
+                         {truth_in_frames.begin() + metrics.first_frame, truth_in_frames.end()});
     // 2. The dead-reckoning baseline from the known start pose.
     if (!truth.odometry.empty()) {
       metrics.odometry_rmse = translation_rmse(
           dead_reckoning(truth.groundtruth.front(), truth.odometry), truth.groundtruth);
     }
-    // 3. Object error against ground truth (Table II).
-    fill_object_error(estimated_objects[robot], objects_groundtruth, metrics);
-    // 4. Object position differences across robots (Table III).
-    fill_disagreement(estimated_objects, robot, metrics);
+    // 3. Object error against ground truth (Table II), in the robot's final frame.
+    const Eigen::Isometry3d T_final_world = frame_from_world(truths, frames[robot]);
+    fill_object_error(estimated_objects[robot], objects_groundtruth, T_final_world, metrics);
+    // 4. Object position differences across robots in one frame (Table III).
+    fill_disagreement(estimated_objects, frames, robot, metrics);
     // 5. Consistency: NEES of the online poses and of the final objects.
     std::vector<double> pose, position, orientation;
-    const RobotResult& result = results[robot];
     for (std::size_t frame = 0; frame < result.pose_covariances.size(); ++frame) {
-      const PoseNees nees =
-          pose_nees(result.trajectory[frame], result.pose_covariances[frame], truth.groundtruth[frame]);
+      const PoseNees nees = pose_nees(result.trajectory[frame], result.pose_covariances[frame],
+                                      truth_in_frames[frame]);
       pose.push_back(nees.pose);
       position.push_back(nees.position);
       orientation.push_back(nees.orientation);
@@ -351,14 +497,33 @@ TeamMetrics evaluate(const std::vector<RobotTruth>& truths, const std::vector<Ro
     metrics.pose_nees = summarize_nees(pose, 6);
     metrics.position_nees = summarize_nees(position, 3);
     metrics.orientation_nees = summarize_nees(orientation, 3);
-    metrics.object_nees = object_nees_of(result, objects_groundtruth);
+    metrics.object_nees = object_nees_of(result, truth, objects_groundtruth, T_final_world);
+    // 6. Alignment: T_team_own against the truth, and the pose at the alignment frame.
+    metrics.moved = result.moved ? 1 : 0;
+    metrics.aligned_at_frame = result.aligned_at_frame;
+    if (result.moved && !truth.groundtruth.empty()) {
+      const Eigen::Isometry3d T_true = T_final_world * truth.groundtruth.front();
+      const Eigen::Isometry3d error = T_true.inverse() * result.T_team_own;
+      metrics.alignment_translation_error =
+          (T_true.translation() - result.T_team_own.translation()).norm();
+      metrics.alignment_rotation_error_degrees = degrees_of(error.linear());
+      const auto k = static_cast<std::size_t>(
+          std::clamp(result.aligned_at_frame, 0, static_cast<int>(result.trajectory.size()) - 1));
+      metrics.aligned_pose_error =
+          (result.trajectory[k].translation() - truth_in_frames[k].translation()).norm();
+      metrics.aligned_pose_rotation_error_degrees =
+          degrees_of(truth_in_frames[k].linear().transpose() * result.trajectory[k].linear());
+    }
     team.robots.push_back(metrics);
   }
 
   team.average.robot = -1;
   team.maximum.robot = -1;
-  for (double RobotMetrics::*field : {&RobotMetrics::trajectory_rmse, &RobotMetrics::odometry_rmse,
-                                      &RobotMetrics::object_error, &RobotMetrics::disagreement}) {
+  for (double RobotMetrics::*field :
+       {&RobotMetrics::trajectory_rmse, &RobotMetrics::odometry_rmse, &RobotMetrics::object_error,
+        &RobotMetrics::disagreement, &RobotMetrics::trajectory_rmse_aligned,
+        &RobotMetrics::alignment_translation_error, &RobotMetrics::alignment_rotation_error_degrees,
+        &RobotMetrics::aligned_pose_error, &RobotMetrics::aligned_pose_rotation_error_degrees}) {
     aggregate(team.robots, field, team.average, team.maximum);
   }
   for (NeesSummary RobotMetrics::*field : {&RobotMetrics::pose_nees, &RobotMetrics::position_nees,
@@ -366,9 +531,17 @@ TeamMetrics evaluate(const std::vector<RobotTruth>& truths, const std::vector<Ro
                                            &RobotMetrics::object_nees}) {
     aggregate(team.robots, field, team.average, team.maximum);
   }
-  for (int RobotMetrics::*field : {&RobotMetrics::objects_evaluated,
-                                   &RobotMetrics::disagreement_pairs, &RobotMetrics::frames}) {
+  for (int RobotMetrics::*field :
+       {&RobotMetrics::objects_evaluated, &RobotMetrics::disagreement_pairs, &RobotMetrics::frames,
+        &RobotMetrics::first_frame, &RobotMetrics::moved, &RobotMetrics::aligned_at_frame}) {
     aggregate(team.robots, field, team.average, team.maximum);
+  }
+  const bool has_team_ids = std::any_of(results.begin(), results.end(),
+                                        [](const RobotResult& r) { return !r.team_ids.empty(); });
+  if (has_team_ids && std::all_of(results.begin(), results.end(), [](const RobotResult& r) {
+        return r.team_ids.size() == r.objects.size();
+      })) {
+    team.association = association_of(truths, results, frames, options.recall_min_frames);
   }
   return team;
 }
@@ -376,17 +549,34 @@ TeamMetrics evaluate(const std::vector<RobotTruth>& truths, const std::vector<Ro
 nlohmann::json to_json(const TeamMetrics& metrics) {
   nlohmann::json robots = nlohmann::json::array();
   for (const RobotMetrics& robot : metrics.robots) robots.push_back(robot_to_json(robot));
-  return {
+  nlohmann::json document = {
       {"robots", robots},
       {"average", robot_to_json(metrics.average)},
       {"maximum", robot_to_json(metrics.maximum)},
   };
+  if (metrics.association) {
+    const AssociationMetrics& a = *metrics.association;
+    document["association"] = {
+        {"linked_pairs", a.linked_pairs},
+        {"correct_pairs", a.correct_pairs},
+        {"precision", number_or_null(a.precision)},
+        {"common_objects", a.common_objects},
+        {"found", a.found},
+        {"recall", number_or_null(a.recall)},
+        {"common_objects_aligned", a.common_objects_aligned},
+        {"found_aligned", a.found_aligned},
+        {"recall_aligned", number_or_null(a.recall_aligned)},
+        {"pairs_in_one_frame", a.pairs_in_one_frame},
+        {"robot_pairs", a.robot_pairs},
+    };
+  }
+  return document;
 }
 
 std::string format_table(const TeamMetrics& metrics, const std::string& title) {
   constexpr int kLabelWidth = 10;
   constexpr int kColumnWidth = 16;
-  char line[256];
+  char line[512];
   std::ostringstream table;
   table << title << '\n';
   std::snprintf(line, sizeof(line), "%-*s%*s%*s%*s%*s%*s\n", kLabelWidth, "", kColumnWidth,
@@ -406,6 +596,30 @@ std::string format_table(const TeamMetrics& metrics, const std::string& title) {
   }
   write_row("Avg", metrics.average);
   write_row("Max", metrics.maximum);
+
+  if (metrics.association) {
+    const AssociationMetrics& a = *metrics.association;
+    std::snprintf(line, sizeof(line),
+                  "association: precision %s (%d of %d linked pairs), recall %s (%d of %d common "
+                  "objects), %s for robots in one frame; %d of %d robot pairs in one frame\n",
+                  format_metres(a.precision).c_str(), a.correct_pairs, a.linked_pairs,
+                  format_metres(a.recall).c_str(), a.found, a.common_objects,
+                  format_metres(a.recall_aligned).c_str(), a.pairs_in_one_frame, a.robot_pairs);
+    table << line;
+  }
+  for (const RobotMetrics& robot : metrics.robots) {
+    if (!robot.moved) continue;
+    std::snprintf(line, sizeof(line),
+                  "Robot %d aligned at frame %d: T_team_own error %s m / %s deg, pose error there "
+                  "%s m / %s deg; traj RMSE from frame %d: %s m\n",
+                  robot.robot, robot.aligned_at_frame,
+                  format_metres(robot.alignment_translation_error).c_str(),
+                  format_metres(robot.alignment_rotation_error_degrees).c_str(),
+                  format_metres(robot.aligned_pose_error).c_str(),
+                  format_metres(robot.aligned_pose_rotation_error_degrees).c_str(),
+                  robot.first_frame, format_metres(robot.trajectory_rmse_aligned).c_str());
+    table << line;
+  }
 
   bool any_nees = false;
   for (const RobotMetrics& robot : metrics.robots) {

@@ -3,12 +3,19 @@
 /// Team evaluation as in the paper's §VI-A: trajectory RMSE without alignment (Table I), mean
 /// object error against ground truth (Table II) and mean object position difference across robots
 /// (Table III), per robot plus the team average and maximum. Pure functions, no file I/O.
+///
+/// Negotiated runs (issue 11): a robot's estimates are in the frame it was in at the time (its own
+/// start frame, then its team's: the start frame of the team's lowest robot, or the world), so the
+/// ground truth is moved into that frame before comparing (T_F_world = truth of robot F at frame
+/// 0, inverted); objects are compared through the robot's truth ids; association precision and
+/// recall and alignment errors are reported.
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 #include <limits>
 #include <map>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -79,6 +86,19 @@ struct RobotMetrics {
   int disagreement_pairs = 0;
   /// Number of evaluated trajectory frames.
   int frames = 0;
+  /// Trajectory RMSE over the frames from `first_frame` on (the robot's alignment frame, or one
+  /// given to evaluate), all in the team frame.
+  double trajectory_rmse_aligned = std::numeric_limits<double>::quiet_NaN();
+  int first_frame = 0;
+  /// Alignment (negotiated runs; NaN otherwise): whether the robot moved into another robot's
+  /// frame, at which frame, the error of its T_team_own against the truth (metres, degrees), and
+  /// the error of its pose at that frame in the team frame (metres, degrees).
+  int moved = 0;
+  int aligned_at_frame = 0;
+  double alignment_translation_error = std::numeric_limits<double>::quiet_NaN();
+  double alignment_rotation_error_degrees = std::numeric_limits<double>::quiet_NaN();
+  double aligned_pose_error = std::numeric_limits<double>::quiet_NaN();
+  double aligned_pose_rotation_error_degrees = std::numeric_limits<double>::quiet_NaN();
   /// Consistency: NEES of every frame's online pose estimate (6-D, and its position and
   /// orientation parts, 3-D each; needs the pose covariances), and of the final object
   /// estimates that have ground truth (3-D).
@@ -86,6 +106,25 @@ struct RobotMetrics {
   NeesSummary position_nees{3};
   NeesSummary orientation_nees{3};
   NeesSummary object_nees{3};
+};
+
+/// Association against the truth ids: over every pair of robots, the pairs of objects that share a
+/// team id (linked) and how many are the same physical object (precision), and of the physical
+/// objects each pair of robots observed in at least `min_frames` frames each, how many they
+/// linked (recall); also over the pairs of robots that ended in one frame.
+struct AssociationMetrics {
+  int linked_pairs = 0;
+  int correct_pairs = 0;
+  double precision = std::numeric_limits<double>::quiet_NaN();
+  int common_objects = 0;
+  int found = 0;
+  double recall = std::numeric_limits<double>::quiet_NaN();
+  int common_objects_aligned = 0;
+  int found_aligned = 0;
+  double recall_aligned = std::numeric_limits<double>::quiet_NaN();
+  /// Robot pairs that ended in one frame, of all pairs.
+  int pairs_in_one_frame = 0;
+  int robot_pairs = 0;
 };
 
 /// Metrics of the whole team.
@@ -98,6 +137,8 @@ struct TeamMetrics {
   RobotMetrics average;
   /// Maximum over robots of each field, with the same NaN rule. robot = -1.
   RobotMetrics maximum;
+  /// Association against the truth (when the results carry team ids).
+  std::optional<AssociationMetrics> association;
 };
 
 /// What one robot estimated.
@@ -109,6 +150,16 @@ struct RobotResult {
   /// Covariance of the right perturbation of each estimated pose (one per trajectory pose), as in
   /// pose_covariance.csv; empty when the run did not record them (no pose NEES then).
   std::vector<Eigen::Matrix<double, 6, 6>> pose_covariances;
+  /// Frame of each trajectory pose: nullopt for the world, else the robot whose start frame;
+  /// empty: all in the world frame.
+  std::vector<std::optional<int>> trajectory_frames = {};
+  /// Team id of each object (parallel to objects, -1 while unshared); empty: none.
+  std::vector<LandmarkId> team_ids = {};
+  /// Alignment (alignment.json): the first frame in the final frame, whether the robot moved,
+  /// and its T_team_own.
+  int aligned_at_frame = 0;
+  bool moved = false;
+  Eigen::Isometry3d T_team_own = Eigen::Isometry3d::Identity();
 };
 
 /// Ground truth and measured motion of one robot.
@@ -117,6 +168,20 @@ struct RobotTruth {
   std::vector<Eigen::Isometry3d> groundtruth;
   /// Measured T_body(k-1)_body(k), groundtruth.size() - 1 entries (empty when not available).
   std::vector<Eigen::Isometry3d> odometry;
+  /// Private object id -> ground-truth id (-1: a false detection); empty: ids are global.
+  std::map<LandmarkId, LandmarkId> truth_ids = {};
+  /// Frames in which the robot observed each ground-truth object (by truth id), for recall.
+  std::map<LandmarkId, int> frames_observed = {};
+};
+
+/// What evaluate() does beyond the defaults.
+struct EvaluationOptions {
+  /// Per robot, the first frame of trajectory_rmse_aligned (e.g. another run's alignment frames,
+  /// to compare a run with known starts over the same frames); empty: each result's own
+  /// aligned_at_frame.
+  std::vector<int> first_frames;
+  /// Recall counts objects observed by both robots of a pair in at least this many frames each.
+  int recall_min_frames = 10;
 };
 
 /// Evaluates a team run; results[i] and truths[i] are robot i.
@@ -127,7 +192,8 @@ struct RobotTruth {
 /// pose covariances are neither empty nor one per trajectory pose, or when a robot lists an object
 /// id twice. Empty odometry leaves odometry_rmse NaN.
 TeamMetrics evaluate(const std::vector<RobotTruth>& truths, const std::vector<RobotResult>& results,
-                     const std::map<LandmarkId, Eigen::Vector3d>& objects_groundtruth);
+                     const std::map<LandmarkId, Eigen::Vector3d>& objects_groundtruth,
+                     const EvaluationOptions& options = {});
 
 /// Pose NEES of every frame of one robot (NaN where there is no covariance or it is not positive
 /// definite); empty when the result has no pose covariances. Sizes as checked by evaluate().

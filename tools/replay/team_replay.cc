@@ -2,10 +2,12 @@
 
 #include <algorithm>
 #include <chrono>
+#include <map>
 #include <numeric>
 #include <random>
 #include <stdexcept>
 
+#include "concord/association/relabelling.h"
 #include "concord/estimator/estimator.h"
 
 namespace concord::replay {
@@ -84,18 +86,76 @@ std::vector<std::vector<int>> make_graph(GraphKind kind, int robots, std::uint64
 
 ReplayResult run_team(const dataset::Dataset& dataset, const EstimatorOptions& estimator_options,
                       const ReplayOptions& options, const ProgressCallback& progress) {
+  return run_team(dataset::sensor_inputs(dataset), estimator_options, options, progress);
+}
+
+namespace {
+
+/// Bytes of a marginal in a fixed-width encoding (ids and numbers 8 bytes each, blocks as upper
+/// triangles).
+long long marginal_bytes(const Marginal& marginal) {
+  long long bytes = 8 * static_cast<long long>(marginal.ids.size() + marginal.mean.size());
+  for (const Eigen::MatrixXd& block : marginal.blocks) {
+    bytes += 8 * static_cast<long long>(block.rows() * (block.rows() + 1) / 2);
+  }
+  return bytes;
+}
+
+/// Marginal of robot j's objects that robot i (the receiver) shares with it, relabelled with i's
+/// ids: only pairs both robots' views agree on (what a daemon receiving j's marginal keeps).
+Marginal relabelled_marginal(const Estimator& sender, const association::Negotiator& sender_view,
+                             const association::Negotiator& receiver_view) {
+  const auto sent = sender_view.shared_objects(receiver_view.robot());      // (j id, i id)
+  const auto received = receiver_view.shared_objects(sender_view.robot());  // (i id, j id)
+  std::vector<LandmarkId> ids;
+  for (const auto& [own, theirs] : sent) ids.push_back(own);
+  return association::relabel_marginal(sender.marginal(ids),
+                                       association::agreed_labels(sent, received));
+}
+
+}  // namespace
+
+AssociationMode parse_association_mode(const std::string& text) {
+  if (text == "given") return AssociationMode::kGiven;
+  if (text == "negotiated") return AssociationMode::kNegotiated;
+  throw std::invalid_argument("association: expected given or negotiated, got '" + text + "'");
+}
+
+std::string to_string(AssociationMode mode) {
+  return mode == AssociationMode::kGiven ? "given" : "negotiated";
+}
+
+ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions& estimator_options,
+                      const ReplayOptions& options, const ProgressCallback& progress) {
   if (!(options.link_loss >= 0.0 && options.link_loss <= 1.0)) {
     throw std::invalid_argument("loss: expected a probability in [0, 1], got " +
                                 std::to_string(options.link_loss));
   }
+  const AssociationMode mode =
+      options.association.value_or(dataset.object_ids == dataset::ObjectIds::kGlobal &&
+                                           dataset.start_poses == dataset::StartPoses::kKnown
+                                       ? AssociationMode::kGiven
+                                       : AssociationMode::kNegotiated);
+  const bool negotiated = mode == AssociationMode::kNegotiated && options.consensus;
+  if (mode == AssociationMode::kGiven && dataset.start_poses == dataset::StartPoses::kUnknown &&
+      options.consensus && dataset.robots.size() > 1) {
+    throw std::invalid_argument(
+        "association given: the robots' start poses are unknown, so their frames differ; use "
+        "the negotiated association");
+  }
   const auto run_start = Clock::now();
   const int robots = static_cast<int>(dataset.robots.size());
   std::vector<Estimator> estimators;
+  std::vector<association::Negotiator> negotiators;
+  std::vector<association::ObservationTally> tallies(robots);
   estimators.reserve(robots);
   int steps = 0;
   for (const auto& robot : dataset.robots) {
     if (robot.num_frames() == 0) throw std::invalid_argument("robot without frames");
-    estimators.emplace_back(estimator_options, dataset.camera, robot.groundtruth.front(), 0);
+    estimators.emplace_back(estimator_options, dataset.camera,
+                            robot.T_world_body_start.value_or(Eigen::Isometry3d::Identity()), 0);
+    const int start_frame = robot.T_world_body_start ? association::kWorldFrame : robot.index;
+    if (negotiated) negotiators.emplace_back(robot.index, start_frame, options.negotiation);
     steps = std::max(steps, robot.num_frames());
   }
   const auto graph = make_graph(options.graph, robots, options.seed);
@@ -103,9 +163,14 @@ ReplayResult run_team(const dataset::Dataset& dataset, const EstimatorOptions& e
   std::bernoulli_distribution drop(options.link_loss);
 
   ReplayResult result;
+  result.association = mode;
   result.robots.resize(robots);
   ReplayStatistics& statistics = result.statistics;
   statistics.steps = steps;
+  std::vector<int> frame_of(robots);
+  for (int i = 0; i < robots; ++i) {
+    frame_of[i] = dataset.robots[i].T_world_body_start ? association::kWorldFrame : i;
+  }
 
   for (int step = 0; step < steps; ++step) {
     std::vector<bool> active(robots);
@@ -127,7 +192,6 @@ ReplayResult run_team(const dataset::Dataset& dataset, const EstimatorOptions& e
     statistics.update_seconds += seconds_since(phase_start);
 
     if (options.consensus) {
-      phase_start = Clock::now();
       // This round's graph: live robots, each edge dropped with probability link_loss. The
       // random draws happen for every edge of the base graph in a fixed order.
       std::vector<std::vector<int>> round_neighbours(robots);
@@ -140,22 +204,73 @@ ReplayResult run_team(const dataset::Dataset& dataset, const EstimatorOptions& e
           round_neighbours[j].push_back(i);
         }
       }
-      // 2. All marginals are taken before anyone fuses.
-      std::vector<std::vector<LandmarkId>> ids(robots);
-      for (int i = 0; i < robots; ++i)
-        if (active[i]) ids[i] = estimators[i].object_ids();
+
+      // 2. Negotiation: descriptions, messages, decisions, moves into the team frame.
+      if (negotiated) {
+        phase_start = Clock::now();
+        for (int i = 0; i < robots; ++i) {
+          if (!active[i]) continue;
+          tallies[i].add(dataset.robots[i].objects[step], dataset.robots[i].object_classes[step]);
+          if (negotiators[i].describes(step)) {
+            negotiators[i].set_own_map(
+                association::describe_map(estimators[i].state(), i, negotiators[i].frame(),
+                                          tallies[i],
+                                          options.negotiation.association.min_observations),
+                step);
+          }
+        }
+        std::vector<std::vector<association::NegotiationMessage>> messages(robots);
+        for (int i = 0; i < robots; ++i) {
+          for (int j : round_neighbours[i])
+            messages[j].push_back(negotiators[i].message_for(j, step));
+        }
+        for (int i = 0; i < robots; ++i) {
+          if (!active[i]) continue;
+          ++statistics.negotiation_robot_rounds;
+          for (const auto& message : messages[i]) negotiators[i].receive(message, step);
+          if (const auto move = negotiators[i].finish_round(step)) {
+            estimators[i].reanchor(move->T_new_old, move->covariance);
+            result.robots[i].aligned_at_frame = step;
+            result.robots[i].moved = true;
+          }
+          frame_of[i] = negotiators[i].frame();
+        }
+        statistics.negotiation_seconds += seconds_since(phase_start);
+      }
+
+      phase_start = Clock::now();
+      // 3. All marginals are taken before anyone fuses.
       std::vector<std::vector<WeightedMarginal>> inbox(robots);
-      for (int i = 0; i < robots; ++i) {
-        for (int j : round_neighbours[i]) {
-          const auto common = intersection(ids[i], ids[j]);
-          if (common.empty()) continue;
-          const double weight =
-              Consensus::metropolis_weight(static_cast<int>(round_neighbours[i].size()),
-                                           static_cast<int>(round_neighbours[j].size()));
-          inbox[i].push_back({weight, estimators[j].marginal(common)});
+      if (negotiated) {
+        for (int i = 0; i < robots; ++i) {
+          for (int j : round_neighbours[i]) {
+            if (frame_of[i] != frame_of[j]) continue;  // not aligned yet: separate
+            Marginal marginal = relabelled_marginal(estimators[j], negotiators[j], negotiators[i]);
+            if (marginal.ids.empty()) continue;
+            statistics.marginal_bytes += marginal_bytes(marginal);
+            const double weight =
+                Consensus::metropolis_weight(static_cast<int>(round_neighbours[i].size()),
+                                             static_cast<int>(round_neighbours[j].size()));
+            inbox[i].push_back({weight, std::move(marginal)});
+          }
+        }
+      } else {
+        std::vector<std::vector<LandmarkId>> ids(robots);
+        for (int i = 0; i < robots; ++i)
+          if (active[i]) ids[i] = estimators[i].object_ids();
+        for (int i = 0; i < robots; ++i) {
+          for (int j : round_neighbours[i]) {
+            const auto common = intersection(ids[i], ids[j]);
+            if (common.empty()) continue;
+            const double weight =
+                Consensus::metropolis_weight(static_cast<int>(round_neighbours[i].size()),
+                                             static_cast<int>(round_neighbours[j].size()));
+            inbox[i].push_back({weight, estimators[j].marginal(common)});
+            statistics.marginal_bytes += marginal_bytes(inbox[i].back().marginal);
+          }
         }
       }
-      // 3. Every robot fuses.
+      // 4. Every robot fuses.
       for (int i = 0; i < robots; ++i) {
         if (inbox[i].empty()) continue;
         const ConsensusReport report = estimators[i].fuse(inbox[i]);
@@ -167,15 +282,39 @@ ReplayResult run_team(const dataset::Dataset& dataset, const EstimatorOptions& e
       statistics.consensus_seconds += seconds_since(phase_start);
     }
 
-    // 4. Record the online estimate of frame `step`.
+    // 5. Record the online estimate of frame `step`.
     for (int i = 0; i < robots; ++i) {
       if (!active[i]) continue;
       result.robots[i].trajectory.push_back(estimators[i].current_pose());
       result.robots[i].pose_covariances.push_back(estimators[i].current_pose_covariance());
+      result.robots[i].trajectory_frames.push_back(frame_of[i]);
     }
     if (progress) progress(step + 1, steps);
   }
-  for (int i = 0; i < robots; ++i) result.robots[i].objects = estimators[i].objects();
+  for (int i = 0; i < robots; ++i) {
+    RobotOutput& output = result.robots[i];
+    output.objects = estimators[i].objects();
+    for (const ObjectEstimate& object : output.objects) {
+      output.team_ids.push_back(negotiated ? negotiators[i].team_id(object.id) : object.id);
+    }
+    if (negotiated) {
+      output.T_team_own = negotiators[i].T_frame_start();
+      output.alignment_covariance = negotiators[i].covariance_frame_start();
+      const auto& counters = negotiators[i].counters();
+      statistics.negotiation_messages += counters.messages;
+      statistics.negotiation_bytes += counters.bytes_sent;
+      statistics.description_bytes += counters.description_bytes;
+      statistics.searches += counters.searches;
+      statistics.ambiguous += counters.ambiguous;
+      statistics.frame_edges += counters.frame_edges;
+      statistics.reanchorings += counters.reanchorings;
+      statistics.links_accepted += counters.links_accepted;
+      statistics.links_split += counters.links_split;
+      statistics.link_conflicts += counters.link_conflicts;
+      statistics.team_id_conflicts =
+          std::max<long long>(statistics.team_id_conflicts, counters.team_id_conflicts);
+    }
+  }
   statistics.total_seconds = seconds_since(run_start);
   return result;
 }

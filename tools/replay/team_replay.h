@@ -7,6 +7,14 @@
 ///   3. every robot fuses its neighbours' marginals (Metropolis weights from this round's graph);
 ///   4. every robot records its estimate of frame k.
 /// A robot whose frames are exhausted leaves the team (its last estimates stay its output).
+///
+/// Association. Given (the dataset's ids are global and its start poses known): robots share the
+/// objects whose ids they both hold, as the paper does. Negotiated (otherwise): every robot runs an
+/// association::Negotiator; in step 2 neighbours exchange its messages (map descriptions, owner
+/// records), a robot whose team frame changed moves its state there (Estimator::reanchor), and
+/// consensus runs between neighbours in one frame over the objects they share a team id for (the
+/// sender's marginal relabelled with the receiver's ids). The negotiation never sees ground truth:
+/// run_team gets dataset::TeamInputs.
 
 #include <cstdint>
 #include <functional>
@@ -14,6 +22,7 @@
 #include <string>
 #include <vector>
 
+#include "concord/association/negotiation.h"
 #include "concord/dataset/dataset.h"
 #include "concord/estimator/options.h"
 #include "concord/estimator/types.h"
@@ -30,6 +39,12 @@ std::string to_string(GraphKind kind);
 /// spanning tree (connected) plus every other edge with probability 0.3, from seed.
 std::vector<std::vector<int>> make_graph(GraphKind kind, int robots, std::uint64_t seed);
 
+enum class AssociationMode { kGiven, kNegotiated };
+
+/// "given" / "negotiated"; parse throws std::invalid_argument naming the bad value.
+AssociationMode parse_association_mode(const std::string& text);
+std::string to_string(AssociationMode mode);
+
 struct ReplayOptions {
   /// false: the paper's "Separate" rows (no consensus step).
   bool consensus = true;
@@ -37,6 +52,11 @@ struct ReplayOptions {
   /// Probability that an edge is dropped in a round, independently per edge and round (Fig. 4).
   double link_loss = 0.0;
   std::uint64_t seed = 1;
+  /// nullopt: given when the dataset's object ids are global and its start poses known,
+  /// negotiated otherwise.
+  std::optional<AssociationMode> association;
+  /// Options of the negotiation (negotiated runs).
+  association::NegotiationOptions negotiation;
 };
 
 /// One robot's online output.
@@ -45,7 +65,22 @@ struct RobotOutput {
   std::vector<Eigen::Isometry3d> trajectory;
   /// Covariance of the right perturbation of each trajectory pose, taken with it.
   std::vector<Eigen::Matrix<double, 6, 6>> pose_covariances;
+  /// The frame each trajectory pose is in: association::kWorldFrame, or the index of the robot
+  /// whose start frame (negotiated runs; a robot starts in its own, or in the world when its
+  /// start pose is known).
+  std::vector<int> trajectory_frames;
   std::vector<ObjectEstimate> objects;
+  /// Team id of each object (parallel to objects): -1 while unshared. Given runs: the object's
+  /// global id.
+  std::vector<LandmarkId> team_ids;
+  /// T_frame_start: maps the robot's start frame into its final frame (the team frame), with
+  /// its covariance (left perturbation in that frame), and the first frame from which its
+  /// trajectory is in it.
+  Eigen::Isometry3d T_team_own = Eigen::Isometry3d::Identity();
+  Eigen::Matrix<double, 6, 6> alignment_covariance = Eigen::Matrix<double, 6, 6>::Zero();
+  int aligned_at_frame = 0;
+  /// Whether the robot moved into another robot's frame (alignment found).
+  bool moved = false;
 };
 
 /// Counters and timings of a run (timings are wall-clock seconds, for reports only).
@@ -64,18 +99,45 @@ struct ReplayStatistics {
   long long feature_tracks_used = 0;
   double update_seconds = 0.0;     ///< process() over all robots and frames
   double consensus_seconds = 0.0;  ///< marginals + fuse over all robots and rounds
+  /// Negotiated runs: descriptions, messages, finish_round and re-anchoring, all robots.
+  double negotiation_seconds = 0.0;
   double total_seconds = 0.0;
+  /// Negotiated runs: rounds robots took part in, messages and their bytes (fixed-width encoding,
+  /// association::NegotiationMessage::wire_size), of which map descriptions.
+  long long negotiation_robot_rounds = 0;
+  long long negotiation_messages = 0;
+  long long negotiation_bytes = 0;
+  long long description_bytes = 0;
+  /// Bytes of the marginals sent (8 per id, 8 per number of the mean and of each block's upper
+  /// triangle), all runs.
+  long long marginal_bytes = 0;
+  /// Sums of the negotiators' counters (association::NegotiationCounters).
+  long long searches = 0;
+  long long ambiguous = 0;
+  long long frame_edges = 0;
+  long long reanchorings = 0;
+  long long links_accepted = 0;
+  long long links_split = 0;
+  long long link_conflicts = 0;
+  long long team_id_conflicts = 0;
 };
 
 struct ReplayResult {
   std::vector<RobotOutput> robots;
   ReplayStatistics statistics;
+  AssociationMode association = AssociationMode::kGiven;
 };
 
 /// Called after every step with (step, steps in total).
 using ProgressCallback = std::function<void(int, int)>;
 
-/// Runs the team on a dataset. Throws std::invalid_argument on bad options.
+/// Runs the team on what its robots measure (never the ground truth: dataset::sensor_inputs).
+/// A robot whose start pose is unknown starts at the identity of its own frame. Throws
+/// std::invalid_argument on bad options.
+ReplayResult run_team(const dataset::TeamInputs& team, const EstimatorOptions& estimator_options,
+                      const ReplayOptions& options, const ProgressCallback& progress = {});
+
+/// run_team on dataset::sensor_inputs(dataset).
 ReplayResult run_team(const dataset::Dataset& dataset, const EstimatorOptions& estimator_options,
                       const ReplayOptions& options, const ProgressCallback& progress = {});
 

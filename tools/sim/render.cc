@@ -218,7 +218,7 @@ void TexturedWorld::add_box(const Eigen::Vector3d& centre, const Eigen::Vector3d
     quad.edge_u = u;
     quad.edge_v = v;
     quad.texture = static_cast<int>(uniform() * textures) % textures;
-    quad.texture_offset = Eigen::Vector2d(uniform(0.0, 2000.0), uniform(0.0, 2000.0));
+    quad.texture_offset = Eigen::Vector2d{uniform(0.0, 2000.0), uniform(0.0, 2000.0)};  // braces: in order
     quad.gain = uniform(0.6, 1.2);
     quads_.push_back(quad);
   };

@@ -69,7 +69,15 @@ std::uint64_t splitmix64(std::uint64_t x) {
 
 /// Independent streams of one robot (or of the scene), so that e.g. the number of point features
 /// does not change the odometry noise.
-enum class Stream : std::uint64_t { kPath = 1, kOdometry, kPoints, kObjectNoise, kObjectPlacement };
+enum class Stream : std::uint64_t {
+  kPath = 1,
+  kOdometry,
+  kPoints,
+  kObjectNoise,
+  kObjectPlacement,
+  kObjectClass,
+  kFalseDetections
+};
 
 /// The scene's own streams use this in place of a robot index.
 constexpr std::uint64_t kSceneIndex = 0xffffffffULL;
@@ -244,9 +252,18 @@ struct ActivePoint {
   Eigen::Vector3d p_world;
 };
 
+/// A phantom object (false detection) while the robot hallucinates it.
+struct Phantom {
+  LandmarkId id;
+  Eigen::Vector3d p_world;
+  int object_class;
+  int frames_left;
+};
+
 /// Odometry, object and point-feature observations of one robot along its ground truth.
 void observe(const SimulationOptions& options, const StereoCamera& camera,
-             const std::vector<Eigen::Vector3d>& object_positions, dataset::RobotData& robot) {
+             const std::vector<Eigen::Vector3d>& object_positions,
+             const std::vector<int>& object_classes, dataset::RobotData& robot) {
   const int frames = robot.num_frames();
   const auto index = static_cast<std::uint64_t>(robot.index);
 
@@ -268,8 +285,19 @@ void observe(const SimulationOptions& options, const StereoCamera& camera,
   Random object_noise(options.seed, index, Stream::kObjectNoise);
   Random point_random(options.seed, index, Stream::kPoints);
   robot.objects.assign(frames, {});
+  robot.object_classes.assign(frames, {});
+  robot.has_object_classes = options.classes > 0;
   robot.features.assign(frames, {});
   robot.has_features = options.points_per_frame > 0;
+  Random false_random(options.seed, index, Stream::kFalseDetections);
+  std::vector<Phantom> phantoms, phantoms_kept;
+  LandmarkId next_phantom_id = kPhantomIdBase * (robot.index + 1);
+  // Phantoms last 3 to 10 frames (6.5 on average, fewer when they leave the view).
+  constexpr int kPhantomMinFrames = 3;
+  constexpr int kPhantomMaxFrames = 10;
+  const double phantoms_per_true_detection = options.false_detection_rate /
+                                             (1.0 - options.false_detection_rate) /
+                                             (0.5 * (kPhantomMinFrames + kPhantomMaxFrames));
   std::vector<ActivePoint> active, still_visible;
   LandmarkId next_track_id = 0;
   for (int k = 0; k < frames; ++k) {
@@ -280,7 +308,34 @@ void observe(const SimulationOptions& options, const StereoCamera& camera,
       if (const auto xy = viewer.project(object_positions[id])) {
         robot.objects[k].push_back(
             {static_cast<LandmarkId>(id), noisy(*xy, options.pixel_noise, object_noise)});
+        if (robot.has_object_classes) robot.object_classes[k].push_back(object_classes[id]);
       }
+    }
+    // 2b. False detections: phantoms continue while in view and alive; new ones are spawned in
+    //     proportion to the true detections of the frame.
+    if (options.false_detection_rate > 0.0) {
+      const double expected = phantoms_per_true_detection * robot.objects[k].size();
+      int spawn = static_cast<int>(expected);
+      if (false_random.uniform() < expected - spawn) ++spawn;
+      for (int n = 0; n < spawn; ++n) {
+        const auto p_world = viewer.sample_in_view(false_random, options.object_min_depth,
+                                                   options.object_max_depth, 0.9, kSpawnAttempts);
+        if (!p_world) break;
+        const int object_class =
+            options.classes > 0 ? false_random.uniform_index(options.classes) : 0;
+        const int length = kPhantomMinFrames +
+                           false_random.uniform_index(kPhantomMaxFrames - kPhantomMinFrames + 1);
+        phantoms.push_back({next_phantom_id++, *p_world, object_class, length});
+      }
+      phantoms_kept.clear();
+      for (Phantom& phantom : phantoms) {
+        const auto xy = viewer.project(phantom.p_world);
+        if (!xy) continue;
+        robot.objects[k].push_back({phantom.id, noisy(*xy, options.pixel_noise, false_random)});
+        if (robot.has_object_classes) robot.object_classes[k].push_back(phantom.object_class);
+        if (--phantom.frames_left > 0) phantoms_kept.push_back(phantom);
+      }
+      std::swap(phantoms, phantoms_kept);
     }
 
     if (!robot.has_features) continue;
@@ -326,6 +381,10 @@ std::vector<std::string> SimulationOptions::validate() const {
   problems.check_non_negative("odometry-translation-noise", odometry_translation_noise);
   problems.check_non_negative("odometry-rotation-noise", odometry_rotation_noise);
   problems.check_non_negative("pixel-noise", pixel_noise);
+  problems.check_int("classes", classes, 0, 1'000'000);
+  if (!(false_detection_rate >= 0.0 && false_detection_rate <= 0.5)) {
+    problems.add("false-detections", false_detection_rate, "in [0, 0.5]");
+  }
   if (!(point_track_loss >= 0.0 && point_track_loss < 1.0)) {
     problems.add("point-track-loss", point_track_loss, "in [0, 1)");
   }
@@ -430,13 +489,20 @@ dataset::Dataset simulate(const SimulationOptions& options) {
     object_positions.push_back(*p_world);
     data.objects_groundtruth[id] = *p_world;
   }
+  // Classes from a stream of their own, so that --classes changes nothing else.
+  std::vector<int> object_classes(options.objects, 0);
+  if (options.classes > 0) {
+    Random class_random(options.seed, kSceneIndex, Stream::kObjectClass);
+    for (int& object_class : object_classes)
+      object_class = class_random.uniform_index(options.classes);
+  }
 
   // 3. Odometry and observations, robot by robot: the robots draw from their own streams, so
   //    they are simulated in parallel with the same result.
   std::atomic<int> next_robot{0};
   const auto work = [&] {
     for (int robot; (robot = next_robot++) < options.robots;) {
-      observe(options, data.camera, object_positions, data.robots[robot]);
+      observe(options, data.camera, object_positions, object_classes, data.robots[robot]);
     }
   };
   const int threads = std::clamp(static_cast<int>(std::thread::hardware_concurrency()), 1,
@@ -444,6 +510,10 @@ dataset::Dataset simulate(const SimulationOptions& options) {
   std::vector<std::jthread> helpers;
   for (int thread = 1; thread < threads; ++thread) helpers.emplace_back(work);
   work();
+  helpers.clear();  // joins
+  if (options.private_ids || options.unknown_start) {
+    return dataset::make_variant(data, options.private_ids, options.unknown_start);
+  }
   return data;
 }
 
@@ -498,6 +568,10 @@ std::string to_json(const SimulationOptions& options) {
   json["scale_spread"] = options.scale_spread;
   json["object_min_depth"] = options.object_min_depth;
   json["object_max_depth"] = options.object_max_depth;
+  json["classes"] = options.classes;
+  json["false_detection_rate"] = options.false_detection_rate;
+  json["private_ids"] = options.private_ids;
+  json["unknown_start"] = options.unknown_start;
   return json.dump(2) + "\n";
 }
 

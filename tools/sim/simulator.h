@@ -91,6 +91,22 @@ struct SimulationOptions {
   /// --object-max-depth), inside [min_depth, max_depth].
   double object_min_depth = 2.0;
   double object_max_depth = 8.0;
+  /// Detector classes (--classes): each object gets a class uniform in [0, classes), written in
+  /// objects.csv's class column; 0 writes no class column.
+  int classes = 0;
+  /// Fraction of object detections that are false (--false-detections), in [0, 0.5]: each robot
+  /// hallucinates phantom objects of its own (a static point in view, a random class, tracked for
+  /// 3 to 10 frames while visible, ids that have no ground truth), as many as make this fraction of
+  /// its detections on average.
+  double false_detection_rate = 0.0;
+
+  // --- Variants (dataset::make_variant) ---
+  /// Private object ids (--private-ids): each robot numbers its objects its own way;
+  /// robot_XX/object_ids_truth.csv maps them to objects_gt.csv (false detections to -1).
+  bool private_ids = false;
+  /// Unknown start poses (--unknown-start): each robot's filter starts at the identity of its own
+  /// frame; ground truth stays in the world frame.
+  bool unknown_start = false;
 
   /// Every problem with the values, each naming the flag and the bad value; empty when valid.
   std::vector<std::string> validate() const;
@@ -99,6 +115,10 @@ struct SimulationOptions {
 /// The simulated stereo rig: K = identity, T_cam_body maps body (x right, y forward, z up) to the
 /// optical frame (x right, y down, z forward), the right camera at +baseline along x.
 StereoCamera make_camera(const SimulationOptions& options);
+
+/// First id of robot r's phantom objects (false detections) with global ids:
+/// kPhantomIdBase * (r + 1); they have no ground truth.
+inline constexpr LandmarkId kPhantomIdBase = 1'000'000'000;
 
 /// Simulates the team. Throws std::invalid_argument listing every problem if the options are
 /// invalid, or if no object can be placed where both cameras see it (a baseline too wide for the

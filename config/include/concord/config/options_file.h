@@ -16,6 +16,7 @@
 #include <string>
 #include <vector>
 
+#include "concord/association/negotiation.h"
 #include "concord/estimator/options.h"
 
 namespace concord::config {
@@ -31,7 +32,8 @@ class ConfigError : public std::runtime_error {
 /// cannot be read.
 std::string read_config_text(const std::filesystem::path& file, const std::string& what);
 
-/// Loads EstimatorOptions from a YAML file. Missing keys keep the in-class defaults; unknown keys
+/// Loads EstimatorOptions from a YAML file (its `association:` section is skipped: see
+/// load_negotiation_options). Missing keys keep the in-class defaults; unknown keys
 /// (typo protection), repeated keys and values of the wrong type are errors; after loading,
 /// EstimatorOptions::validate() runs. Every problem is reported in one ConfigError.
 EstimatorOptions load_estimator_options(const std::filesystem::path& file);
@@ -43,12 +45,31 @@ EstimatorOptions parse_estimator_options(const std::string& yaml_text,
 /// The options as YAML text with every key, in the format the loader reads (to print at start-up
 /// or save next to results). Numbers are written in their shortest exact form, so
 /// `options` with each "KEY=VALUE" (YAML value; "consensus.KEY" and "object_noise.horizontal" style
-/// keys address nested maps) applied in turn, then validated. Throws ConfigError naming the
+/// keys address nested maps; "association.KEY" entries are left to apply_association_overrides)
+/// applied in turn, then validated. Throws ConfigError naming the
 /// entry and the problem.
 EstimatorOptions apply_overrides(EstimatorOptions options,
                                  const std::vector<std::string>& overrides);
 
 /// parse_estimator_options(to_yaml(options)) gives back the same values.
 std::string to_yaml(const EstimatorOptions& options);
+
+/// The association options of a sensor config: its `association:` section (a flat map whose keys
+/// are the fields of association::NegotiationOptions and of its AssociationOptions; other
+/// sections are ignored), with the same rules as load_estimator_options (defaults for missing
+/// keys, unknown keys and wrong types reported, validate() after loading).
+association::NegotiationOptions load_negotiation_options(const std::filesystem::path& file);
+
+/// As load_negotiation_options, from YAML text.
+association::NegotiationOptions parse_negotiation_options(const std::string& yaml_text,
+                                                          const std::string& source_name);
+
+/// `options` with every "association.KEY=VALUE" entry of `overrides` applied (other entries are
+/// apply_overrides'), then validated. Throws ConfigError naming the entry and the problem.
+association::NegotiationOptions apply_association_overrides(
+    association::NegotiationOptions options, const std::vector<std::string>& overrides);
+
+/// The association section as YAML text with every key (parse_negotiation_options reads it back).
+std::string to_yaml(const association::NegotiationOptions& options);
 
 }  // namespace concord::config

@@ -12,6 +12,7 @@
 #include <string>
 #include <vector>
 
+#include "concord/association/options.h"
 #include "concord/daemon/failpoints.h"
 #include "concord/estimator/options.h"
 
@@ -61,6 +62,9 @@ struct SourceConfig {
   /// Ingest (and images without ground truth): the known start pose T_world_body:
   /// x y z qw qx qy qz.
   std::vector<double> start_pose{0, 0, 0, 1, 0, 0, 0};
+  /// Ingest and images (source.unknown_start): the start pose is not known; the filter starts at
+  /// the identity of the robot's own frame (negotiated association). Replay reads dataset.json.
+  bool unknown_start = false;
   /// Ingest (source.ingest_authenticated): senders must run the authenticated channel with the
   /// team key. Required when ingest_address is not a loopback address.
   bool ingest_authenticated = false;
@@ -86,6 +90,31 @@ struct NetworkConfig {
   /// network.receive_bytes_per_second / receive_messages_per_second: per-connection budgets.
   std::size_t receive_bytes_per_second = std::size_t{32} << 20;
   std::size_t receive_messages_per_second = 4000;
+};
+
+/// Which objects robots share (docs/association.md).
+enum class AssociationMode {
+  kAuto,        ///< replay: as concord replay (negotiated when the dataset's object ids are
+                ///< private or its start poses unknown, else given); ingest and images: given
+  kGiven,       ///< object ids are global and the start pose known: share equal ids
+  kNegotiated,  ///< association::Negotiator with the neighbours (lockstep only)
+};
+
+/// Parses "auto", "given" or "negotiated"; std::nullopt otherwise.
+std::optional<AssociationMode> parse_association_mode(const std::string& text);
+std::string to_string(AssociationMode mode);
+
+/// Bounds on a peer's negotiation messages (consensus.max_description_objects, ...): larger ones
+/// are refused and counted.
+struct NegotiationLimits {
+  /// consensus.max_description_objects: objects in one map description.
+  int max_description_objects = 2000;
+  /// consensus.max_owner_records: owner records in one message.
+  int max_records = 64;
+  /// consensus.max_record_links: links in one owner record.
+  int max_links_per_record = 20000;
+  /// consensus.max_record_frame_edges: frame edges in one owner record.
+  int max_frame_edges_per_record = 256;
 };
 
 struct ConsensusConfig {
@@ -122,6 +151,9 @@ struct ConsensusConfig {
   /// not fit are trimmed on purpose (least valuable landmarks first) instead of queueing
   /// (docs/field.md). Counted in /metrics (concord_consensus_budget_*).
   double link_budget_bytes_per_second = 0.0;
+  /// consensus.association: auto, given or negotiated (AssociationMode).
+  AssociationMode association = AssociationMode::kAuto;
+  NegotiationLimits negotiation_limits;
 };
 
 struct HttpConfig {
@@ -158,6 +190,9 @@ struct DaemonConfig {
   /// Estimator options (a file in the format of configs/sensors/*.yaml, or inline keys).
   EstimatorOptions estimator;
   std::filesystem::path estimator_file;  ///< where they came from ("" = inline/defaults)
+  /// The negotiation's options: the `association:` section of the estimator file (or of the
+  /// inline estimator map), as concord replay reads it.
+  association::NegotiationOptions negotiation;
   SourceConfig source;
   NetworkConfig network;
   ConsensusConfig consensus;

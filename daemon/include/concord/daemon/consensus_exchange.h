@@ -48,6 +48,8 @@ class LogLimiter;
 
 namespace concord::daemon {
 
+class AssociationSession;
+
 /// What one round did.
 struct RoundReport {
   std::uint64_t round = 0;
@@ -85,6 +87,12 @@ struct ExchangeCounters {
   std::uint64_t budget_marginals_empty = 0;
   std::uint64_t budget_landmarks_dropped = 0;
   std::uint64_t bytes_sent = 0;
+  /// Negotiated association: peers' negotiation messages refused (malformed, over the bounds:
+  /// consensus.max_description_objects ...), marginals without a usable relabelling, and the
+  /// bytes of this robot's negotiation messages.
+  std::uint64_t negotiations_refused = 0;
+  std::uint64_t relabellings_refused = 0;
+  std::uint64_t negotiation_bytes = 0;
 };
 
 /// Per-peer poisoning-defence counters (for /metrics and /peers).
@@ -119,6 +127,10 @@ class ConsensusExchange {
   /// Estimator thread: waits until at least `count` peers are live, stop() or `timeout`.
   /// Returns the number of live peers.
   int wait_for_peers(int count, std::chrono::milliseconds timeout);
+
+  /// Negotiated association (lockstep): the session that rides on the rounds (LandmarkSets carry
+  /// its messages, consensus runs over team ids). Call before the network starts; not owned.
+  void set_association(AssociationSession* session);
 
   /// Estimator thread: consensus round `round` on `estimator` (after its update of that frame).
   RoundReport run_round(std::uint64_t round, Estimator& estimator);
@@ -163,7 +175,12 @@ class ConsensusExchange {
   /// quarantine.
   void judge(std::uint64_t round, const std::vector<int>& senders, const ConsensusReport& report);
 
+  /// Negotiated rounds: phase 1's negotiation messages in, the move into the team frame.
+  void negotiate(std::uint64_t round, Estimator& estimator, const std::vector<int>& candidates,
+                 const std::vector<int>& neighbours);
+
   ConsensusConfig config_;
+  AssociationSession* association_ = nullptr;
   Send send_;
   ExchangeFailpoints failpoints_;
   std::unique_ptr<net::LogLimiter> log_limiter_;

@@ -7,8 +7,16 @@
 ///     <dataset>/objects_gt.csv      id,x,y,z   ground-truth object positions (optional)
 ///     <dataset>/robot_NN/groundtruth.kitti   N poses T_world_body
 ///     <dataset>/robot_NN/odometry.kitti      N-1 poses T_body(k-1)_body(k)
-///     <dataset>/robot_NN/objects.csv         frame,id,u_left,v_left,u_right,v_right
+///     <dataset>/robot_NN/objects.csv         frame,id,u_left,v_left,u_right,v_right[,class]
 ///     <dataset>/robot_NN/features.csv        same columns, point-feature tracks (optional)
+///     <dataset>/robot_NN/object_ids_truth.csv  id,truth_id (private ids only; evaluation only)
+///
+/// dataset.json "object_ids" says whether object ids are global (the same id is the same object
+/// for every robot, data association given) or private (each robot names its objects its own way;
+/// object_ids_truth.csv maps them to objects_gt.csv for evaluation), "start_poses" whether the
+/// robots' first ground-truth poses are known to them (their filters start there, in the world
+/// frame) or unknown (each filter starts at the identity of its own frame). Defaults: global and
+/// known. What a robot may use online is TeamInputs (sensor_inputs()): never the ground truth.
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
@@ -30,7 +38,19 @@ class DatasetError : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
-/// Everything one robot recorded.
+/// dataset.json "object_ids".
+enum class ObjectIds { kGlobal, kPrivate };
+/// dataset.json "start_poses".
+enum class StartPoses { kKnown, kUnknown };
+
+/// "global" / "private", "known" / "unknown".
+std::string to_string(ObjectIds object_ids);
+std::string to_string(StartPoses start_poses);
+
+/// Truth id of a detection of no real object (a false detection) in object_ids_truth.csv.
+inline constexpr LandmarkId kNoTruthId = -1;
+
+/// Everything one robot recorded, and its ground truth (for evaluation).
 struct RobotData {
   /// The NN of the robot_NN folder.
   int index = 0;
@@ -50,6 +70,16 @@ struct RobotData {
   /// `frame` k is the motion k-1 -> k): N-1 entries, or empty without the file. Frames without
   /// a row use the estimator's configured odometry noise.
   std::vector<std::optional<Eigen::Matrix<double, 6, 6>>> odometry_covariance;
+  /// Detector class of each object observation, parallel to `objects` (objects.csv's optional
+  /// `class` column, an integer >= 0); empty vectors when the column is absent.
+  std::vector<std::vector<int>> object_classes;
+  /// Whether objects.csv had a class column.
+  bool has_object_classes = false;
+  /// Private object id -> id in objects_gt.csv (kNoTruthId for a false detection), from
+  /// object_ids_truth.csv. Evaluation only: never part of what a robot uses (TeamInputs).
+  std::map<LandmarkId, LandmarkId> object_truth_ids;
+  /// Whether object_ids_truth.csv was present (and loaded).
+  bool has_object_truth_ids = false;
 
   /// N, the number of frames (ground-truth poses).
   int num_frames() const;
@@ -74,7 +104,54 @@ struct Dataset {
   std::map<LandmarkId, Eigen::Vector3d> objects_groundtruth;
   /// robot_00, robot_01, ... in order.
   std::vector<RobotData> robots;
+  /// dataset.json "object_ids" (default global).
+  ObjectIds object_ids = ObjectIds::kGlobal;
+  /// dataset.json "start_poses" (default known).
+  StartPoses start_poses = StartPoses::kKnown;
 };
+
+/// What one robot may use online: its own measurements and, only when the dataset's start poses
+/// are known, its start pose. No ground truth, no truth ids (structurally: the replay and the
+/// negotiation get this, the evaluation gets the Dataset).
+struct RobotInputs {
+  int index = 0;
+  /// T_world_body of frame 0 when start poses are known; nullopt when unknown (the filter starts
+  /// at the identity of the robot's own frame).
+  std::optional<Eigen::Isometry3d> T_world_body_start;
+  /// As RobotData (N - 1 odometry entries, N frames of observations).
+  std::vector<Eigen::Isometry3d> odometry;
+  std::vector<std::vector<StereoObservation>> objects;
+  /// Parallel to objects; empty vectors when there is no class column.
+  std::vector<std::vector<int>> object_classes;
+  bool has_object_classes = false;
+  std::vector<std::vector<StereoObservation>> features;
+  /// As RobotData::odometry_covariance (N - 1 entries or empty).
+  std::vector<std::optional<Eigen::Matrix<double, 6, 6>>> odometry_covariance;
+
+  int num_frames() const { return static_cast<int>(odometry.size()) + 1; }
+  /// FrameInput for frame k (see RobotData::frame_input).
+  FrameInput frame_input(int frame) const;
+};
+
+/// What a whole team may use online.
+struct TeamInputs {
+  std::string name;
+  std::string sensor;
+  StereoCamera camera;
+  ObjectIds object_ids = ObjectIds::kGlobal;
+  StartPoses start_poses = StartPoses::kKnown;
+  std::vector<RobotInputs> robots;
+};
+
+/// The sensor view of a dataset: measurements, classes, the start pose only when known.
+TeamInputs sensor_inputs(const Dataset& dataset);
+
+/// The variant of a dataset with private object ids and/or unknown start poses (`concord convert`,
+/// `concord sim --private-ids --unknown-start`). Private ids: robot i's ids are renumbered 0, 1,
+/// ... in the order it first observes them (ties by id), and object_truth_ids maps them to the
+/// original global ids (a dataset already private is composed with its truth map). Unknown starts
+/// only changes the flag (ground truth stays in the world frame). Point features are untouched.
+Dataset make_variant(const Dataset& dataset, bool private_ids, bool unknown_starts);
 
 /// What read_dataset loads.
 struct ReadOptions {

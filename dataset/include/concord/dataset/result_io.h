@@ -6,7 +6,9 @@
 
 #include <Eigen/Geometry>
 #include <filesystem>
+#include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "concord/dataset/dataset.h"
@@ -37,9 +39,45 @@ std::string format_trajectory_tum(const std::vector<double>& times,
 void write_objects_csv(const std::filesystem::path& file,
                        const std::vector<ObjectEstimate>& objects);
 
+/// As write_objects_csv, with a last column team_id (parallel to objects; -1 while unshared):
+/// "id,x,y,z,cxx,cxy,cxz,cyy,cyz,czz,team_id". Throws std::invalid_argument if the sizes differ.
+void write_objects_csv(const std::filesystem::path& file,
+                       const std::vector<ObjectEstimate>& objects,
+                       const std::vector<LandmarkId>& team_ids);
+
 /// Reads a file written by write_objects_csv (the covariance is filled symmetrically), in file
-/// order. Throws DatasetError on bad input (naming the file and line), including a repeated id.
-std::vector<ObjectEstimate> read_objects_csv(const std::filesystem::path& file);
+/// order, with or without the team_id column (its values go to *team_ids when given; empty
+/// without the column). Throws DatasetError on bad input (naming the file and line), including a
+/// repeated id.
+std::vector<ObjectEstimate> read_objects_csv(const std::filesystem::path& file,
+                                             std::vector<LandmarkId>* team_ids = nullptr);
+
+/// robot_XX/alignment.json: how a robot's estimates relate to its team frame.
+struct AlignmentRecord {
+  /// The robot whose start frame is the team frame; nullopt: the world frame (known starts).
+  std::optional<int> team_frame_robot;
+  /// The first frame from which the robot's trajectory.kitti is in the team frame (before it, in
+  /// the frames listed in segments).
+  int aligned_at_frame = 0;
+  /// Whether the robot moved into another robot's frame (false for the team frame's own robot and
+  /// for a robot that never aligned).
+  bool moved = false;
+  /// Maps the robot's own start frame into the team frame, with the covariance of its left
+  /// perturbation (team frame), [rho; phi].
+  Eigen::Isometry3d T_team_own = Eigen::Isometry3d::Identity();
+  Eigen::Matrix<double, 6, 6> covariance = Eigen::Matrix<double, 6, 6>::Zero();
+  /// (first frame, frame robot or nullopt for the world) of each stretch of the trajectory in one
+  /// frame, in order, the first from frame 0.
+  std::vector<std::pair<int, std::optional<int>>> segments;
+};
+
+/// Writes alignment.json: {"team_frame_robot": R or null, "aligned_at_frame": K, "moved": b,
+/// "T_team_own": [12 numbers, a KITTI line], "covariance": [6 rows of 6], "segments":
+/// [{"from_frame": K, "frame_robot": R or null}, ...]}. Throws std::runtime_error if it cannot.
+void write_alignment_json(const std::filesystem::path& file, const AlignmentRecord& record);
+
+/// Reads alignment.json. Throws DatasetError naming the file and the bad key.
+AlignmentRecord read_alignment_json(const std::filesystem::path& file);
 
 /// Covariance of one pose estimate: the 6x6 covariance of the right perturbation xi = [rho; phi]
 /// of T_world_body (T = T_hat exp(xi^)), at a frame.

@@ -54,6 +54,9 @@ class Estimator {
   Marginal marginal(const std::vector<LandmarkId>& ids) const;
   /// Consensus step with neighbours' marginals and weights A_ij (eq. 19-21).
   ConsensusReport fuse(const std::vector<WeightedMarginal>& neighbours);
+  /// Moves the state into another frame, p_new = T_new_old p_old, with the transform's covariance
+  /// (left perturbation in the new frame) folded in (StateHelper::reanchor).
+  void reanchor(const Eigen::Isometry3d& T_new_old, const Eigen::Matrix<double, 6, 6>& covariance);
 
   const State& state() const { return state_; }
   const EstimatorOptions& options() const { return options_; }

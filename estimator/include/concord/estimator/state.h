@@ -12,6 +12,9 @@
 /// from linearization errors (the inconsistency of the standard EKF/MSCKF; the invariant-EKF
 /// argument of Barrau and Bonnabel). Outputs (current_pose_covariance, pose_covariance.csv,
 /// /pose) are converted to the right perturbation. See docs/estimator.md.
+/// The same property moves a state into another frame (StateHelper::reanchor, when a robot that
+/// started at an unknown pose joins its team's frame): p_new = T p gives eps' = Ad(T) eps + e for
+/// every pose, where e is the left perturbation of the uncertain T.
 /// Objects that left the joint state (archived) are kept as independent marginals.
 
 #include <Eigen/Core>

@@ -5,8 +5,10 @@
 /// (eq. 30), removal (marginalization) and marginals.
 
 #include <Eigen/Core>
+#include <Eigen/Geometry>
 #include <vector>
 
+#include "concord/estimator/lie.h"
 #include "concord/estimator/state.h"
 
 namespace concord {
@@ -53,6 +55,18 @@ class StateHelper {
   /// Indices of the columns of H that hold a non-zero entry (the state entries a Jacobian
   /// touches); products are formed over these only.
   static std::vector<int> nonzero_columns(const Eigen::MatrixXd& H);
+
+  /// Moves the whole state into another frame: every pose T <- T_new_old T, every landmark (joint
+  /// and archived, and its first estimate) p <- T_new_old p, where T_new_old is uncertain with
+  /// covariance `covariance` as a left perturbation in the new frame, T_new_old = exp(e^) T_hat.
+  /// With the state's left pose errors the new errors are, to first order,
+  ///   eps' = Ad(T_hat) eps + e,   p~' = R_hat p~ + [I, -[p']_x] e,
+  /// so P <- G P G^T + J covariance J^T with G = diag(Ad(T_hat) per pose, R_hat per landmark) and
+  /// J stacking I (poses) and [I, -[p']_x] (landmarks): every estimate shares the transform's
+  /// error. Archived objects get their own 3x3 share of it. Used when a robot that started at an
+  /// unknown pose joins its team's frame.
+  static void reanchor(State& state, const Eigen::Isometry3d& T_new_old,
+                       const lie::Matrix6d& covariance);
 
   /// Enforces symmetry of the covariance after an update.
   static void symmetrize(State& state);

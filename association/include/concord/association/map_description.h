@@ -1,0 +1,87 @@
+#pragma once
+/// \file
+/// What robots exchange to find out which of their objects are the same: a compact description of
+/// each one's object map (class, position, covariance, how often it was observed) in the frame its
+/// state is in, and the keys that name one robot's object in a team.
+
+#include <Eigen/Core>
+#include <cstddef>
+#include <cstdint>
+#include <map>
+#include <vector>
+
+#include "concord/estimator/state.h"
+#include "concord/estimator/types.h"
+
+namespace concord::association {
+
+/// Frame ids: a robot's start frame is named by the robot's index; kWorldFrame is the shared world
+/// frame of robots whose start poses are known.
+inline constexpr int kWorldFrame = -1;
+
+/// Unknown class (the detector reports none).
+inline constexpr int kUnknownClass = -1;
+
+/// A robot's object in the team: (robot, private id) packed as robot * 2^40 + id. Private ids must
+/// be in [0, 2^40) and robots in [0, 2^23) (asserted).
+using ObjectKey = std::int64_t;
+ObjectKey object_key(int robot, LandmarkId id);
+int robot_of(ObjectKey key);
+LandmarkId id_of(ObjectKey key);
+
+/// One object as a robot describes it.
+struct ObjectDescription {
+  LandmarkId id = 0;  ///< the robot's private id
+  int object_class = kUnknownClass;
+  /// Position in the description's frame.
+  Eigen::Vector3d position = Eigen::Vector3d::Zero();
+  /// Marginal covariance of the position in the description's frame: for comparing positions of
+  /// two maps in one frame.
+  Eigen::Matrix3d covariance = Eigen::Matrix3d::Identity();
+  /// Covariance conditioned on the robot's current pose: what the robot knows of the object
+  /// relative to where it is, without the drift its whole map shares (for the geometry of its map
+  /// against another frame's, where a transform absorbs that drift). Archived objects, whose
+  /// correlation with the poses is gone, carry their marginal.
+  Eigen::Matrix3d local_covariance = Eigen::Matrix3d::Identity();
+  /// Frames in which the robot observed it.
+  int observations = 0;
+};
+
+/// A robot's object map as it describes it to its neighbours.
+struct MapDescription {
+  int robot = 0;
+  /// The frame its positions are in (kWorldFrame or the index of the robot whose start frame).
+  int frame = kWorldFrame;
+  /// Objects sorted by id.
+  std::vector<ObjectDescription> objects;
+
+  /// Bytes on the wire in a fixed-width encoding: 12 bytes of header, then per object an 8-byte
+  /// id, a 2-byte class, a 2-byte observation count and 15 floats (position, upper triangles of
+  /// both covariances).
+  std::size_t wire_size() const;
+};
+
+/// What a robot counts of its own detections, per private id: frames observed and the votes for
+/// each class (a detector may report different classes for one object).
+class ObservationTally {
+ public:
+  /// Adds one frame's detections; classes is parallel to observations or empty (no classes).
+  void add(const std::vector<StereoObservation>& observations, const std::vector<int>& classes);
+  int observations(LandmarkId id) const;
+  /// The class with most votes (ties: the smallest), or kUnknownClass.
+  int object_class(LandmarkId id) const;
+
+ private:
+  struct Entry {
+    int frames = 0;
+    std::map<int, int> votes;
+  };
+  std::map<LandmarkId, Entry> entries_;
+};
+
+/// The description of a robot's map: every object it holds with at least min_observations frames
+/// of detections, in the frame the state is in.
+MapDescription describe_map(const State& state, int robot, int frame, const ObservationTally& tally,
+                            int min_observations);
+
+}  // namespace concord::association

@@ -1,0 +1,51 @@
+#pragma once
+/// \file
+/// Maximum clique of an undirected graph by branch and bound with greedy colouring bounds (Tomita
+/// and Seki's MCQ): the consistency graph of candidate correspondences has a vertex per candidate
+/// and an edge between two candidates whose geometry agrees; the largest set of mutually consistent
+/// candidates is its maximum clique (as in CLIPPER, which relaxes it to a densest subgraph).
+/// Deterministic: vertices are ordered by degree (then index) and the first maximum found is kept.
+
+#include <cstdint>
+#include <vector>
+
+namespace concord::association {
+
+/// An undirected graph on vertices 0..n-1 as adjacency bit sets.
+class ConsistencyGraph {
+ public:
+  explicit ConsistencyGraph(int vertices = 0);
+
+  int size() const { return vertices_; }
+  /// Adds the edge {a, b} (a != b, both in range; asserted).
+  void add_edge(int a, int b);
+  bool adjacent(int a, int b) const {
+    return (rows_[static_cast<std::size_t>(a) * words_ + (b >> 6)] >> (b & 63)) & 1U;
+  }
+  int degree(int vertex) const;
+  /// Number of edges.
+  long long edges() const;
+
+ private:
+  int vertices_ = 0;
+  std::size_t words_ = 0;
+  std::vector<std::uint64_t> rows_;
+};
+
+/// A clique and how it was found.
+struct CliqueResult {
+  /// Vertices of the clique, ascending.
+  std::vector<int> vertices;
+  /// Whether the search finished (the clique is a maximum); false when it stopped at the budget
+  /// (the clique is then the largest found).
+  bool exact = true;
+  /// Branch-and-bound nodes expanded.
+  long long expansions = 0;
+};
+
+/// A maximum clique of `graph` among the vertices with allowed[v] (all when allowed is empty),
+/// expanding at most max_expansions nodes.
+CliqueResult maximum_clique(const ConsistencyGraph& graph, long long max_expansions,
+                            const std::vector<bool>& allowed = {});
+
+}  // namespace concord::association

@@ -1,0 +1,211 @@
+#pragma once
+/// \file
+/// One robot's side of the negotiation with its neighbours: which of their objects are the same
+/// (team ids) and how their frames relate. Pure and deterministic (no I/O, clocks or threads); the
+/// replay runs one Negotiator per robot in synchronous rounds, and a daemon can run the same object
+/// with its messages on the wire.
+///
+/// Per round (the order of team_replay.h):
+///   1. On describing rounds (multiples of description_interval) the robot describes its map
+///      (set_own_map, describe_map) in the frame its state is in.
+///   2. It sends each neighbour of the round message_for(neighbour): its description on describing
+///      rounds, the frame it is in, and the owner records the neighbour has not had yet (gossip).
+///   3. It receive()s its neighbours' messages.
+///   4. finish_round(): for each neighbour with a higher index (the robot owns that pair) whose
+///      description arrived with its own:
+///        - maps in different frames: align_maps; a transform found in `confirmations`
+///          consecutive descriptions that agree (chi-square on the 6-D difference) is accepted:
+///          a frame edge plus the correspondences found in both of the last two;
+///        - maps in one frame: match_with_transform (identity); a correspondence found in
+///          `confirmations` consecutive descriptions is accepted (unless one of its objects already
+///          has a partner of that robot: a conflict, counted); an accepted one whose objects then
+///          disagree beyond the split gate in `split_after` consecutive descriptions is undone
+///          (a split, counted), and consensus keeps their marginals apart again.
+///      Then the team ids (assign_team_ids over every owner's links it knows), and the frame: the
+///      smallest frame id connected to its current frame by frame edges is the team frame (the
+///      start frame of the lowest robot of the team, or the world); if that is not its current
+///      frame, the robot must move its state by the returned Reanchoring (the composed transform
+///      and covariance along the edges).
+///
+/// Owners: the robot with the lower index decides for a pair and publishes its decisions (links
+/// and frame edges) in its OwnerRecord, versioned; every robot keeps the newest record of every
+/// owner it has heard of and relays records its neighbours have not had. Two robots that know the
+/// same records compute the same team ids and team frames.
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+#include <cstddef>
+#include <map>
+#include <optional>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "concord/association/map_description.h"
+#include "concord/association/options.h"
+#include "concord/association/pairwise_association.h"
+#include "concord/association/team_ids.h"
+#include "concord/estimator/lie.h"
+
+namespace concord::association {
+
+/// A transform between two frames, accepted by the owner of the pair whose maps gave it.
+struct FrameEdge {
+  int frame_a = 0;
+  int frame_b = 0;
+  /// Maps frame_b coordinates into frame_a.
+  Eigen::Isometry3d T_a_b = Eigen::Isometry3d::Identity();
+  /// Left perturbation in frame_a (alignment.h).
+  lie::Matrix6d covariance = lie::Matrix6d::Identity();
+  int round = 0;
+  int owner = 0;
+};
+
+/// An owner's decisions: its current links and frame edges, versioned (newer replaces older).
+struct OwnerRecord {
+  int owner = 0;
+  int version = 0;
+  std::vector<ObjectLink> links;
+  std::vector<FrameEdge> frame_edges;
+
+  /// Bytes in a fixed-width encoding: 12 bytes of header, 20 per link (two keys, a float), 144
+  /// per frame edge (frames, round, owner, 12 + 21 floats).
+  std::size_t wire_size() const;
+};
+
+/// What a robot sends one neighbour in a round.
+struct NegotiationMessage {
+  int sender = 0;
+  /// The frame the sender's state is in.
+  int frame = kWorldFrame;
+  /// The sender's map, on its describing rounds.
+  std::optional<MapDescription> map;
+  /// Owner records the neighbour has not had from the sender.
+  std::vector<OwnerRecord> records;
+
+  /// 8 bytes of header plus the description and the records.
+  std::size_t wire_size() const;
+};
+
+/// A move of the robot's state into another frame: p_new = T_new_old p_old, with the covariance
+/// of T_new_old as a left perturbation in the new frame.
+struct Reanchoring {
+  int from_frame = kWorldFrame;
+  int to_frame = kWorldFrame;
+  Eigen::Isometry3d T_new_old = Eigen::Isometry3d::Identity();
+  lie::Matrix6d covariance = lie::Matrix6d::Zero();
+};
+
+/// What a negotiator did, counted over its life.
+struct NegotiationCounters {
+  long long searches = 0;           ///< align_maps calls (maps in different frames)
+  long long aligned = 0;            ///< of which found a transform
+  long long ambiguous = 0;          ///< of which were ambiguous
+  long long frame_edges = 0;        ///< transforms accepted (as owner)
+  long long reanchorings = 0;       ///< moves of its own state into another frame
+  long long links_accepted = 0;     ///< correspondences accepted (as owner)
+  long long links_split = 0;        ///< accepted correspondences undone (as owner)
+  long long link_conflicts = 0;     ///< correspondences refused: an object already linked
+  int team_id_conflicts = 0;        ///< links left out by the union-find (current)
+  long long messages = 0;           ///< messages produced
+  long long bytes_sent = 0;         ///< their wire sizes
+  long long description_bytes = 0;  ///< of which map descriptions
+};
+
+class Negotiator {
+ public:
+  /// A robot starting in frame start_frame (its own index for an unknown start, kWorldFrame for a
+  /// known one). Throws std::invalid_argument if options.validate() reports a problem.
+  Negotiator(int robot, int start_frame, NegotiationOptions options);
+
+  int robot() const { return robot_; }
+  /// The frame the robot's state is in.
+  int frame() const { return frame_; }
+  /// Whether the robot describes its map in this round.
+  bool describes(int round) const { return round % options_.description_interval == 0; }
+
+  /// The robot's description of this round (call on describing rounds, before message_for).
+  void set_own_map(MapDescription map, int round);
+  /// The message to a neighbour in this round (records it has not had are marked as sent).
+  NegotiationMessage message_for(int neighbour, int round);
+  /// A neighbour's message of this round.
+  void receive(const NegotiationMessage& message, int round);
+  /// The neighbour may not have had what was sent to it (it missed a round, or reconnected): every
+  /// owner record goes to it again (receivers ignore versions they have).
+  void forget_sent(int neighbour) { sent_versions_.erase(neighbour); }
+  /// Pairs, team ids and frame (see the file comment); the move to apply to the state, if any.
+  std::optional<Reanchoring> finish_round(int round);
+
+  /// Objects of this robot and of `neighbour` that share a team id: (own id, neighbour's id),
+  /// sorted by own id.
+  std::vector<std::pair<LandmarkId, LandmarkId>> shared_objects(int neighbour) const;
+  /// Team id of one of the robot's objects, or -1 while unshared.
+  ObjectKey team_id(LandmarkId own_id) const {
+    return team_ids_.team_id(object_key(robot_, own_id));
+  }
+  const TeamIds& team_ids() const { return team_ids_; }
+  /// The frame a neighbour last said it is in (nullopt before its first message).
+  std::optional<int> frame_of(int neighbour) const;
+  const NegotiationCounters& counters() const { return counters_; }
+  const NegotiationOptions& options() const { return options_; }
+
+  /// T_frame_start: maps the robot's start frame into its current frame, with its covariance
+  /// (left perturbation in the current frame; zero while it has not moved).
+  const Eigen::Isometry3d& T_frame_start() const { return T_frame_start_; }
+  const lie::Matrix6d& covariance_frame_start() const { return covariance_frame_start_; }
+
+ private:
+  struct NeighbourMap {
+    int round = -1;
+    MapDescription map;
+  };
+  /// What the owner of a pair remembers between descriptions.
+  struct PairState {
+    int streak = 0;  ///< consecutive agreeing transforms across frames
+    std::optional<PairAlignment> last;
+    int last_frame_a = kWorldFrame, last_frame_b = kWorldFrame;
+    /// In one frame: consecutive sightings of each candidate correspondence (own id, their id).
+    std::map<std::pair<LandmarkId, LandmarkId>, int> candidate_streak;
+    /// Accepted correspondences with their squared Mahalanobis distance when accepted.
+    std::map<std::pair<LandmarkId, LandmarkId>, double> accepted;
+    /// Consecutive disagreements of accepted correspondences.
+    std::map<std::pair<LandmarkId, LandmarkId>, int> disagreement;
+  };
+
+  /// Owner work for one neighbour; true when the robot's record changed.
+  bool process_pair(int neighbour, const MapDescription& theirs, int round);
+  bool accept_frames(PairState& pair, const MapDescription& theirs, const PairAlignment& found,
+                     int round);
+  bool match_in_frame(PairState& pair, const MapDescription& theirs);
+  void rebuild_own_record();
+  /// Frames connected to `frame` by the known frame edges: the smallest and the transform from
+  /// `frame` into it with its covariance.
+  struct FrameTarget {
+    int frame = kWorldFrame;
+    Eigen::Isometry3d T_target_frame = Eigen::Isometry3d::Identity();
+    lie::Matrix6d covariance = lie::Matrix6d::Zero();
+  };
+  FrameTarget team_frame_of(int frame) const;
+  bool frames_connected(int a, int b) const;
+
+  int robot_;
+  int frame_;
+  NegotiationOptions options_;
+  std::optional<MapDescription> own_map_;
+  int own_map_round_ = -1;
+  std::map<int, NeighbourMap> neighbour_maps_;
+  std::map<int, int> neighbour_frames_;
+  std::map<int, PairState> pairs_;
+  /// Newest record of every owner heard of (including its own).
+  std::map<int, OwnerRecord> records_;
+  /// Per neighbour: version of each owner's record last sent to it.
+  std::map<int, std::map<int, int>> sent_versions_;
+  std::vector<FrameEdge> own_frame_edges_;
+  bool records_changed_ = true;
+  TeamIds team_ids_;
+  NegotiationCounters counters_;
+  Eigen::Isometry3d T_frame_start_ = Eigen::Isometry3d::Identity();
+  lie::Matrix6d covariance_frame_start_ = lie::Matrix6d::Zero();
+};
+
+}  // namespace concord::association

@@ -1,0 +1,88 @@
+#pragma once
+/// \file
+/// The association's tunables (YAML keys: association.<name> in a sensor config), in a header
+/// without Eigen so that configs can hold them.
+
+#include <string>
+#include <vector>
+
+namespace concord::association {
+
+/// Every tunable of the pairwise association, with defaults in-class (YAML keys:
+/// association.<name>).
+struct AssociationOptions {
+  /// min_observations: objects detected in fewer frames are not described (a false detection is
+  /// rarely tracked long, a briefly seen object is poorly placed).
+  int min_observations = 5;
+  /// search_max_sigma: only objects whose position is known this well (metres, the largest
+  /// standard deviation of the local covariance) take part in the search for a transform; the
+  /// others can still be matched once it is known. A loosely placed object makes almost any
+  /// distance consistent.
+  double search_max_sigma = 0.5;
+  /// descriptor_neighbours: an object's surroundings are its distances to this many nearest
+  /// objects of its map.
+  int descriptor_neighbours = 8;
+  /// descriptor_chi2_probability: two neighbour distances agree within this chi-square quantile
+  /// (1 degree of freedom) under their variances.
+  double descriptor_chi2_probability = 0.95;
+  /// candidates_per_object: each object keeps this many best-described partners as candidates.
+  int candidates_per_object = 5;
+  /// min_descriptor_matches: a candidate needs this many of its neighbour distances to agree.
+  int min_descriptor_matches = 2;
+  /// consistency_chi2_probability: two candidates are consistent when the difference of their
+  /// objects' distances in the two maps is within this chi-square quantile (1 degree of freedom)
+  /// under the covariances.
+  double consistency_chi2_probability = 0.999;
+  /// distance_noise: model error of a position beyond its covariance (metres, per axis), e.g.
+  /// viewpoint-dependent detection centres; added to every covariance.
+  double distance_noise = 0.05;
+  /// min_inliers: correspondences needed to accept a transform.
+  int min_inliers = 5;
+  /// min_spread: the matched objects must spread at least this far (metres, the standard
+  /// deviation along their second principal direction): nearly collinear points do not fix a
+  /// rotation.
+  double min_spread = 1.0;
+  /// ambiguity_ratio: a rival clique (candidates the best transform rejects) with at least this
+  /// fraction of the best clique's size (and at least 3) makes the pair ambiguous.
+  double ambiguity_ratio = 0.5;
+  /// match_chi2_probability: gate of a correspondence under a known transform (3 degrees of
+  /// freedom).
+  double match_chi2_probability = 0.999;
+  /// match_margin: the second-best partner of either object must be at least this much further
+  /// (squared Mahalanobis distance; 9 is a likelihood ratio of about 90) than the best.
+  double match_margin = 9.0;
+  /// max_hypotheses: cliques tried in turn when the largest does not fit a rigid transform.
+  int max_hypotheses = 3;
+  /// max_candidates: candidates kept (best descriptor scores first).
+  int max_candidates = 1500;
+  /// max_clique_expansions: branch-and-bound budget of one clique search.
+  int max_clique_expansions = 200000;
+  /// use_classes: only objects of the same class (or of unknown class) are candidates.
+  bool use_classes = true;
+
+  /// Every problem with the values, each naming the key and the bad value; empty when valid.
+  std::vector<std::string> validate() const;
+};
+
+/// Tunables of the negotiation (YAML keys: association.<name>, as AssociationOptions).
+struct NegotiationOptions {
+  AssociationOptions association;
+  /// description_interval: a robot describes its map every this many rounds.
+  int description_interval = 5;
+  /// confirmations: consecutive descriptions in which a transform (across frames) or a
+  /// correspondence (in one frame) must be found before it is acted on.
+  int confirmations = 3;
+  /// transform_agreement_chi2_probability: two successive transforms of a pair agree when the
+  /// 6-D difference is within this chi-square quantile under the sum of their covariances.
+  double transform_agreement_chi2_probability = 0.999;
+  /// split_chi2_probability: the objects of an accepted correspondence disagree when their
+  /// squared Mahalanobis distance (marginal covariances) exceeds this quantile (3 dof).
+  double split_chi2_probability = 0.9999;
+  /// split_after: consecutive descriptions of disagreement that undo a correspondence.
+  int split_after = 2;
+
+  /// Every problem with the values (and with association's), naming the key; empty when valid.
+  std::vector<std::string> validate() const;
+};
+
+}  // namespace concord::association

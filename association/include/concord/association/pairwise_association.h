@@ -1,0 +1,81 @@
+#pragma once
+/// \file
+/// Which objects of two robots' maps are the same, and how the two frames relate.
+///
+/// Maps in different frames (align_maps): objects are paired by how their surroundings look
+/// (distances to their nearest objects, which a rigid transform keeps), the candidate pairs form a
+/// consistency graph (two candidates are consistent when the distance between their objects is
+/// the same in both maps within a chi-square bound under the covariances), its maximum clique is
+/// the largest set of mutually consistent pairs (CLIPPER's idea with an exact clique), the
+/// transform is fitted to it, and a rival hypothesis (the largest clique of candidates the
+/// transform rejects) of comparable size makes the answer ambiguous: symmetric and repetitive
+/// layouts are left unmerged rather than merged wrongly. The correspondences are then every
+/// pair of objects that the transform brings within a chi-square gate of each other, mutual best
+/// with a margin over the second best.
+///
+/// Maps in one frame (match_in_frame): only that last gating.
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+#include <string>
+#include <vector>
+
+#include "concord/association/map_description.h"
+#include "concord/association/options.h"
+#include "concord/estimator/lie.h"
+
+namespace concord::association {
+
+/// One correspondence: object id_a of map a is object id_b of map b.
+struct Match {
+  LandmarkId id_a = 0;
+  LandmarkId id_b = 0;
+  double mahalanobis_squared = 0.0;
+};
+
+enum class AlignmentStatus {
+  kAligned,
+  kTooFewObjects,     ///< a map has fewer than min_inliers objects
+  kTooFewCandidates,  ///< fewer than min_inliers candidates
+  kTooFewInliers,     ///< the largest consistent set is smaller than min_inliers
+  kDegenerate,        ///< the consistent set does not fix a transform (collinear, too small)
+  kAmbiguous,         ///< a rival hypothesis of comparable size
+};
+
+std::string to_string(AlignmentStatus status);
+
+/// The outcome of align_maps.
+struct PairAlignment {
+  AlignmentStatus status = AlignmentStatus::kTooFewObjects;
+  /// Maps b's frame into a's (valid when aligned).
+  Eigen::Isometry3d T_a_b = Eigen::Isometry3d::Identity();
+  /// Covariance of T_a_b as a left perturbation in a's frame (alignment.h).
+  lie::Matrix6d covariance = lie::Matrix6d::Identity();
+  /// Correspondences, sorted by id_a (valid when aligned).
+  std::vector<Match> matches;
+  int candidates = 0;
+  long long consistency_edges = 0;
+  int clique_size = 0;
+  int rival_clique_size = 0;
+  /// Whether both clique searches finished within their budget.
+  bool cliques_exact = true;
+};
+
+/// Correspondences and transform between two maps in different frames (see the file comment).
+PairAlignment align_maps(const MapDescription& a, const MapDescription& b,
+                         const AssociationOptions& options);
+
+/// Correspondences of two maps under a known transform T_a_b (identity for maps in one frame):
+/// pairs within the match gate, mutual best with the margin, compatible classes; residual
+/// covariance C_a + R C_b R^T + distance_noise^2 I with the marginal covariances (local: the
+/// local covariances). Sorted by id_a.
+std::vector<Match> match_with_transform(const MapDescription& a, const MapDescription& b,
+                                        const Eigen::Isometry3d& T_a_b, bool local,
+                                        const AssociationOptions& options);
+
+/// Squared Mahalanobis distance of two descriptions of one object in one frame (marginal
+/// covariances plus distance_noise).
+double mahalanobis_squared(const ObjectDescription& a, const ObjectDescription& b,
+                           const AssociationOptions& options);
+
+}  // namespace concord::association

@@ -1,0 +1,28 @@
+#pragma once
+/// \file
+/// Consensus over team ids: which of a sender's objects a receiver fuses, and under which of its
+/// own ids. The sender's view (its shared objects with the receiver) and the receiver's may differ
+/// for a round (an owner's new decision reaches the other robot a round later): only the pairs
+/// both views hold are fused. One function for concord replay and the daemons.
+
+#include <map>
+#include <utility>
+#include <vector>
+
+#include "concord/estimator/types.h"
+
+namespace concord::association {
+
+/// Sender id -> receiver id for the pairs both views agree on. `sent`: the sender's shared objects
+/// with the receiver, (sender id, receiver id); `received`: the receiver's with the sender,
+/// (receiver id, sender id).
+std::map<LandmarkId, LandmarkId> agreed_labels(
+    const std::vector<std::pair<LandmarkId, LandmarkId>>& sent,
+    const std::vector<std::pair<LandmarkId, LandmarkId>>& received);
+
+/// The part of `marginal` (the sender's ids) whose ids `labels` holds, relabelled with the
+/// receiver's ids; order and covariance entries kept exactly (a marginal of a subset is the
+/// submatrix of the marginal of a superset), blocks left empty dropped.
+Marginal relabel_marginal(const Marginal& marginal, const std::map<LandmarkId, LandmarkId>& labels);
+
+}  // namespace concord::association

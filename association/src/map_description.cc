@@ -1,0 +1,95 @@
+#include "concord/association/map_description.h"
+
+#include <Eigen/Cholesky>
+#include <algorithm>
+#include <cassert>
+
+namespace concord::association {
+
+namespace {
+constexpr int kIdBits = 40;
+constexpr std::int64_t kIdMask = (std::int64_t{1} << kIdBits) - 1;
+}  // namespace
+
+ObjectKey object_key(int robot, LandmarkId id) {
+  assert(robot >= 0 && robot < (1 << 23) && id >= 0 && id <= kIdMask);
+  return (static_cast<std::int64_t>(robot) << kIdBits) | id;
+}
+
+int robot_of(ObjectKey key) { return static_cast<int>(key >> kIdBits); }
+
+LandmarkId id_of(ObjectKey key) { return key & kIdMask; }
+
+std::size_t MapDescription::wire_size() const {
+  constexpr std::size_t kHeader = 12;
+  constexpr std::size_t kPerObject = 8 + 2 + 2 + 15 * 4;
+  return kHeader + kPerObject * objects.size();
+}
+
+void ObservationTally::add(const std::vector<StereoObservation>& observations,
+                           const std::vector<int>& classes) {
+  for (std::size_t n = 0; n < observations.size(); ++n) {
+    Entry& entry = entries_[observations[n].id];
+    ++entry.frames;
+    if (n < classes.size()) ++entry.votes[classes[n]];
+  }
+}
+
+int ObservationTally::observations(LandmarkId id) const {
+  const auto it = entries_.find(id);
+  return it == entries_.end() ? 0 : it->second.frames;
+}
+
+int ObservationTally::object_class(LandmarkId id) const {
+  const auto it = entries_.find(id);
+  if (it == entries_.end() || it->second.votes.empty()) return kUnknownClass;
+  int best = kUnknownClass, most = 0;
+  for (const auto& [object_class, votes] : it->second.votes) {
+    if (votes > most) {
+      best = object_class;
+      most = votes;
+    }
+  }
+  return best;
+}
+
+MapDescription describe_map(const State& state, int robot, int frame, const ObservationTally& tally,
+                            int min_observations) {
+  MapDescription description;
+  description.robot = robot;
+  description.frame = frame;
+  // Conditioning on the newest pose: P_oo - P_ot P_tt^-1 P_to (the object relative to the robot's
+  // current pose, without the uncertainty of that pose in the robot's frame).
+  const int pose = state.pose_index(state.num_poses() - 1);
+  const Eigen::LLT<Eigen::Matrix<double, 6, 6>> pose_llt(state.covariance.block<6, 6>(pose, pose));
+  const bool condition = pose_llt.info() == Eigen::Success;
+  for (const ObjectEstimate& object : state.objects()) {
+    const int observations = tally.observations(object.id);
+    if (observations < min_observations) continue;
+    ObjectDescription entry;
+    entry.id = object.id;
+    entry.object_class = tally.object_class(object.id);
+    entry.position = object.p_world;
+    entry.covariance = 0.5 * (object.covariance + object.covariance.transpose());
+    // An object whose covariance round-off made indefinite cannot be compared (and a neighbour
+    // would refuse the description): left out.
+    if (Eigen::LLT<Eigen::Matrix3d>(entry.covariance).info() != Eigen::Success) continue;
+    entry.local_covariance = entry.covariance;
+    entry.observations = observations;
+    const int slot = state.landmark_slot(object.id);
+    if (slot >= 0 && condition) {
+      const int index = state.landmark_index(slot);
+      const Eigen::Matrix<double, 3, 6> cross = state.covariance.block<3, 6>(index, pose);
+      const Eigen::Matrix3d conditioned =
+          entry.covariance - cross * pose_llt.solve(cross.transpose());
+      // Keep the marginal if round-off made the conditional indefinite.
+      if (Eigen::LLT<Eigen::Matrix3d>(conditioned).info() == Eigen::Success) {
+        entry.local_covariance = 0.5 * (conditioned + conditioned.transpose());
+      }
+    }
+    description.objects.push_back(entry);
+  }
+  return description;
+}
+
+}  // namespace concord::association

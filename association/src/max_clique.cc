@@ -1,0 +1,131 @@
+#include "concord/association/max_clique.h"
+
+#include <algorithm>
+#include <bit>
+#include <cassert>
+#include <numeric>
+
+namespace concord::association {
+
+ConsistencyGraph::ConsistencyGraph(int vertices)
+    : vertices_(vertices),
+      words_((static_cast<std::size_t>(vertices) + 63) / 64),
+      rows_(static_cast<std::size_t>(vertices) * words_, 0) {}
+
+void ConsistencyGraph::add_edge(int a, int b) {
+  assert(a != b && a >= 0 && b >= 0 && a < vertices_ && b < vertices_);
+  rows_[static_cast<std::size_t>(a) * words_ + (b >> 6)] |= std::uint64_t{1} << (b & 63);
+  rows_[static_cast<std::size_t>(b) * words_ + (a >> 6)] |= std::uint64_t{1} << (a & 63);
+}
+
+int ConsistencyGraph::degree(int vertex) const {
+  int count = 0;
+  for (std::size_t w = 0; w < words_; ++w) {
+    count += std::popcount(rows_[static_cast<std::size_t>(vertex) * words_ + w]);
+  }
+  return count;
+}
+
+long long ConsistencyGraph::edges() const {
+  long long twice = 0;
+  for (int v = 0; v < vertices_; ++v) twice += degree(v);
+  return twice / 2;
+}
+
+namespace {
+
+/// MCQ: candidates are kept in colour order; a branch is cut when the clique so far plus the
+/// colour of the candidate cannot beat the best.
+class CliqueSearch {
+ public:
+  CliqueSearch(const ConsistencyGraph& graph, long long max_expansions)
+      : graph_(graph), max_expansions_(max_expansions) {}
+
+  CliqueResult run(std::vector<int> candidates) {
+    // Initial order: degree descending, then index (deterministic).
+    std::vector<int> degree(graph_.size(), 0);
+    for (int v : candidates) degree[v] = graph_.degree(v);
+    std::stable_sort(candidates.begin(), candidates.end(),
+                     [&](int a, int b) { return degree[a] > degree[b]; });
+    std::vector<int> clique;
+    expand(clique, candidates);
+    CliqueResult result;
+    result.vertices = best_;
+    std::sort(result.vertices.begin(), result.vertices.end());
+    result.exact = !stopped_;
+    result.expansions = expansions_;
+    return result;
+  }
+
+ private:
+  /// Greedy sequential colouring of `candidates` (in their order); returns them sorted by colour
+  /// with the colour (1-based) of each.
+  void colour(const std::vector<int>& candidates, std::vector<int>& ordered,
+              std::vector<int>& colours) const {
+    std::vector<std::vector<int>> classes;
+    for (int v : candidates) {
+      std::size_t c = 0;
+      for (; c < classes.size(); ++c) {
+        const bool conflict = std::any_of(classes[c].begin(), classes[c].end(),
+                                          [&](int u) { return graph_.adjacent(u, v); });
+        if (!conflict) break;
+      }
+      if (c == classes.size()) classes.emplace_back();
+      classes[c].push_back(v);
+    }
+    ordered.clear();
+    colours.clear();
+    for (std::size_t c = 0; c < classes.size(); ++c) {
+      for (int v : classes[c]) {
+        ordered.push_back(v);
+        colours.push_back(static_cast<int>(c) + 1);
+      }
+    }
+  }
+
+  void expand(std::vector<int>& clique, const std::vector<int>& candidates) {
+    if (stopped_) return;
+    if (++expansions_ > max_expansions_) {
+      stopped_ = true;
+      return;
+    }
+    std::vector<int> ordered, colours;
+    colour(candidates, ordered, colours);
+    for (int i = static_cast<int>(ordered.size()) - 1; i >= 0; --i) {
+      if (clique.size() + static_cast<std::size_t>(colours[i]) <= best_.size()) return;
+      const int v = ordered[i];
+      clique.push_back(v);
+      std::vector<int> next;
+      for (int j = 0; j < i; ++j) {
+        if (graph_.adjacent(v, ordered[j])) next.push_back(ordered[j]);
+      }
+      if (next.empty()) {
+        if (clique.size() > best_.size()) best_ = clique;
+      } else {
+        expand(clique, next);
+      }
+      clique.pop_back();
+      if (stopped_) return;
+    }
+  }
+
+  const ConsistencyGraph& graph_;
+  long long max_expansions_;
+  long long expansions_ = 0;
+  bool stopped_ = false;
+  std::vector<int> best_;
+};
+
+}  // namespace
+
+CliqueResult maximum_clique(const ConsistencyGraph& graph, long long max_expansions,
+                            const std::vector<bool>& allowed) {
+  std::vector<int> candidates;
+  for (int v = 0; v < graph.size(); ++v) {
+    if (allowed.empty() || allowed[v]) candidates.push_back(v);
+  }
+  if (candidates.empty()) return {};
+  return CliqueSearch(graph, max_expansions).run(std::move(candidates));
+}
+
+}  // namespace concord::association

@@ -1,0 +1,428 @@
+#include "concord/association/negotiation.h"
+
+#include <Eigen/Cholesky>
+#include <algorithm>
+#include <cstdio>
+#include <cstdlib>
+#include <deque>
+#include <set>
+#include <stdexcept>
+
+#include "concord/association/alignment.h"
+#include "concord/estimator/updater_helper.h"
+
+namespace concord::association {
+
+namespace {
+
+const NegotiationOptions& validated(const NegotiationOptions& options) {
+  const auto problems = options.validate();
+  if (!problems.empty()) {
+    std::string message = "invalid association options:";
+    for (const auto& problem : problems) message += "\n  " + problem;
+    throw std::invalid_argument(message);
+  }
+  return options;
+}
+
+/// Whether two transforms of one pair agree: the 6-D difference log(T_1 T_0^-1) within the
+/// chi-square bound under the sum of their covariances.
+bool transforms_agree(const PairAlignment& previous, const PairAlignment& current, double bound) {
+  const lie::Vector6d difference = lie::se3_log(current.T_a_b * previous.T_a_b.inverse());
+  const Eigen::LLT<lie::Matrix6d> llt(previous.covariance + current.covariance);
+  if (llt.info() != Eigen::Success) return false;
+  return difference.dot(llt.solve(difference)) <= bound;
+}
+
+const ObjectDescription* find_object(const MapDescription& map, LandmarkId id) {
+  const auto it = std::lower_bound(
+      map.objects.begin(), map.objects.end(), id,
+      [](const ObjectDescription& object, LandmarkId key) { return object.id < key; });
+  return it != map.objects.end() && it->id == id ? &*it : nullptr;
+}
+
+}  // namespace
+
+std::vector<std::string> NegotiationOptions::validate() const {
+  std::vector<std::string> problems = association.validate();
+  const auto require = [&](bool ok, const std::string& key, double value, const std::string& rule) {
+    if (!ok) {
+      problems.push_back("association." + key + " = " + std::to_string(value) + ": must be " +
+                         rule);
+    }
+  };
+  require(description_interval >= 1, "description_interval", description_interval, ">= 1");
+  require(confirmations >= 1, "confirmations", confirmations, ">= 1");
+  require(transform_agreement_chi2_probability > 0.0 && transform_agreement_chi2_probability < 1.0,
+          "transform_agreement_chi2_probability", transform_agreement_chi2_probability,
+          "in (0, 1)");
+  require(split_chi2_probability > 0.0 && split_chi2_probability < 1.0, "split_chi2_probability",
+          split_chi2_probability, "in (0, 1)");
+  require(split_after >= 1, "split_after", split_after, ">= 1");
+  return problems;
+}
+
+std::size_t OwnerRecord::wire_size() const {
+  return 12 + 20 * links.size() + 144 * frame_edges.size();
+}
+
+std::size_t NegotiationMessage::wire_size() const {
+  std::size_t size = 8;
+  if (map) size += map->wire_size();
+  for (const OwnerRecord& record : records) size += record.wire_size();
+  return size;
+}
+
+Negotiator::Negotiator(int robot, int start_frame, NegotiationOptions options)
+    : robot_(robot), frame_(start_frame), options_(validated(options)) {
+  records_[robot_] = OwnerRecord{robot_, 0, {}, {}};
+}
+
+void Negotiator::set_own_map(MapDescription map, int round) {
+  own_map_ = std::move(map);
+  own_map_round_ = round;
+}
+
+NegotiationMessage Negotiator::message_for(int neighbour, int round) {
+  NegotiationMessage message;
+  message.sender = robot_;
+  message.frame = frame_;
+  if (describes(round) && own_map_ && own_map_round_ == round) message.map = *own_map_;
+  std::map<int, int>& sent = sent_versions_[neighbour];
+  for (const auto& [owner, record] : records_) {
+    if (owner == neighbour) continue;  // it knows its own decisions
+    const auto it = sent.find(owner);
+    if (it != sent.end() && it->second >= record.version) continue;
+    if (record.version == 0) continue;  // nothing decided yet
+    message.records.push_back(record);
+    sent[owner] = record.version;
+  }
+  ++counters_.messages;
+  counters_.bytes_sent += static_cast<long long>(message.wire_size());
+  if (message.map) counters_.description_bytes += static_cast<long long>(message.map->wire_size());
+  return message;
+}
+
+void Negotiator::receive(const NegotiationMessage& message, int round) {
+  neighbour_frames_[message.sender] = message.frame;
+  if (message.map) neighbour_maps_[message.sender] = {round, *message.map};
+  for (const OwnerRecord& record : message.records) {
+    if (record.owner == robot_) continue;  // its own decisions are authoritative here
+    auto it = records_.find(record.owner);
+    if (it == records_.end() || it->second.version < record.version) {
+      records_[record.owner] = record;
+      records_changed_ = true;
+    }
+  }
+  // The sender has every record it sent, so it need not get them back.
+  std::map<int, int>& sent = sent_versions_[message.sender];
+  for (const OwnerRecord& record : message.records) {
+    sent[record.owner] = std::max(sent[record.owner], record.version);
+  }
+}
+
+std::optional<Reanchoring> Negotiator::finish_round(int round) {
+  // 1. Owner work on this round's descriptions.
+  bool own_changed = false;
+  if (own_map_ && own_map_round_ == round) {
+    for (const auto& [neighbour, received] : neighbour_maps_) {
+      if (neighbour <= robot_ || received.round != round) continue;
+      own_changed = process_pair(neighbour, received.map, round) || own_changed;
+    }
+  }
+  if (own_changed) rebuild_own_record();
+
+  // 2. Team ids over every known owner's links.
+  if (records_changed_) {
+    std::vector<ObjectLink> links;
+    for (const auto& [owner, record] : records_) {
+      links.insert(links.end(), record.links.begin(), record.links.end());
+    }
+    team_ids_ = assign_team_ids(std::move(links));
+    counters_.team_id_conflicts = team_ids_.conflicts;
+    records_changed_ = false;
+  }
+
+  // 3. The team frame.
+  const FrameTarget target = team_frame_of(frame_);
+  if (target.frame == frame_) return std::nullopt;
+  Reanchoring move{frame_, target.frame, target.T_target_frame, target.covariance};
+  covariance_frame_start_ =
+      compose_covariance(target.T_target_frame, target.covariance, covariance_frame_start_);
+  T_frame_start_ = target.T_target_frame * T_frame_start_;
+  frame_ = target.frame;
+  ++counters_.reanchorings;
+  return move;
+}
+
+bool Negotiator::process_pair(int neighbour, const MapDescription& theirs, int round) {
+  PairState& pair = pairs_[neighbour];
+  const MapDescription& own = *own_map_;
+  if (own.frame != theirs.frame) {
+    // Frames already joined by a known edge: wait for the robots to move into the team frame.
+    if (frames_connected(own.frame, theirs.frame)) return false;
+    ++counters_.searches;
+    const PairAlignment found = align_maps(own, theirs, options_.association);
+    if (const char* dump = std::getenv("CONCORD_DUMP_DESCRIPTIONS")) {
+      const std::string file = std::string(dump) + "/r" + std::to_string(round) + "_" +
+                               std::to_string(robot_) + "_" + std::to_string(theirs.robot) + ".txt";
+      if (FILE* out = std::fopen(file.c_str(), "w")) {
+        for (const MapDescription* map : {&own, &theirs}) {
+          for (const ObjectDescription& o : map->objects) {
+            std::fprintf(out, "%d %lld %d %.6f %.6f %.6f", map->robot, static_cast<long long>(o.id),
+                         o.observations, o.position.x(), o.position.y(), o.position.z());
+            for (int r = 0; r < 3; ++r)
+              for (int c = 0; c < 3; ++c) std::fprintf(out, " %.8g", o.local_covariance(r, c));
+            for (int r = 0; r < 3; ++r)
+              for (int c = 0; c < 3; ++c) std::fprintf(out, " %.8g", o.covariance(r, c));
+            std::fprintf(out, "\n");
+          }
+        }
+        std::fclose(out);
+      }
+    }
+    if (std::getenv("CONCORD_DEBUG_ASSOCIATION")) {
+      std::fprintf(stderr,
+                   "round %d pair %d-%d: %zu/%zu objects, %d candidates, %lld edges, clique %d "
+                   "rival %d: %s\n",
+                   round, robot_, theirs.robot, own.objects.size(), theirs.objects.size(),
+                   found.candidates, found.consistency_edges, found.clique_size,
+                   found.rival_clique_size, to_string(found.status).c_str());
+    }
+    if (found.status == AlignmentStatus::kAmbiguous) ++counters_.ambiguous;
+    if (found.status != AlignmentStatus::kAligned) {
+      pair.streak = 0;
+      pair.last.reset();
+      return false;
+    }
+    ++counters_.aligned;
+    const double bound =
+        UpdaterHelper::chi2_quantile(options_.transform_agreement_chi2_probability, 6);
+    const bool agrees = pair.last && pair.last_frame_a == own.frame &&
+                        pair.last_frame_b == theirs.frame &&
+                        transforms_agree(*pair.last, found, bound);
+    pair.streak = agrees ? pair.streak + 1 : 1;
+    const bool confirmed = pair.streak >= options_.confirmations;
+    bool changed = false;
+    if (confirmed) changed = accept_frames(pair, theirs, found, round);
+    pair.last = found;
+    pair.last_frame_a = own.frame;
+    pair.last_frame_b = theirs.frame;
+    if (confirmed) {
+      pair.streak = 0;
+      pair.last.reset();
+    }
+    return changed;
+  }
+  pair.streak = 0;
+  pair.last.reset();
+  return match_in_frame(pair, theirs);
+}
+
+bool Negotiator::accept_frames(PairState& pair, const MapDescription& theirs,
+                               const PairAlignment& found, int round) {
+  own_frame_edges_.push_back(
+      FrameEdge{own_map_->frame, theirs.frame, found.T_a_b, found.covariance, round, robot_});
+  ++counters_.frame_edges;
+  // Correspondences found in both of the last two transforms (confirmations >= 2), or in this one.
+  std::set<std::pair<LandmarkId, LandmarkId>> previous;
+  if (pair.last && options_.confirmations >= 2) {
+    for (const Match& match : pair.last->matches) previous.emplace(match.id_a, match.id_b);
+  }
+  std::set<LandmarkId> own_linked, their_linked;
+  for (const auto& [ids, d2] : pair.accepted) {
+    own_linked.insert(ids.first);
+    their_linked.insert(ids.second);
+  }
+  for (const Match& match : found.matches) {
+    const std::pair<LandmarkId, LandmarkId> ids{match.id_a, match.id_b};
+    if (options_.confirmations >= 2 && !previous.contains(ids)) continue;
+    if (pair.accepted.contains(ids)) continue;
+    if (own_linked.contains(ids.first) || their_linked.contains(ids.second)) {
+      ++counters_.link_conflicts;
+      continue;
+    }
+    pair.accepted[ids] = match.mahalanobis_squared;
+    own_linked.insert(ids.first);
+    their_linked.insert(ids.second);
+    ++counters_.links_accepted;
+  }
+  return true;
+}
+
+bool Negotiator::match_in_frame(PairState& pair, const MapDescription& theirs) {
+  const MapDescription& own = *own_map_;
+  bool changed = false;
+  // 1. Accepted correspondences whose objects now disagree are undone after split_after times.
+  const double split_bound = UpdaterHelper::chi2_quantile(options_.split_chi2_probability, 3);
+  for (auto it = pair.accepted.begin(); it != pair.accepted.end();) {
+    const ObjectDescription* mine = find_object(own, it->first.first);
+    const ObjectDescription* other = find_object(theirs, it->first.second);
+    const bool disagree = mine != nullptr && other != nullptr &&
+                          mahalanobis_squared(*mine, *other, options_.association) > split_bound;
+    int& count = pair.disagreement[it->first];
+    count = disagree ? count + 1 : 0;
+    if (count >= options_.split_after) {
+      pair.disagreement.erase(it->first);
+      it = pair.accepted.erase(it);
+      ++counters_.links_split;
+      changed = true;
+    } else {
+      ++it;
+    }
+  }
+  // 2. New correspondences, confirmed over consecutive descriptions.
+  const std::vector<Match> matches =
+      match_with_transform(own, theirs, Eigen::Isometry3d::Identity(), false, options_.association);
+  std::set<LandmarkId> own_linked, their_linked;
+  for (const auto& [ids, d2] : pair.accepted) {
+    own_linked.insert(ids.first);
+    their_linked.insert(ids.second);
+  }
+  std::map<std::pair<LandmarkId, LandmarkId>, int> streaks;
+  for (const Match& match : matches) {
+    const std::pair<LandmarkId, LandmarkId> ids{match.id_a, match.id_b};
+    if (pair.accepted.contains(ids)) continue;
+    const auto previous = pair.candidate_streak.find(ids);
+    const int streak = previous == pair.candidate_streak.end() ? 1 : previous->second + 1;
+    if (streak < options_.confirmations) {
+      streaks[ids] = streak;
+      continue;
+    }
+    if (own_linked.contains(ids.first) || their_linked.contains(ids.second)) {
+      ++counters_.link_conflicts;
+      continue;
+    }
+    pair.accepted[ids] = match.mahalanobis_squared;
+    own_linked.insert(ids.first);
+    their_linked.insert(ids.second);
+    ++counters_.links_accepted;
+    changed = true;
+  }
+  pair.candidate_streak = std::move(streaks);
+  return changed;
+}
+
+void Negotiator::rebuild_own_record() {
+  OwnerRecord& record = records_[robot_];
+  record.owner = robot_;
+  ++record.version;
+  record.links.clear();
+  for (const auto& [neighbour, pair] : pairs_) {
+    for (const auto& [ids, d2] : pair.accepted) {
+      record.links.push_back(
+          ObjectLink::make(object_key(robot_, ids.first), object_key(neighbour, ids.second), d2));
+    }
+  }
+  record.frame_edges = own_frame_edges_;
+  records_changed_ = true;
+}
+
+Negotiator::FrameTarget Negotiator::team_frame_of(int frame) const {
+  // Every known edge, in a canonical order (round, owner, frames).
+  std::vector<const FrameEdge*> edges;
+  for (const auto& [owner, record] : records_) {
+    for (const FrameEdge& edge : record.frame_edges) edges.push_back(&edge);
+  }
+  std::sort(edges.begin(), edges.end(), [](const FrameEdge* x, const FrameEdge* y) {
+    if (x->round != y->round) return x->round < y->round;
+    if (x->owner != y->owner) return x->owner < y->owner;
+    if (x->frame_a != y->frame_a) return x->frame_a < y->frame_a;
+    return x->frame_b < y->frame_b;
+  });
+  // Component of `frame`.
+  std::set<int> component{frame};
+  for (bool grown = true; grown;) {
+    grown = false;
+    for (const FrameEdge* edge : edges) {
+      const bool has_a = component.contains(edge->frame_a);
+      const bool has_b = component.contains(edge->frame_b);
+      if (has_a != has_b) {
+        component.insert(has_a ? edge->frame_b : edge->frame_a);
+        grown = true;
+      }
+    }
+  }
+  FrameTarget target;
+  target.frame = *component.begin();
+  if (target.frame == frame) return target;
+  // Breadth-first from the team frame, neighbours in ascending frame id, the first edge between
+  // two frames in the canonical order: T_target_x and its covariance for every reached frame.
+  std::map<int, std::pair<Eigen::Isometry3d, lie::Matrix6d>> reached;
+  reached[target.frame] = {Eigen::Isometry3d::Identity(), lie::Matrix6d::Zero()};
+  std::deque<int> queue{target.frame};
+  while (!queue.empty() && !reached.contains(frame)) {
+    const int current = queue.front();
+    queue.pop_front();
+    std::map<int, std::pair<Eigen::Isometry3d, lie::Matrix6d>> next;  // neighbour -> T_current_n
+    for (const FrameEdge* edge : edges) {
+      int other;
+      Eigen::Isometry3d T_current_other;
+      lie::Matrix6d covariance;
+      if (edge->frame_a == current) {
+        other = edge->frame_b;
+        T_current_other = edge->T_a_b;
+        covariance = edge->covariance;
+      } else if (edge->frame_b == current) {
+        other = edge->frame_a;
+        T_current_other = edge->T_a_b.inverse();
+        covariance = inverse_covariance(edge->T_a_b, edge->covariance);
+      } else {
+        continue;
+      }
+      if (reached.contains(other) || next.contains(other)) continue;
+      next[other] = {T_current_other, covariance};
+    }
+    const auto& [T_target_current, covariance_target_current] = reached.at(current);
+    for (const auto& [other, step] : next) {
+      reached[other] = {
+          T_target_current * step.first,
+          compose_covariance(T_target_current, covariance_target_current, step.second)};
+      queue.push_back(other);
+    }
+  }
+  target.T_target_frame = reached.at(frame).first;
+  target.covariance = reached.at(frame).second;
+  return target;
+}
+
+bool Negotiator::frames_connected(int a, int b) const {
+  if (a == b) return true;
+  std::set<int> component{a};
+  for (bool grown = true; grown;) {
+    grown = false;
+    for (const auto& [owner, record] : records_) {
+      for (const FrameEdge& edge : record.frame_edges) {
+        const bool has_a = component.contains(edge.frame_a);
+        const bool has_b = component.contains(edge.frame_b);
+        if (has_a != has_b) {
+          component.insert(has_a ? edge.frame_b : edge.frame_a);
+          grown = true;
+        }
+      }
+    }
+  }
+  return component.contains(b);
+}
+
+std::vector<std::pair<LandmarkId, LandmarkId>> Negotiator::shared_objects(int neighbour) const {
+  std::vector<std::pair<LandmarkId, LandmarkId>> shared;
+  for (const auto& [team, members] : team_ids_.members) {
+    std::optional<LandmarkId> own, theirs;
+    for (ObjectKey key : members) {
+      if (robot_of(key) == robot_) own = id_of(key);
+      if (robot_of(key) == neighbour) theirs = id_of(key);
+    }
+    if (own && theirs) shared.emplace_back(*own, *theirs);
+  }
+  std::sort(shared.begin(), shared.end());
+  return shared;
+}
+
+std::optional<int> Negotiator::frame_of(int neighbour) const {
+  const auto it = neighbour_frames_.find(neighbour);
+  if (it == neighbour_frames_.end()) return std::nullopt;
+  return it->second;
+}
+
+}  // namespace concord::association

@@ -1,0 +1,503 @@
+#include "concord/association/pairwise_association.h"
+
+#include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <limits>
+#include <optional>
+
+#include "concord/association/alignment.h"
+#include "concord/association/max_clique.h"
+#include "concord/estimator/updater_helper.h"
+
+namespace concord::association {
+
+namespace {
+
+constexpr double kInfinity = std::numeric_limits<double>::infinity();
+
+bool classes_compatible(int a, int b, const AssociationOptions& options) {
+  return !options.use_classes || a == kUnknownClass || b == kUnknownClass || a == b;
+}
+
+/// Distances and their variances between every two objects of one map (local covariances):
+/// sigma^2 of |p_i - p_j| is u^T (C_i + C_j) u + 2 distance_noise^2 along the unit vector u.
+class DistanceTable {
+ public:
+  DistanceTable(const MapDescription& map, double distance_noise)
+      : n_(map.objects.size()), distance_(n_ * n_, 0.0), variance_(n_ * n_, 0.0) {
+    const double floor = 2.0 * distance_noise * distance_noise;
+    for (std::size_t i = 0; i < n_; ++i) {
+      for (std::size_t j = i + 1; j < n_; ++j) {
+        const Eigen::Vector3d difference = map.objects[i].position - map.objects[j].position;
+        const double distance = difference.norm();
+        double variance = floor;
+        if (distance > 0.0) {
+          const Eigen::Vector3d u = difference / distance;
+          variance +=
+              u.dot((map.objects[i].local_covariance + map.objects[j].local_covariance) * u);
+        } else {
+          variance += (map.objects[i].local_covariance + map.objects[j].local_covariance).trace();
+        }
+        distance_[i * n_ + j] = distance_[j * n_ + i] = distance;
+        variance_[i * n_ + j] = variance_[j * n_ + i] = variance;
+      }
+    }
+  }
+
+  double distance(std::size_t i, std::size_t j) const { return distance_[i * n_ + j]; }
+  double variance(std::size_t i, std::size_t j) const { return variance_[i * n_ + j]; }
+
+  /// The k nearest other objects of object i as (distance, variance), by distance.
+  std::vector<std::pair<double, double>> neighbours(std::size_t i, int k) const {
+    std::vector<std::pair<double, double>> all;
+    all.reserve(n_);
+    for (std::size_t j = 0; j < n_; ++j) {
+      if (j != i) all.emplace_back(distance(i, j), variance(i, j));
+    }
+    const std::size_t keep = std::min<std::size_t>(all.size(), static_cast<std::size_t>(k));
+    std::partial_sort(all.begin(), all.begin() + static_cast<std::ptrdiff_t>(keep), all.end());
+    all.resize(keep);
+    return all;
+  }
+
+ private:
+  std::size_t n_;
+  std::vector<double> distance_;
+  std::vector<double> variance_;
+};
+
+/// How well two sorted neighbour lists agree: the number of distances that agree within the
+/// bound (greedy two-pointer matching, each used once), plus, to order equal counts, the sum of
+/// exp(-z^2 / 2) over those (z the normalized difference) divided by (list size + 1).
+double descriptor_score(const std::vector<std::pair<double, double>>& a,
+                        const std::vector<std::pair<double, double>>& b, double bound) {
+  int count = 0;
+  double closeness = 0.0;
+  std::size_t i = 0, j = 0;
+  while (i < a.size() && j < b.size()) {
+    const double difference = a[i].first - b[j].first;
+    const double squared = difference * difference / (a[i].second + b[j].second);
+    if (squared <= bound) {
+      ++count;
+      closeness += std::exp(-0.5 * squared);
+      ++i;
+      ++j;
+    } else if (difference < 0.0) {
+      ++i;
+    } else {
+      ++j;
+    }
+  }
+  return count + closeness / static_cast<double>(std::max(a.size(), b.size()) + 1);
+}
+
+struct Candidate {
+  int a = 0;  ///< index in map a
+  int b = 0;  ///< index in map b
+  double score = 0.0;
+};
+
+/// Candidate pairs: each object's best-described partners in the other map (both directions).
+std::vector<Candidate> find_candidates(const MapDescription& a, const MapDescription& b,
+                                       const DistanceTable& table_a, const DistanceTable& table_b,
+                                       const AssociationOptions& options) {
+  const int k = options.descriptor_neighbours;
+  std::vector<std::vector<std::pair<double, double>>> descriptors_a, descriptors_b;
+  for (std::size_t i = 0; i < a.objects.size(); ++i)
+    descriptors_a.push_back(table_a.neighbours(i, k));
+  for (std::size_t j = 0; j < b.objects.size(); ++j)
+    descriptors_b.push_back(table_b.neighbours(j, k));
+  const std::size_t na = a.objects.size(), nb = b.objects.size();
+  const double bound = UpdaterHelper::chi2_quantile(options.descriptor_chi2_probability, 1);
+  std::vector<double> scores(na * nb, 0.0);
+  for (std::size_t i = 0; i < na; ++i) {
+    for (std::size_t j = 0; j < nb; ++j) {
+      if (!classes_compatible(a.objects[i].object_class, b.objects[j].object_class, options)) {
+        continue;
+      }
+      scores[i * nb + j] = descriptor_score(descriptors_a[i], descriptors_b[j], bound);
+    }
+  }
+  // Keep the best candidates_per_object of each row and of each column.
+  std::vector<bool> kept(na * nb, false);
+  const auto keep_best = [&](std::vector<std::pair<double, std::size_t>>& line) {
+    std::stable_sort(line.begin(), line.end(),
+                     [](const auto& x, const auto& y) { return x.first > y.first; });
+    for (std::size_t n = 0;
+         n < line.size() && n < static_cast<std::size_t>(options.candidates_per_object); ++n) {
+      if (line[n].first >= options.min_descriptor_matches) kept[line[n].second] = true;
+    }
+  };
+  std::vector<std::pair<double, std::size_t>> line;
+  for (std::size_t i = 0; i < na; ++i) {
+    line.clear();
+    for (std::size_t j = 0; j < nb; ++j) line.emplace_back(scores[i * nb + j], i * nb + j);
+    keep_best(line);
+  }
+  for (std::size_t j = 0; j < nb; ++j) {
+    line.clear();
+    for (std::size_t i = 0; i < na; ++i) line.emplace_back(scores[i * nb + j], i * nb + j);
+    keep_best(line);
+  }
+  std::vector<Candidate> candidates;
+  for (std::size_t cell = 0; cell < kept.size(); ++cell) {
+    if (kept[cell]) {
+      candidates.push_back(
+          {static_cast<int>(cell / nb), static_cast<int>(cell % nb), scores[cell]});
+    }
+  }
+  if (static_cast<int>(candidates.size()) > options.max_candidates) {
+    std::stable_sort(candidates.begin(), candidates.end(),
+                     [](const Candidate& x, const Candidate& y) { return x.score > y.score; });
+    candidates.resize(options.max_candidates);
+    std::sort(candidates.begin(), candidates.end(), [](const Candidate& x, const Candidate& y) {
+      return x.a != y.a ? x.a < y.a : x.b < y.b;
+    });
+  }
+  return candidates;
+}
+
+/// Consistency graph: candidates u, v (different objects on both sides) are adjacent when their
+/// distances agree: (d_a - d_b)^2 <= chi2_1 (sigma_a^2 + sigma_b^2).
+ConsistencyGraph consistency_graph(const std::vector<Candidate>& candidates,
+                                   const DistanceTable& table_a, const DistanceTable& table_b,
+                                   double bound) {
+  ConsistencyGraph graph(static_cast<int>(candidates.size()));
+  for (std::size_t u = 0; u < candidates.size(); ++u) {
+    for (std::size_t v = u + 1; v < candidates.size(); ++v) {
+      const Candidate& x = candidates[u];
+      const Candidate& y = candidates[v];
+      if (x.a == y.a || x.b == y.b) continue;
+      const double difference = table_a.distance(x.a, y.a) - table_b.distance(x.b, y.b);
+      const double variance = table_a.variance(x.a, y.a) + table_b.variance(x.b, y.b);
+      if (difference * difference <= bound * variance) {
+        graph.add_edge(static_cast<int>(u), static_cast<int>(v));
+      }
+    }
+  }
+  return graph;
+}
+
+PointPair pair_of(const ObjectDescription& a, const ObjectDescription& b, bool local,
+                  double distance_noise) {
+  const Eigen::Matrix3d floor = distance_noise * distance_noise * Eigen::Matrix3d::Identity();
+  return {a.position, b.position, (local ? a.local_covariance : a.covariance) + floor,
+          local ? b.local_covariance : b.covariance};
+}
+
+/// Standard deviation of points along their second principal direction.
+double spread(const std::vector<Eigen::Vector3d>& points) {
+  if (points.size() < 3) return 0.0;
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  for (const auto& p : points) mean += p;
+  mean /= static_cast<double>(points.size());
+  Eigen::Matrix3d scatter = Eigen::Matrix3d::Zero();
+  for (const auto& p : points) scatter += (p - mean) * (p - mean).transpose();
+  scatter /= static_cast<double>(points.size());
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> solver(scatter);
+  return std::sqrt(std::max(0.0, solver.eigenvalues()(1)));
+}
+
+/// Fits the transform to the matches (local covariances); nullopt when degenerate.
+std::optional<RigidAlignment> fit(const MapDescription& a, const MapDescription& b,
+                                  const std::vector<std::pair<int, int>>& pairs,
+                                  const AssociationOptions& options) {
+  std::vector<PointPair> points;
+  std::vector<Eigen::Vector3d> positions;
+  for (const auto& [i, j] : pairs) {
+    points.push_back(pair_of(a.objects[i], b.objects[j], true, options.distance_noise));
+    positions.push_back(a.objects[i].position);
+  }
+  if (spread(positions) < options.min_spread) return std::nullopt;
+  return align_points(points);
+}
+
+/// Index of each id in a map (objects sorted by id).
+int index_of(const MapDescription& map, LandmarkId id) {
+  const auto it = std::lower_bound(
+      map.objects.begin(), map.objects.end(), id,
+      [](const ObjectDescription& object, LandmarkId key) { return object.id < key; });
+  return it != map.objects.end() && it->id == id ? static_cast<int>(it - map.objects.begin()) : -1;
+}
+
+}  // namespace
+
+std::vector<std::string> AssociationOptions::validate() const {
+  std::vector<std::string> problems;
+  const auto require = [&](bool ok, const std::string& key, double value, const std::string& rule) {
+    if (!ok) {
+      problems.push_back("association." + key + " = " + std::to_string(value) + ": must be " +
+                         rule);
+    }
+  };
+  require(min_observations >= 1, "min_observations", min_observations, ">= 1");
+  require(std::isfinite(search_max_sigma) && search_max_sigma > 0.0, "search_max_sigma",
+          search_max_sigma, "finite and > 0");
+  require(descriptor_neighbours >= 2, "descriptor_neighbours", descriptor_neighbours, ">= 2");
+  require(descriptor_chi2_probability > 0.0 && descriptor_chi2_probability < 1.0,
+          "descriptor_chi2_probability", descriptor_chi2_probability, "in (0, 1)");
+  require(candidates_per_object >= 1, "candidates_per_object", candidates_per_object, ">= 1");
+  require(min_descriptor_matches >= 1, "min_descriptor_matches", min_descriptor_matches, ">= 1");
+  require(consistency_chi2_probability > 0.0 && consistency_chi2_probability < 1.0,
+          "consistency_chi2_probability", consistency_chi2_probability, "in (0, 1)");
+  require(std::isfinite(distance_noise) && distance_noise >= 0.0, "distance_noise", distance_noise,
+          "finite and >= 0");
+  require(min_inliers >= 3, "min_inliers", min_inliers, ">= 3");
+  require(std::isfinite(min_spread) && min_spread >= 0.0, "min_spread", min_spread,
+          "finite and >= 0");
+  require(ambiguity_ratio > 0.0 && ambiguity_ratio <= 1.0, "ambiguity_ratio", ambiguity_ratio,
+          "in (0, 1]");
+  require(match_chi2_probability > 0.0 && match_chi2_probability < 1.0, "match_chi2_probability",
+          match_chi2_probability, "in (0, 1)");
+  require(std::isfinite(match_margin) && match_margin >= 0.0, "match_margin", match_margin,
+          "finite and >= 0");
+  require(max_hypotheses >= 1, "max_hypotheses", max_hypotheses, ">= 1");
+  require(max_candidates >= 3, "max_candidates", max_candidates, ">= 3");
+  require(max_clique_expansions >= 1, "max_clique_expansions",
+          static_cast<double>(max_clique_expansions), ">= 1");
+  return problems;
+}
+
+std::string to_string(AlignmentStatus status) {
+  switch (status) {
+    case AlignmentStatus::kAligned:
+      return "aligned";
+    case AlignmentStatus::kTooFewObjects:
+      return "too few objects";
+    case AlignmentStatus::kTooFewCandidates:
+      return "too few candidates";
+    case AlignmentStatus::kTooFewInliers:
+      return "too few inliers";
+    case AlignmentStatus::kDegenerate:
+      return "degenerate";
+    case AlignmentStatus::kAmbiguous:
+      return "ambiguous";
+  }
+  return "unknown";
+}
+
+double mahalanobis_squared(const ObjectDescription& a, const ObjectDescription& b,
+                           const AssociationOptions& options) {
+  const Eigen::Matrix3d covariance =
+      a.covariance + b.covariance +
+      options.distance_noise * options.distance_noise * Eigen::Matrix3d::Identity();
+  const Eigen::LLT<Eigen::Matrix3d> llt(covariance);
+  if (llt.info() != Eigen::Success) return kInfinity;
+  const Eigen::Vector3d difference = a.position - b.position;
+  return difference.dot(llt.solve(difference));
+}
+
+std::vector<Match> match_with_transform(const MapDescription& a, const MapDescription& b,
+                                        const Eigen::Isometry3d& T_a_b, bool local,
+                                        const AssociationOptions& options) {
+  const double gate = UpdaterHelper::chi2_quantile(options.match_chi2_probability, 3);
+  const std::size_t na = a.objects.size(), nb = b.objects.size();
+  const Eigen::Matrix3d& R = T_a_b.linear();
+  const double noise = options.distance_noise * options.distance_noise;
+  // 1. Every pair within the gate (a trace bound rejects most pairs cheaply: d^2 >= |r|^2 / trace).
+  std::vector<Eigen::Vector3d> transformed(nb);
+  std::vector<double> trace_b(nb);
+  for (std::size_t j = 0; j < nb; ++j) {
+    transformed[j] = T_a_b * b.objects[j].position;
+    trace_b[j] = (local ? b.objects[j].local_covariance : b.objects[j].covariance).trace();
+  }
+  struct Scored {
+    int i, j;
+    double d2;
+  };
+  std::vector<Scored> within;
+  std::vector<double> best_a(na, kInfinity), second_a(na, kInfinity);
+  std::vector<double> best_b(nb, kInfinity), second_b(nb, kInfinity);
+  std::vector<int> partner_a(na, -1), partner_b(nb, -1);
+  const auto note = [](double d2, int other, double& best, double& second, int& partner) {
+    if (d2 < best) {
+      second = best;
+      best = d2;
+      partner = other;
+    } else if (d2 < second) {
+      second = d2;
+    }
+  };
+  // Pairs beyond the gate plus the margin cannot matter (neither as best nor as a close second).
+  const double relevant = gate + options.match_margin;
+  for (std::size_t i = 0; i < na; ++i) {
+    const ObjectDescription& x = a.objects[i];
+    const Eigen::Matrix3d& covariance_x = local ? x.local_covariance : x.covariance;
+    const double trace_x = covariance_x.trace() + 3.0 * noise;
+    for (std::size_t j = 0; j < nb; ++j) {
+      const ObjectDescription& y = b.objects[j];
+      if (!classes_compatible(x.object_class, y.object_class, options)) continue;
+      const Eigen::Vector3d residual = x.position - transformed[j];
+      if (residual.squaredNorm() > relevant * (trace_x + trace_b[j])) continue;
+      const Eigen::Matrix3d covariance =
+          covariance_x + R * (local ? y.local_covariance : y.covariance) * R.transpose() +
+          noise * Eigen::Matrix3d::Identity();
+      const Eigen::LLT<Eigen::Matrix3d> llt(covariance);
+      if (llt.info() != Eigen::Success) continue;
+      const double d2 = residual.dot(llt.solve(residual));
+      if (d2 > relevant) continue;
+      note(d2, static_cast<int>(j), best_a[i], second_a[i], partner_a[i]);
+      note(d2, static_cast<int>(i), best_b[j], second_b[j], partner_b[j]);
+      if (d2 <= gate) within.push_back({static_cast<int>(i), static_cast<int>(j), d2});
+    }
+  }
+  // 2. Mutual best, with the margin over both objects' second best.
+  std::vector<Match> matches;
+  for (const Scored& pair : within) {
+    if (partner_a[pair.i] != pair.j || partner_b[pair.j] != pair.i) continue;
+    if (second_a[pair.i] < pair.d2 + options.match_margin) continue;
+    if (second_b[pair.j] < pair.d2 + options.match_margin) continue;
+    matches.push_back({a.objects[pair.i].id, b.objects[pair.j].id, pair.d2});
+  }
+  std::sort(matches.begin(), matches.end(),
+            [](const Match& x, const Match& y) { return x.id_a < y.id_a; });
+  return matches;
+}
+
+namespace {
+
+/// The objects of a map whose local covariance's largest standard deviation is at most max_sigma.
+MapDescription well_placed(const MapDescription& map, double max_sigma) {
+  MapDescription kept;
+  kept.robot = map.robot;
+  kept.frame = map.frame;
+  for (const ObjectDescription& object : map.objects) {
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> solver(object.local_covariance,
+                                                                Eigen::EigenvaluesOnly);
+    if (solver.eigenvalues()(2) <= max_sigma * max_sigma) kept.objects.push_back(object);
+  }
+  return kept;
+}
+
+}  // namespace
+
+PairAlignment align_maps(const MapDescription& full_a, const MapDescription& full_b,
+                         const AssociationOptions& options) {
+  PairAlignment result;
+  const auto min_inliers = static_cast<std::size_t>(options.min_inliers);
+  // The search uses the well-placed objects; the final matching all of them.
+  const MapDescription a = well_placed(full_a, options.search_max_sigma);
+  const MapDescription b = well_placed(full_b, options.search_max_sigma);
+  if (a.objects.size() < min_inliers || b.objects.size() < min_inliers) return result;
+
+  // 1. Candidates from the objects' surroundings.
+  const DistanceTable table_a(a, options.distance_noise);
+  const DistanceTable table_b(b, options.distance_noise);
+  const std::vector<Candidate> candidates = find_candidates(a, b, table_a, table_b, options);
+  result.candidates = static_cast<int>(candidates.size());
+  if (candidates.size() < min_inliers) {
+    result.status = AlignmentStatus::kTooFewCandidates;
+    return result;
+  }
+
+  // 2. Consistency graph.
+  const double bound = UpdaterHelper::chi2_quantile(options.consistency_chi2_probability, 1);
+  const ConsistencyGraph graph = consistency_graph(candidates, table_a, table_b, bound);
+  result.consistency_edges = graph.edges();
+
+  // 3. Its maximum clique and the transform of it. Distances cannot tell a layout from its mirror
+  //    image, and loose covariances let chance sets through: a clique whose own transform does
+  //    not bring min_inliers of its members within the match gate is set aside and the next
+  //    largest tried (max_hypotheses times).
+  const double gate = UpdaterHelper::chi2_quantile(options.match_chi2_probability, 3);
+  const auto residual_within_gate = [&](const Candidate& candidate, const Eigen::Isometry3d& T) {
+    const PointPair pair =
+        pair_of(a.objects[candidate.a], b.objects[candidate.b], true, options.distance_noise);
+    const Eigen::Matrix3d& R = T.linear();
+    const Eigen::Vector3d residual = pair.p_target - T * pair.p_source;
+    const Eigen::LLT<Eigen::Matrix3d> llt(pair.covariance_target +
+                                          R * pair.covariance_source * R.transpose());
+    return llt.info() == Eigen::Success && residual.dot(llt.solve(residual)) <= gate;
+  };
+  // The largest rigid hypothesis among the allowed candidates: its transform and how many of its
+  // clique's members it brings within the gate.
+  struct Hypothesis {
+    RigidAlignment fit;
+    int inliers = 0;
+  };
+  const auto find_hypothesis = [&](std::vector<bool> allowed, int minimum) {
+    std::optional<Hypothesis> found;
+    for (int attempt = 0; attempt < options.max_hypotheses && !found; ++attempt) {
+      const CliqueResult clique = maximum_clique(graph, options.max_clique_expansions, allowed);
+      result.cliques_exact = result.cliques_exact && clique.exact;
+      if (static_cast<int>(clique.vertices.size()) < minimum) break;
+      std::vector<std::pair<int, int>> pairs;
+      for (int v : clique.vertices) pairs.emplace_back(candidates[v].a, candidates[v].b);
+      const auto fitted = fit(a, b, pairs, options);
+      int inliers = 0;
+      if (fitted) {
+        for (int v : clique.vertices)
+          inliers += residual_within_gate(candidates[v], fitted->T_target_source);
+      }
+      if (fitted && inliers >= minimum) {
+        found = Hypothesis{*fitted, inliers};
+      } else {
+        for (int v : clique.vertices) allowed[v] = false;
+      }
+    }
+    return found;
+  };
+  const auto best =
+      find_hypothesis(std::vector<bool>(candidates.size(), true), options.min_inliers);
+  if (!best) {
+    result.status = AlignmentStatus::kTooFewInliers;
+    return result;
+  }
+  result.clique_size = best->inliers;
+  const std::optional<RigidAlignment> clique_fit = best->fit;
+
+  // 4. Rival hypothesis: the largest rigid hypothesis among the candidates this transform
+  //    rejects (a symmetric or repetitive layout has one nearly as large). Sets of 3 always fit,
+  //    so a rival needs at least 4.
+  std::vector<bool> rejected(candidates.size(), false);
+  for (std::size_t v = 0; v < candidates.size(); ++v) {
+    rejected[v] = !residual_within_gate(candidates[v], clique_fit->T_target_source);
+  }
+  const int rival_minimum = std::max(
+      4, static_cast<int>(std::ceil(options.ambiguity_ratio * static_cast<double>(best->inliers))));
+  const auto rival = find_hypothesis(rejected, rival_minimum);
+  result.rival_clique_size = rival ? rival->inliers : 0;
+  if (std::getenv("CONCORD_DEBUG_ASSOCIATION")) {
+    std::fprintf(stderr, "  clique fit chi2 %.2f largest %.2f inliers %d rival %d\n",
+                 clique_fit->chi2, clique_fit->largest_residual, result.clique_size,
+                 result.rival_clique_size);
+  }
+  if (rival) {
+    result.status = AlignmentStatus::kAmbiguous;
+    return result;
+  }
+
+  // 5. Every correspondence the transform supports, then the transform refitted to them.
+  Eigen::Isometry3d T = clique_fit->T_target_source;
+  std::vector<Match> matches;
+  std::optional<RigidAlignment> final_fit = clique_fit;
+  for (int pass = 0; pass < 2; ++pass) {
+    matches = match_with_transform(a, b, T, true, options);
+    if (matches.size() < min_inliers) break;
+    std::vector<std::pair<int, int>> pairs;
+    for (const Match& match : matches)
+      pairs.emplace_back(index_of(a, match.id_a), index_of(b, match.id_b));
+    final_fit = fit(a, b, pairs, options);
+    if (!final_fit) break;
+    T = final_fit->T_target_source;
+  }
+  if (matches.size() < min_inliers) {
+    result.status = AlignmentStatus::kTooFewInliers;
+    return result;
+  }
+  if (!final_fit) {
+    result.status = AlignmentStatus::kDegenerate;
+    return result;
+  }
+  result.status = AlignmentStatus::kAligned;
+  result.T_a_b = T;
+  result.covariance = final_fit->covariance;
+  result.matches = std::move(matches);
+  return result;
+}
+
+}  // namespace concord::association

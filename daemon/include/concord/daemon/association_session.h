@@ -1,0 +1,81 @@
+#pragma once
+/// \file
+/// A daemon's side of the negotiated association (docs/association.md): the same
+/// association::Negotiator as concord replay, driven by the lockstep rounds of ConsensusExchange.
+/// Per round k (the order of tools/replay/team_replay.h):
+///   - observe() the frame's detections (the tally of observations and classes);
+///   - begin_round(): on describing rounds, describe the map in the frame the state is in;
+///   - negotiation_for() each live peer: the message riding on its LandmarkSet(k);
+///   - receive() each neighbour's message (ascending robot id), missed() for a peer that did not
+///     take part (the owner records it may not have are sent again);
+///   - finish_round(): pairs, team ids, and the move of the state into the team frame;
+///   - marginal_for() each neighbour: the marginal of the objects shared with it, with the
+///     neighbour's ids; accept_marginal() of a neighbour's: the pairs both views agree on,
+///     relabelled with this robot's ids, when both are in one frame.
+/// Estimator thread only; pure apart from the estimator it is handed.
+
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <utility>
+#include <vector>
+
+#include "concord/association/map_description.h"
+#include "concord/association/negotiation.h"
+#include "concord/estimator/types.h"
+
+namespace concord {
+class Estimator;
+}  // namespace concord
+
+namespace concord::daemon {
+
+/// Where the robot's estimates are: what alignment.json and /status report.
+struct AlignmentState {
+  /// The frame the state is in (association::kWorldFrame or a robot's start frame).
+  int frame = association::kWorldFrame;
+  /// Maps the robot's start frame into `frame`, with its covariance (left perturbation).
+  Eigen::Isometry3d T_frame_start = Eigen::Isometry3d::Identity();
+  Eigen::Matrix<double, 6, 6> covariance = Eigen::Matrix<double, 6, 6>::Zero();
+  /// The round of the last move (0 if it never moved).
+  std::int64_t aligned_at_round = 0;
+  bool moved = false;
+};
+
+class AssociationSession {
+ public:
+  /// Robot `robot` starting in `start_frame` (its own id for an unknown start,
+  /// association::kWorldFrame for a known one). Throws std::invalid_argument on bad options.
+  AssociationSession(int robot, int start_frame, association::NegotiationOptions options);
+
+  void observe(const std::vector<StereoObservation>& objects, const std::vector<int>& classes);
+  void begin_round(std::uint64_t round, const Estimator& estimator);
+  association::NegotiationMessage negotiation_for(int robot, std::uint64_t round);
+  void receive(const association::NegotiationMessage& message, std::uint64_t round);
+  void missed(int robot);
+  /// The move applied to `estimator`, if any.
+  std::optional<association::Reanchoring> finish_round(std::uint64_t round, Estimator& estimator);
+
+  /// The marginal for `robot` (this robot's ids) and the neighbour's id of each of its landmarks
+  /// (parallel to the marginal's ids).
+  std::pair<Marginal, std::vector<LandmarkId>> marginal_for(int robot,
+                                                            const Estimator& estimator) const;
+  /// What this robot fuses of `robot`'s marginal sent in `frame` with `receiver_ids` (parallel to
+  /// its ids): nullopt when the frames differ or no pair is agreed.
+  std::optional<Marginal> accept_marginal(int robot, const Marginal& marginal,
+                                          const std::vector<LandmarkId>& receiver_ids,
+                                          int frame) const;
+
+  int frame() const { return negotiator_.frame(); }
+  /// Team id of each of `objects` (-1 while unshared).
+  std::vector<LandmarkId> team_ids(const std::vector<ObjectEstimate>& objects) const;
+  const AlignmentState& alignment() const { return alignment_; }
+  const association::NegotiationCounters& counters() const { return negotiator_.counters(); }
+
+ private:
+  association::Negotiator negotiator_;
+  association::ObservationTally tally_;
+  AlignmentState alignment_;
+};
+
+}  // namespace concord::daemon

@@ -1,0 +1,95 @@
+#include "concord/daemon/association_session.h"
+
+#include <map>
+
+#include "concord/association/relabelling.h"
+#include "concord/estimator/estimator.h"
+
+namespace concord::daemon {
+
+AssociationSession::AssociationSession(int robot, int start_frame,
+                                       association::NegotiationOptions options)
+    : negotiator_(robot, start_frame, std::move(options)) {
+  alignment_.frame = start_frame;
+}
+
+void AssociationSession::observe(const std::vector<StereoObservation>& objects,
+                                 const std::vector<int>& classes) {
+  tally_.add(objects, classes);
+}
+
+void AssociationSession::begin_round(std::uint64_t round, const Estimator& estimator) {
+  const int k = static_cast<int>(round);
+  if (!negotiator_.describes(k)) return;
+  negotiator_.set_own_map(
+      association::describe_map(estimator.state(), negotiator_.robot(), negotiator_.frame(), tally_,
+                                negotiator_.options().association.min_observations),
+      k);
+}
+
+association::NegotiationMessage AssociationSession::negotiation_for(int robot,
+                                                                    std::uint64_t round) {
+  return negotiator_.message_for(robot, static_cast<int>(round));
+}
+
+void AssociationSession::receive(const association::NegotiationMessage& message,
+                                 std::uint64_t round) {
+  negotiator_.receive(message, static_cast<int>(round));
+}
+
+void AssociationSession::missed(int robot) { negotiator_.forget_sent(robot); }
+
+std::optional<association::Reanchoring> AssociationSession::finish_round(std::uint64_t round,
+                                                                         Estimator& estimator) {
+  auto move = negotiator_.finish_round(static_cast<int>(round));
+  if (move) {
+    estimator.reanchor(move->T_new_old, move->covariance);
+    alignment_.aligned_at_round = static_cast<std::int64_t>(round);
+    alignment_.moved = true;
+  }
+  alignment_.frame = negotiator_.frame();
+  alignment_.T_frame_start = negotiator_.T_frame_start();
+  alignment_.covariance = negotiator_.covariance_frame_start();
+  return move;
+}
+
+std::pair<Marginal, std::vector<LandmarkId>> AssociationSession::marginal_for(
+    int robot, const Estimator& estimator) const {
+  const auto shared = negotiator_.shared_objects(robot);  // (own id, its id)
+  std::vector<LandmarkId> ids;
+  std::map<LandmarkId, LandmarkId> theirs;
+  for (const auto& [own, other] : shared) {
+    ids.push_back(own);
+    theirs[own] = other;
+  }
+  Marginal marginal = estimator.marginal(ids);
+  std::vector<LandmarkId> receiver_ids;
+  receiver_ids.reserve(marginal.ids.size());
+  for (LandmarkId id : marginal.ids) receiver_ids.push_back(theirs.at(id));
+  return {std::move(marginal), std::move(receiver_ids)};
+}
+
+std::optional<Marginal> AssociationSession::accept_marginal(
+    int robot, const Marginal& marginal, const std::vector<LandmarkId>& receiver_ids,
+    int frame) const {
+  if (frame != negotiator_.frame() || receiver_ids.size() != marginal.ids.size())
+    return std::nullopt;
+  std::vector<std::pair<LandmarkId, LandmarkId>> sent;  // (its id, this robot's id)
+  sent.reserve(marginal.ids.size());
+  for (std::size_t i = 0; i < marginal.ids.size(); ++i)
+    sent.emplace_back(marginal.ids[i], receiver_ids[i]);
+  Marginal relabelled = association::relabel_marginal(
+      marginal, association::agreed_labels(sent, negotiator_.shared_objects(robot)));
+  if (relabelled.ids.empty()) return std::nullopt;
+  return relabelled;
+}
+
+std::vector<LandmarkId> AssociationSession::team_ids(
+    const std::vector<ObjectEstimate>& objects) const {
+  std::vector<LandmarkId> ids;
+  ids.reserve(objects.size());
+  for (const ObjectEstimate& object : objects) ids.push_back(negotiator_.team_id(object.id));
+  return ids;
+}
+
+}  // namespace concord::daemon

@@ -1,0 +1,235 @@
+#include "concord/daemon/negotiation_wire.h"
+
+#include <Eigen/Cholesky>
+#include <cmath>
+#include <limits>
+
+#include "concord/v1/concord.pb.h"
+
+namespace concord::daemon {
+
+namespace {
+
+constexpr std::int64_t kMaxPrivateId = (std::int64_t{1} << 40) - 1;
+constexpr int kMaxRobot = (1 << 23) - 1;
+
+template <int N>
+void add_upper(const Eigen::Matrix<double, N, N>& matrix,
+               google::protobuf::RepeatedField<double>& out) {
+  for (int row = 0; row < N; ++row)
+    for (int column = row; column < N; ++column) out.Add(matrix(row, column));
+}
+
+/// A symmetric matrix from its packed upper triangle; false unless finite and positive definite.
+template <int N>
+bool read_upper(const google::protobuf::RepeatedField<double>& values,
+                Eigen::Matrix<double, N, N>& out) {
+  if (values.size() != N * (N + 1) / 2) return false;
+  int index = 0;
+  for (int row = 0; row < N; ++row)
+    for (int column = row; column < N; ++column)
+      out(row, column) = out(column, row) = values.Get(index++);
+  return out.allFinite() && Eigen::LLT<Eigen::Matrix<double, N, N>>(out).info() == Eigen::Success;
+}
+
+bool valid_frame(int frame) { return frame >= association::kWorldFrame && frame <= kMaxRobot; }
+
+bool valid_key(association::ObjectKey key) {
+  return key >= 0 && association::robot_of(key) <= kMaxRobot;
+}
+
+bool read_map(const v1::MapDescription& message, int sender, const NegotiationLimits& limits,
+              association::MapDescription& map, std::string& error) {
+  if (message.objects_size() > limits.max_description_objects) {
+    error = "description of " + std::to_string(message.objects_size()) +
+            " objects, above the limit of " + std::to_string(limits.max_description_objects);
+    return false;
+  }
+  map.robot = sender;
+  map.frame = message.frame();
+  map.objects.reserve(static_cast<std::size_t>(message.objects_size()));
+  for (const v1::ObjectDescription& object : message.objects()) {
+    association::ObjectDescription entry;
+    entry.id = object.id();
+    const std::string what = "description object " + std::to_string(entry.id);
+    if (entry.id < 0 || entry.id > kMaxPrivateId) {
+      error = what + ": id out of range";
+      return false;
+    }
+    if (!map.objects.empty() && entry.id <= map.objects.back().id) {
+      error = what + ": ids not sorted and unique";
+      return false;
+    }
+    if (object.object_class() < association::kUnknownClass) {
+      error = what + ": class " + std::to_string(object.object_class());
+      return false;
+    }
+    entry.object_class = object.object_class();
+    if (object.observations() > static_cast<std::uint32_t>(std::numeric_limits<int>::max())) {
+      error = what + ": observation count out of range";
+      return false;
+    }
+    entry.observations = static_cast<int>(object.observations());
+    if (object.position_size() != 3) {
+      error = what + ": position of " + std::to_string(object.position_size()) + " values";
+      return false;
+    }
+    entry.position = Eigen::Vector3d(object.position(0), object.position(1), object.position(2));
+    if (!entry.position.allFinite()) {
+      error = what + ": non-finite position";
+      return false;
+    }
+    if (!read_upper<3>(object.covariance(), entry.covariance) ||
+        !read_upper<3>(object.local_covariance(), entry.local_covariance)) {
+      error = what + ": covariance not 6 finite values of a positive definite matrix";
+      return false;
+    }
+    map.objects.push_back(std::move(entry));
+  }
+  return true;
+}
+
+bool read_record(const v1::OwnerRecord& message, const NegotiationLimits& limits,
+                 association::OwnerRecord& record, std::string& error) {
+  const std::string what = "owner record of robot " + std::to_string(message.owner());
+  if (message.owner() > static_cast<std::uint32_t>(kMaxRobot) ||
+      message.version() > static_cast<std::uint32_t>(std::numeric_limits<int>::max())) {
+    error = what + ": owner or version out of range";
+    return false;
+  }
+  if (message.links_size() > limits.max_links_per_record ||
+      message.frame_edges_size() > limits.max_frame_edges_per_record) {
+    error = what + ": " + std::to_string(message.links_size()) + " links and " +
+            std::to_string(message.frame_edges_size()) + " frame edges, above the limits";
+    return false;
+  }
+  record.owner = static_cast<int>(message.owner());
+  record.version = static_cast<int>(message.version());
+  for (const v1::ObjectLink& link : message.links()) {
+    // An owner links one of its own objects with another robot's, the smaller key first.
+    const bool ours = association::robot_of(link.a()) == record.owner ||
+                      association::robot_of(link.b()) == record.owner;
+    if (!valid_key(link.a()) || !valid_key(link.b()) || link.a() >= link.b() || !ours ||
+        association::robot_of(link.a()) == association::robot_of(link.b()) ||
+        !std::isfinite(link.mahalanobis_squared()) || link.mahalanobis_squared() < 0.0) {
+      error =
+          what + ": malformed link " + std::to_string(link.a()) + "-" + std::to_string(link.b());
+      return false;
+    }
+    record.links.push_back({link.a(), link.b(), link.mahalanobis_squared()});
+  }
+  for (const v1::FrameEdge& edge : message.frame_edges()) {
+    association::FrameEdge out;
+    out.frame_a = edge.frame_a();
+    out.frame_b = edge.frame_b();
+    if (!valid_frame(out.frame_a) || !valid_frame(out.frame_b) || out.frame_a == out.frame_b ||
+        edge.owner() != message.owner() || edge.round() < 0 ||
+        edge.round() > std::numeric_limits<int>::max() || edge.t_a_b_size() != 12) {
+      error = what + ": malformed frame edge";
+      return false;
+    }
+    out.owner = record.owner;
+    out.round = static_cast<int>(edge.round());
+    Eigen::Matrix<double, 3, 4> matrix;
+    for (int row = 0; row < 3; ++row)
+      for (int column = 0; column < 4; ++column) matrix(row, column) = edge.t_a_b(4 * row + column);
+    const Eigen::Matrix3d R = matrix.leftCols<3>();
+    if (!matrix.allFinite() ||
+        (R.transpose() * R - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff() > 1e-6 ||
+        R.determinant() < 0.0) {
+      error = what + ": frame edge transform is not a finite rigid motion";
+      return false;
+    }
+    out.T_a_b.linear() = R;
+    out.T_a_b.translation() = matrix.col(3);
+    if (!read_upper<6>(edge.covariance(), out.covariance)) {
+      error = what + ": frame edge covariance not 21 finite values of a positive definite matrix";
+      return false;
+    }
+    record.frame_edges.push_back(out);
+  }
+  return true;
+}
+
+}  // namespace
+
+void to_wire(const association::NegotiationMessage& message, v1::Negotiation& out) {
+  out.set_frame(message.frame);
+  if (message.map) {
+    v1::MapDescription* map = out.mutable_map();
+    map->set_frame(message.map->frame);
+    for (const association::ObjectDescription& object : message.map->objects) {
+      v1::ObjectDescription* entry = map->add_objects();
+      entry->set_id(object.id);
+      entry->set_object_class(object.object_class);
+      entry->set_observations(static_cast<std::uint32_t>(std::max(object.observations, 0)));
+      entry->mutable_position()->Add(object.position.data(), object.position.data() + 3);
+      add_upper<3>(object.covariance, *entry->mutable_covariance());
+      add_upper<3>(object.local_covariance, *entry->mutable_local_covariance());
+    }
+  }
+  for (const association::OwnerRecord& record : message.records) {
+    v1::OwnerRecord* entry = out.add_records();
+    entry->set_owner(static_cast<std::uint32_t>(record.owner));
+    entry->set_version(static_cast<std::uint32_t>(record.version));
+    for (const association::ObjectLink& link : record.links) {
+      v1::ObjectLink* l = entry->add_links();
+      l->set_a(link.a);
+      l->set_b(link.b);
+      l->set_mahalanobis_squared(link.mahalanobis_squared);
+    }
+    for (const association::FrameEdge& edge : record.frame_edges) {
+      v1::FrameEdge* e = entry->add_frame_edges();
+      e->set_frame_a(edge.frame_a);
+      e->set_frame_b(edge.frame_b);
+      for (int row = 0; row < 3; ++row) {
+        for (int column = 0; column < 3; ++column) e->add_t_a_b(edge.T_a_b.linear()(row, column));
+        e->add_t_a_b(edge.T_a_b.translation()(row));
+      }
+      add_upper<6>(edge.covariance, *e->mutable_covariance());
+      e->set_round(edge.round);
+      e->set_owner(static_cast<std::uint32_t>(edge.owner));
+    }
+  }
+}
+
+std::optional<association::NegotiationMessage> from_wire(const v1::Negotiation& message, int sender,
+                                                         const NegotiationLimits& limits,
+                                                         std::string& error) {
+  association::NegotiationMessage out;
+  out.sender = sender;
+  out.frame = message.frame();
+  if (sender < 0 || sender > kMaxRobot || !valid_frame(out.frame)) {
+    error = "negotiation: sender or frame out of range";
+    return std::nullopt;
+  }
+  if (message.has_map()) {
+    association::MapDescription map;
+    if (!read_map(message.map(), sender, limits, map, error)) {
+      error = "negotiation: " + error;
+      return std::nullopt;
+    }
+    if (map.frame != out.frame) {
+      error = "negotiation: description in frame " + std::to_string(map.frame) +
+              ", sender in frame " + std::to_string(out.frame);
+      return std::nullopt;
+    }
+    out.map = std::move(map);
+  }
+  if (message.records_size() > limits.max_records) {
+    error = "negotiation: " + std::to_string(message.records_size()) +
+            " owner records, above the limit of " + std::to_string(limits.max_records);
+    return std::nullopt;
+  }
+  for (const v1::OwnerRecord& record : message.records()) {
+    association::OwnerRecord entry;
+    if (!read_record(record, limits, entry, error)) {
+      error = "negotiation: " + error;
+      return std::nullopt;
+    }
+    out.records.push_back(std::move(entry));
+  }
+  return out;
+}
+
+}  // namespace concord::daemon

@@ -1,0 +1,629 @@
+// Association and alignment between robots' object maps (association/): maximum clique, rigid
+// alignment with covariance, pairwise association with a known answer on synthetic maps
+// (including symmetric and repetitive layouts that must not be merged and 5 % false detections),
+// team ids over three robots, and the negotiation (frames, confirmation, splitting a wrong merge).
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <map>
+#include <numbers>
+#include <random>
+#include <set>
+
+#include "concord/association/alignment.h"
+#include "concord/association/map_description.h"
+#include "concord/association/max_clique.h"
+#include "concord/association/negotiation.h"
+#include "concord/association/pairwise_association.h"
+#include "concord/association/team_ids.h"
+#include "concord/estimator/lie.h"
+
+namespace concord::association {
+namespace {
+
+Eigen::Isometry3d make_transform(double yaw, double pitch, const Eigen::Vector3d& translation) {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = (Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()) *
+                Eigen::AngleAxisd(pitch, Eigen::Vector3d::UnitY()))
+                   .toRotationMatrix();
+  T.translation() = translation;
+  return T;
+}
+
+/// A scene of objects in the world, each with a truth id and a class.
+struct Scene {
+  std::vector<Eigen::Vector3d> positions;
+  std::vector<int> classes;
+};
+
+/// Objects uniform in a box of the given size, at least `separation` apart.
+Scene random_scene(int objects, double size, double separation, int classes, std::mt19937& random) {
+  std::uniform_real_distribution<double> uniform(0.0, size);
+  std::uniform_real_distribution<double> height(0.0, 2.0);
+  std::uniform_int_distribution<int> pick_class(0, std::max(0, classes - 1));
+  Scene scene;
+  while (static_cast<int>(scene.positions.size()) < objects) {
+    const Eigen::Vector3d p{uniform(random), uniform(random), height(random)};  // in order
+    const bool far =
+        std::all_of(scene.positions.begin(), scene.positions.end(),
+                    [&](const Eigen::Vector3d& q) { return (p - q).norm() >= separation; });
+    if (!far) continue;
+    scene.positions.push_back(p);
+    scene.classes.push_back(classes > 0 ? pick_class(random) : kUnknownClass);
+  }
+  return scene;
+}
+
+/// A robot's map of the scene objects whose world x lies in [x_min, x_max]: positions in the
+/// robot's frame (p_frame = T_frame_world p + noise), private ids (a shuffled numbering), plus
+/// `false_objects` phantoms. truth[id] is the scene index (-1 for phantoms).
+struct RobotMap {
+  MapDescription map;
+  std::map<LandmarkId, int> truth;
+};
+
+RobotMap observe(const Scene& scene, int robot, int frame, const Eigen::Isometry3d& T_frame_world,
+                 double x_min, double x_max, double sigma, int false_objects,
+                 std::mt19937& random) {
+  std::normal_distribution<double> noise(0.0, sigma);
+  std::vector<std::pair<Eigen::Vector3d, int>> seen;  // (world position, truth)
+  for (std::size_t n = 0; n < scene.positions.size(); ++n) {
+    if (scene.positions[n].x() >= x_min && scene.positions[n].x() <= x_max) {
+      seen.emplace_back(scene.positions[n], static_cast<int>(n));
+    }
+  }
+  std::uniform_real_distribution<double> along(x_min, x_max);
+  std::uniform_real_distribution<double> across(0.0, 40.0);
+  for (int n = 0; n < false_objects; ++n) {
+    seen.emplace_back(Eigen::Vector3d{along(random), across(random), 1.0}, -1);
+  }
+  std::shuffle(seen.begin(), seen.end(), random);
+  RobotMap out;
+  out.map.robot = robot;
+  out.map.frame = frame;
+  for (std::size_t n = 0; n < seen.size(); ++n) {
+    ObjectDescription object;
+    object.id = static_cast<LandmarkId>(n);
+    const int truth = seen[n].second;
+    object.object_class = truth >= 0 ? scene.classes[truth] : kUnknownClass;
+    object.position = T_frame_world * seen[n].first +
+                      Eigen::Vector3d{noise(random), noise(random), noise(random)};
+    object.covariance = sigma * sigma * Eigen::Matrix3d::Identity();
+    object.local_covariance = object.covariance;
+    object.observations = 20;
+    out.map.objects.push_back(object);
+    out.truth[object.id] = truth;
+  }
+  return out;
+}
+
+AssociationOptions test_options() {
+  AssociationOptions options;
+  options.distance_noise = 0.0;
+  return options;
+}
+
+// ---- Maximum clique ----
+
+TEST(MaxCliqueTest, FindsAPlantedCliqueInARandomGraph) {
+  std::mt19937 random(3);
+  const int n = 120;
+  ConsistencyGraph graph(n);
+  std::bernoulli_distribution edge(0.1);
+  for (int a = 0; a < n; ++a)
+    for (int b = a + 1; b < n; ++b)
+      if (edge(random)) graph.add_edge(a, b);
+  const std::vector<int> planted{4, 17, 33, 50, 51, 72, 90, 101, 118};
+  for (std::size_t i = 0; i < planted.size(); ++i)
+    for (std::size_t j = i + 1; j < planted.size(); ++j) graph.add_edge(planted[i], planted[j]);
+  const CliqueResult result = maximum_clique(graph, 1'000'000);
+  EXPECT_TRUE(result.exact);
+  EXPECT_EQ(result.vertices, planted);
+  // Restricted to vertices outside the planted clique, it is much smaller.
+  std::vector<bool> allowed(n, true);
+  for (int v : planted) allowed[v] = false;
+  const CliqueResult rest = maximum_clique(graph, 1'000'000, allowed);
+  EXPECT_LT(rest.vertices.size(), 5u);
+  for (int v : rest.vertices) EXPECT_TRUE(allowed[v]);
+  // A budget of one node stops early and says so.
+  EXPECT_FALSE(maximum_clique(graph, 1).exact);
+}
+
+TEST(MaxCliqueTest, EveryReturnedSetIsAClique) {
+  std::mt19937 random(5);
+  for (int trial = 0; trial < 20; ++trial) {
+    const int n = 40;
+    ConsistencyGraph graph(n);
+    std::bernoulli_distribution edge(0.4);
+    for (int a = 0; a < n; ++a)
+      for (int b = a + 1; b < n; ++b)
+        if (edge(random)) graph.add_edge(a, b);
+    const CliqueResult result = maximum_clique(graph, 1'000'000);
+    ASSERT_TRUE(result.exact);
+    for (std::size_t i = 0; i < result.vertices.size(); ++i)
+      for (std::size_t j = i + 1; j < result.vertices.size(); ++j)
+        EXPECT_TRUE(graph.adjacent(result.vertices[i], result.vertices[j]));
+    // No vertex extends it (maximal).
+    for (int v = 0; v < n; ++v) {
+      if (std::binary_search(result.vertices.begin(), result.vertices.end(), v)) continue;
+      const bool extends = std::all_of(result.vertices.begin(), result.vertices.end(),
+                                       [&](int u) { return graph.adjacent(u, v); });
+      EXPECT_FALSE(extends);
+    }
+  }
+}
+
+// ---- Alignment ----
+
+TEST(AlignmentTest, RecoversAKnownTransformWithAConsistentCovariance) {
+  std::mt19937 random(11);
+  const Eigen::Isometry3d T_true = make_transform(2.1, 0.05, Eigen::Vector3d(12.0, -7.0, 0.4));
+  const double sigma = 0.1;
+  std::normal_distribution<double> noise(0.0, sigma);
+  std::uniform_real_distribution<double> uniform(-15.0, 15.0);
+  std::vector<Eigen::Vector3d> world;
+  for (int n = 0; n < 20; ++n)
+    world.push_back(Eigen::Vector3d{uniform(random), uniform(random), 0.1 * uniform(random)});
+  double nees_sum = 0.0;
+  const int trials = 200;
+  for (int trial = 0; trial < trials; ++trial) {
+    std::vector<PointPair> pairs;
+    for (const Eigen::Vector3d& p : world) {
+      const Eigen::Vector3d source =
+          p + Eigen::Vector3d{noise(random), noise(random), noise(random)};
+      const Eigen::Vector3d target =
+          T_true * p + Eigen::Vector3d{noise(random), noise(random), noise(random)};
+      const Eigen::Matrix3d covariance = sigma * sigma * Eigen::Matrix3d::Identity();
+      pairs.push_back({target, source, covariance, covariance});
+    }
+    const auto alignment = align_points(pairs);
+    ASSERT_TRUE(alignment);
+    const lie::Vector6d error = lie::se3_log(T_true * alignment->T_target_source.inverse());
+    EXPECT_LT(error.head<3>().norm(), 0.2);
+    EXPECT_LT(error.tail<3>().norm(), 0.02);
+    nees_sum += error.dot(alignment->covariance.ldlt().solve(error));
+  }
+  // Covariance intersection over independent points is conservative: NEES well below 6.
+  const double nees = nees_sum / trials;
+  EXPECT_LT(nees, 6.0);
+  EXPECT_GT(nees, 0.05);
+}
+
+TEST(AlignmentTest, HornIsExactWithoutNoiseAndRefusesCollinearPoints) {
+  const Eigen::Isometry3d T_true = make_transform(-0.7, 0.2, Eigen::Vector3d(1.0, 2.0, 3.0));
+  std::vector<PointPair> pairs;
+  for (const Eigen::Vector3d& p : {Eigen::Vector3d(0, 0, 0), Eigen::Vector3d(4, 0, 1),
+                                   Eigen::Vector3d(0, 5, 0), Eigen::Vector3d(3, 3, -2)}) {
+    pairs.push_back(
+        {T_true * p, p, 0.01 * Eigen::Matrix3d::Identity(), 0.01 * Eigen::Matrix3d::Identity()});
+  }
+  const Eigen::Isometry3d T = weighted_horn(pairs, {1.0, 2.0, 1.0, 0.5});
+  EXPECT_TRUE(T.isApprox(T_true, 1e-9));
+  std::vector<PointPair> line;
+  for (int n = 0; n < 5; ++n) {
+    const Eigen::Vector3d p(n, 0.0, 0.0);
+    line.push_back(
+        {T_true * p, p, 0.01 * Eigen::Matrix3d::Identity(), 0.01 * Eigen::Matrix3d::Identity()});
+  }
+  EXPECT_FALSE(align_points(line));
+}
+
+TEST(AlignmentTest, ComposedAndInvertedCovariancesMatchMonteCarlo) {
+  std::mt19937 random(2);
+  const Eigen::Isometry3d T_ab = make_transform(0.8, 0.1, Eigen::Vector3d(3, 1, 0));
+  const Eigen::Isometry3d T_bc = make_transform(-0.4, 0.0, Eigen::Vector3d(0, 5, 1));
+  lie::Matrix6d sigma_ab = lie::Matrix6d::Zero(), sigma_bc = lie::Matrix6d::Zero();
+  sigma_ab.diagonal() << 0.04, 0.02, 0.01, 1e-4, 2e-4, 4e-4;
+  sigma_bc.diagonal() << 0.01, 0.03, 0.02, 3e-4, 1e-4, 2e-4;
+  const lie::Matrix6d predicted = compose_covariance(T_ab, sigma_ab, sigma_bc);
+  const lie::Matrix6d predicted_inverse = inverse_covariance(T_ab, sigma_ab);
+  const Eigen::LLT<lie::Matrix6d> ab(sigma_ab), bc(sigma_bc);
+  std::normal_distribution<double> normal;
+  lie::Matrix6d sample = lie::Matrix6d::Zero(), sample_inverse = lie::Matrix6d::Zero();
+  const int n = 20000;
+  const Eigen::Isometry3d T_ac = T_ab * T_bc;
+  for (int i = 0; i < n; ++i) {
+    lie::Vector6d x, y;
+    for (int k = 0; k < 6; ++k) {
+      x(k) = normal(random);
+      y(k) = normal(random);
+    }
+    const Eigen::Isometry3d noisy_ab = lie::se3_exp(ab.matrixL() * x) * T_ab;
+    const Eigen::Isometry3d noisy_bc = lie::se3_exp(bc.matrixL() * y) * T_bc;
+    const lie::Vector6d e = lie::se3_log(noisy_ab * noisy_bc * T_ac.inverse());
+    sample += e * e.transpose();
+    const lie::Vector6d f = lie::se3_log(noisy_ab.inverse() * T_ab);
+    sample_inverse += f * f.transpose();
+  }
+  sample /= n;
+  sample_inverse /= n;
+  EXPECT_LT((sample - predicted).norm() / predicted.norm(), 0.08);
+  EXPECT_LT((sample_inverse - predicted_inverse).norm() / predicted_inverse.norm(), 0.08);
+}
+
+// ---- Pairwise association on synthetic maps ----
+
+/// Precision and recall of matches against the truth of two maps.
+struct Score {
+  int correct = 0, wrong = 0, common = 0;
+};
+
+Score score(const std::vector<Match>& matches, const RobotMap& a, const RobotMap& b) {
+  Score s;
+  for (const Match& match : matches) {
+    const int ta = a.truth.at(match.id_a), tb = b.truth.at(match.id_b);
+    (ta >= 0 && ta == tb ? s.correct : s.wrong)++;
+  }
+  std::set<int> in_a;
+  for (const auto& [id, truth] : a.truth)
+    if (truth >= 0) in_a.insert(truth);
+  for (const auto& [id, truth] : b.truth)
+    if (truth >= 0 && in_a.contains(truth)) ++s.common;
+  return s;
+}
+
+TEST(PairwiseAssociationTest, RecoversTheKnownAnswerOnOverlappingMaps) {
+  std::mt19937 random(21);
+  const Scene scene = random_scene(80, 60.0, 2.5, 0, random);
+  const Eigen::Isometry3d T_a_world = make_transform(0.3, 0.0, Eigen::Vector3d(-5, 2, 0));
+  const Eigen::Isometry3d T_b_world = make_transform(-2.2, 0.02, Eigen::Vector3d(40, -10, 1));
+  const RobotMap a = observe(scene, 0, 0, T_a_world, 0.0, 40.0, 0.08, 0, random);
+  const RobotMap b = observe(scene, 1, 1, T_b_world, 20.0, 60.0, 0.08, 0, random);
+  const PairAlignment found = align_maps(a.map, b.map, test_options());
+  ASSERT_EQ(found.status, AlignmentStatus::kAligned) << to_string(found.status);
+  const Score s = score(found.matches, a, b);
+  EXPECT_EQ(s.wrong, 0);
+  EXPECT_GE(s.correct, static_cast<int>(0.9 * s.common)) << s.common;
+  const Eigen::Isometry3d T_true = T_a_world * T_b_world.inverse();
+  const lie::Vector6d error = lie::se3_log(T_true * found.T_a_b.inverse());
+  EXPECT_LT(error.head<3>().norm(), 0.2);
+  EXPECT_LT(error.tail<3>().norm(), 0.01);
+  EXPECT_EQ(found.rival_clique_size < 3 || found.rival_clique_size < found.clique_size / 2, true);
+}
+
+TEST(PairwiseAssociationTest, FivePercentFalseDetectionsAreNotMatched) {
+  for (unsigned seed = 1; seed <= 5; ++seed) {
+    std::mt19937 random(100 + seed);
+    const Scene scene = random_scene(80, 60.0, 2.5, 3, random);
+    const Eigen::Isometry3d T_a_world = make_transform(1.0, 0.0, Eigen::Vector3d(3, 3, 0));
+    const Eigen::Isometry3d T_b_world = make_transform(-0.5, 0.0, Eigen::Vector3d(-20, 5, 0));
+    // About 5 % of each map's objects are phantoms (2-3 of ~50).
+    const RobotMap a = observe(scene, 0, 0, T_a_world, 0.0, 40.0, 0.08, 3, random);
+    const RobotMap b = observe(scene, 1, 1, T_b_world, 20.0, 60.0, 0.08, 3, random);
+    const PairAlignment found = align_maps(a.map, b.map, test_options());
+    ASSERT_EQ(found.status, AlignmentStatus::kAligned) << "seed " << seed;
+    const Score s = score(found.matches, a, b);
+    EXPECT_EQ(s.wrong, 0) << "seed " << seed;
+    EXPECT_GE(s.correct, static_cast<int>(0.9 * s.common)) << "seed " << seed;
+  }
+}
+
+TEST(PairwiseAssociationTest, DisjointMapsAreNotAligned) {
+  std::mt19937 random(8);
+  const Scene scene = random_scene(80, 60.0, 2.5, 0, random);
+  const RobotMap a =
+      observe(scene, 0, 0, Eigen::Isometry3d::Identity(), 0.0, 25.0, 0.08, 0, random);
+  const RobotMap b = observe(scene, 1, 1, make_transform(1.0, 0.0, Eigen::Vector3d(4, 4, 0)), 35.0,
+                             60.0, 0.08, 0, random);
+  const PairAlignment found = align_maps(a.map, b.map, test_options());
+  EXPECT_NE(found.status, AlignmentStatus::kAligned) << found.matches.size();
+}
+
+TEST(PairwiseAssociationTest, ARepetitiveGridIsNotMerged) {
+  // A 6 x 6 grid of identical objects 4 m apart (parked cars in rows): the maps overlap, but a
+  // shift by one cell explains them almost as well, so nothing may be merged.
+  Scene grid;
+  for (int i = 0; i < 6; ++i)
+    for (int j = 0; j < 6; ++j) {
+      grid.positions.emplace_back(4.0 * i, 4.0 * j, 0.0);
+      grid.classes.push_back(0);
+    }
+  std::mt19937 random(4);
+  const RobotMap a = observe(grid, 0, 0, Eigen::Isometry3d::Identity(), 0.0, 16.0, 0.05, 0, random);
+  const RobotMap b = observe(grid, 1, 1, make_transform(0.4, 0.0, Eigen::Vector3d(2, -3, 0)), 4.0,
+                             20.0, 0.05, 0, random);
+  const PairAlignment found = align_maps(a.map, b.map, test_options());
+  EXPECT_EQ(found.status, AlignmentStatus::kAmbiguous)
+      << to_string(found.status) << " clique " << found.clique_size << " rival "
+      << found.rival_clique_size;
+  EXPECT_TRUE(found.matches.empty());
+}
+
+TEST(PairwiseAssociationTest, ASymmetricLayoutIsNotMerged) {
+  // Two concentric regular octagons (radii 6 and 10 m, the outer one turned by 22.5 degrees): every
+  // rotation by 45 degrees maps the layout onto itself.
+  Scene ring;
+  for (int k = 0; k < 8; ++k) {
+    const double angle = k * std::numbers::pi / 4.0;
+    ring.positions.emplace_back(6.0 * std::cos(angle), 6.0 * std::sin(angle), 0.0);
+    ring.positions.emplace_back(10.0 * std::cos(angle + std::numbers::pi / 8.0),
+                                10.0 * std::sin(angle + std::numbers::pi / 8.0), 0.0);
+    ring.classes.push_back(0);
+    ring.classes.push_back(0);
+  }
+  std::mt19937 random(6);
+  const RobotMap a =
+      observe(ring, 0, 0, Eigen::Isometry3d::Identity(), -20.0, 20.0, 0.05, 0, random);
+  const RobotMap b = observe(ring, 1, 1, make_transform(1.3, 0.0, Eigen::Vector3d(5, 0, 0)), -20.0,
+                             20.0, 0.05, 0, random);
+  const PairAlignment found = align_maps(a.map, b.map, test_options());
+  EXPECT_EQ(found.status, AlignmentStatus::kAmbiguous) << to_string(found.status);
+}
+
+TEST(PairwiseAssociationTest, ClassesBreakARepetitiveLayout) {
+  // The same grid, but every object has one of 5 classes (a detector that tells objects apart):
+  // the shifted hypotheses no longer agree on the classes.
+  Scene grid;
+  std::mt19937 random(9);
+  std::uniform_int_distribution<int> pick(0, 4);
+  for (int i = 0; i < 6; ++i)
+    for (int j = 0; j < 6; ++j) {
+      grid.positions.emplace_back(4.0 * i, 4.0 * j, 0.0);
+      grid.classes.push_back(pick(random));
+    }
+  const RobotMap a = observe(grid, 0, 0, Eigen::Isometry3d::Identity(), 0.0, 16.0, 0.05, 0, random);
+  const RobotMap b = observe(grid, 1, 1, make_transform(0.4, 0.0, Eigen::Vector3d(2, -3, 0)), 4.0,
+                             20.0, 0.05, 0, random);
+  const PairAlignment found = align_maps(a.map, b.map, test_options());
+  if (found.status == AlignmentStatus::kAligned) {
+    EXPECT_EQ(score(found.matches, a, b).wrong, 0);
+  }
+}
+
+TEST(PairwiseAssociationTest, InOneFrameGatingIsMutualAndUnambiguous) {
+  MapDescription a, b;
+  a.robot = 0;
+  b.robot = 1;
+  const auto object = [](LandmarkId id, double x, double y, double sigma) {
+    ObjectDescription o;
+    o.id = id;
+    o.position = Eigen::Vector3d(x, y, 0.0);
+    o.covariance = o.local_covariance = sigma * sigma * Eigen::Matrix3d::Identity();
+    o.observations = 10;
+    return o;
+  };
+  a.objects = {object(0, 0, 0, 0.1), object(1, 10, 0, 0.1), object(2, 20, 0, 0.1)};
+  // b: a clear partner of 0, two partners of 1 that are equally close (ambiguous), none for 2.
+  b.objects = {object(5, 0.1, 0.05, 0.1), object(6, 10.2, 0.0, 0.1), object(7, 9.8, 0.0, 0.1)};
+  const auto matches =
+      match_with_transform(a, b, Eigen::Isometry3d::Identity(), false, test_options());
+  ASSERT_EQ(matches.size(), 1u);
+  EXPECT_EQ(matches[0].id_a, 0);
+  EXPECT_EQ(matches[0].id_b, 5);
+}
+
+// ---- Team ids ----
+
+TEST(TeamIdsTest, ThreeRobotsAgreeOnOneIdPerObject) {
+  // Objects x (robot 0 id 3, robot 1 id 8, robot 2 id 1) and y (0:4, 1:9, 2:2), links around the
+  // cycle 0-1-2-0.
+  const ObjectKey x0 = object_key(0, 3), x1 = object_key(1, 8), x2 = object_key(2, 1);
+  const ObjectKey y0 = object_key(0, 4), y1 = object_key(1, 9), y2 = object_key(2, 2);
+  std::vector<ObjectLink> links{ObjectLink::make(x0, x1, 1.0), ObjectLink::make(x1, x2, 2.0),
+                                ObjectLink::make(x2, x0, 0.5), ObjectLink::make(y1, y0, 1.0),
+                                ObjectLink::make(y2, y1, 1.5)};
+  const TeamIds ids = assign_team_ids(links);
+  EXPECT_EQ(ids.conflicts, 0);
+  EXPECT_EQ(ids.team_id(x0), x0);
+  EXPECT_EQ(ids.team_id(x1), x0);
+  EXPECT_EQ(ids.team_id(x2), x0);
+  // y0 and y2 are not linked directly but share y1: one team id, cycle consistent.
+  EXPECT_EQ(ids.team_id(y2), y0);
+  EXPECT_EQ(ids.team_id(object_key(1, 99)), -1);
+  // The same links in another order give the same ids.
+  std::reverse(links.begin(), links.end());
+  EXPECT_EQ(assign_team_ids(links).team_of, ids.team_of);
+}
+
+TEST(TeamIdsTest, AnInconsistentCycleIsResolvedDeterministicallyAndCounted) {
+  // Robot 0's objects 1 and 2 would end up in one team through robots 1 and 2: the weakest link
+  // of the cycle is left out.
+  const ObjectKey a1 = object_key(0, 1), a2 = object_key(0, 2);
+  const ObjectKey b = object_key(1, 5), c = object_key(2, 7);
+  std::vector<ObjectLink> links{ObjectLink::make(a1, b, 0.5), ObjectLink::make(b, c, 1.0),
+                                ObjectLink::make(c, a2, 4.0)};
+  const TeamIds ids = assign_team_ids(links);
+  EXPECT_EQ(ids.conflicts, 1);
+  EXPECT_EQ(ids.team_id(c), a1);
+  EXPECT_EQ(ids.team_id(a2), -1);
+  std::swap(links[0], links[2]);
+  const TeamIds again = assign_team_ids(links);
+  EXPECT_EQ(again.team_of, ids.team_of);
+  EXPECT_EQ(again.conflicts, 1);
+}
+
+// ---- Negotiation ----
+
+/// Robots of a synthetic team exchanging messages on a complete graph, round by round, with
+/// fixed maps (each robot's map of the scene in its own frame, or in whatever frame it moved to).
+class SyntheticTeam {
+ public:
+  SyntheticTeam(const Scene& scene, const std::vector<Eigen::Isometry3d>& T_own_world,
+                const std::vector<std::pair<double, double>>& extents, unsigned seed,
+                NegotiationOptions options)
+      : T_frame_world_(T_own_world) {
+    std::mt19937 random(seed);
+    for (std::size_t r = 0; r < T_own_world.size(); ++r) {
+      const int robot = static_cast<int>(r);
+      maps_.push_back(observe(scene, robot, robot, T_own_world[r], extents[r].first,
+                              extents[r].second, 0.05, 0, random));
+      negotiators_.emplace_back(robot, robot, options);
+    }
+  }
+
+  void run(int rounds) {
+    for (int k = 0; k < rounds; ++k) step();
+  }
+
+  void step() {
+    const int n = static_cast<int>(negotiators_.size());
+    for (int r = 0; r < n; ++r) {
+      if (negotiators_[r].describes(round_)) negotiators_[r].set_own_map(maps_[r].map, round_);
+    }
+    std::vector<std::vector<NegotiationMessage>> inbox(n);
+    for (int r = 0; r < n; ++r)
+      for (int s = 0; s < n; ++s)
+        if (r != s) inbox[s].push_back(negotiators_[r].message_for(s, round_));
+    for (int r = 0; r < n; ++r) {
+      for (const auto& message : inbox[r]) negotiators_[r].receive(message, round_);
+      if (const auto move = negotiators_[r].finish_round(round_)) {
+        // Move the robot's map into the new frame (the estimator does this to its state).
+        for (ObjectDescription& object : maps_[r].map.objects) {
+          object.position = move->T_new_old * object.position;
+          object.covariance =
+              move->T_new_old.linear() * object.covariance * move->T_new_old.linear().transpose();
+          object.local_covariance = object.covariance;
+        }
+        maps_[r].map.frame = move->to_frame;
+        T_frame_world_[r] = move->T_new_old * T_frame_world_[r];
+        moves_.push_back({r, round_});
+      }
+    }
+    ++round_;
+  }
+
+  std::vector<Negotiator> negotiators_;
+  std::vector<RobotMap> maps_;
+  std::vector<Eigen::Isometry3d> T_frame_world_;
+  std::vector<std::pair<int, int>> moves_;
+  int round_ = 0;
+};
+
+TEST(NegotiationTest, ThreeRobotsJoinRobotZerosFrameWithConsistentTeamIds) {
+  std::mt19937 random(31);
+  const Scene scene = random_scene(90, 60.0, 2.5, 0, random);
+  const std::vector<Eigen::Isometry3d> T_own_world{
+      make_transform(0.2, 0.0, Eigen::Vector3d(1, 2, 0)),
+      make_transform(2.0, 0.0, Eigen::Vector3d(-30, 4, 0)),
+      make_transform(-1.2, 0.03, Eigen::Vector3d(10, 50, 1))};
+  NegotiationOptions options;
+  options.association = test_options();
+  options.description_interval = 2;
+  options.confirmations = 2;
+  SyntheticTeam team(scene, T_own_world, {{0, 35}, {15, 50}, {25, 60}}, 7, options);
+  team.run(12);
+  // Every robot ends in robot 0's frame (the team frame), the transform right within noise.
+  for (int r = 0; r < 3; ++r) {
+    EXPECT_EQ(team.negotiators_[r].frame(), 0) << "robot " << r;
+    const lie::Vector6d error = lie::se3_log(team.T_frame_world_[r] * T_own_world[0].inverse());
+    EXPECT_LT(error.head<3>().norm(), 0.2) << "robot " << r;
+    EXPECT_LT(error.tail<3>().norm(), 0.01) << "robot " << r;
+  }
+  // Team ids: one id per physical object for all three robots, and they agree on it.
+  std::map<int, std::set<ObjectKey>> teams_of_truth;
+  int wrong = 0;
+  for (int r = 0; r < 3; ++r) {
+    for (const auto& [id, truth] : team.maps_[r].truth) {
+      const ObjectKey team_id = team.negotiators_[r].team_id(id);
+      if (team_id < 0) continue;
+      teams_of_truth[truth].insert(team_id);
+      for (int s = 0; s < 3; ++s) {
+        EXPECT_EQ(team.negotiators_[s].team_ids().team_id(object_key(r, id)), team_id);
+      }
+    }
+  }
+  for (const auto& [truth, ids] : teams_of_truth) {
+    EXPECT_EQ(ids.size(), 1u) << "object " << truth;
+    if (ids.size() != 1) ++wrong;
+  }
+  EXPECT_EQ(wrong, 0);
+  // Objects seen by robots 0 and 2 (x in [25, 35]) share ids though 0 and 2 may have linked them
+  // through robot 1: shared_objects of 0 and 2 pair only the same physical objects.
+  const auto shared = team.negotiators_[0].shared_objects(2);
+  EXPECT_FALSE(shared.empty());
+  for (const auto& [own, theirs] : shared) {
+    EXPECT_EQ(team.maps_[0].truth.at(own), team.maps_[2].truth.at(theirs));
+  }
+}
+
+TEST(NegotiationTest, ATransformIsActedOnOnlyAfterConfirmation) {
+  std::mt19937 random(41);
+  const Scene scene = random_scene(60, 40.0, 2.5, 0, random);
+  NegotiationOptions options;
+  options.association = test_options();
+  options.description_interval = 1;
+  options.confirmations = 3;
+  SyntheticTeam team(
+      scene, {Eigen::Isometry3d::Identity(), make_transform(1.0, 0.0, Eigen::Vector3d(5, 5, 0))},
+      {{0, 30}, {10, 40}}, 3, options);
+  team.run(2);
+  EXPECT_EQ(team.negotiators_[1].frame(), 1);  // found twice, not yet confirmed
+  team.run(2);
+  EXPECT_EQ(team.negotiators_[1].frame(), 0);
+  EXPECT_EQ(team.negotiators_[0].counters().frame_edges, 1);
+  EXPECT_GT(team.negotiators_[0].counters().links_accepted, 10);
+}
+
+TEST(NegotiationTest, AWrongMergeIsSplitAndCounted) {
+  // Two robots in one frame (known starts). Robot 1's object 0 sits on robot 0's object 0 long
+  // enough to be linked, then its estimate moves 3 m away (new observations of a different
+  // object): the link is undone after split_after descriptions, and counted.
+  NegotiationOptions options;
+  options.description_interval = 1;
+  options.confirmations = 2;
+  options.split_after = 2;
+  options.association.distance_noise = 0.0;
+  Negotiator zero(0, kWorldFrame, options), one(1, kWorldFrame, options);
+  const auto map_of = [](int robot, const std::vector<Eigen::Vector3d>& positions) {
+    MapDescription map;
+    map.robot = robot;
+    map.frame = kWorldFrame;
+    for (std::size_t n = 0; n < positions.size(); ++n) {
+      ObjectDescription o;
+      o.id = static_cast<LandmarkId>(n);
+      o.position = positions[n];
+      o.covariance = o.local_covariance = 0.01 * Eigen::Matrix3d::Identity();
+      o.observations = 10;
+      map.objects.push_back(o);
+    }
+    return map;
+  };
+  const std::vector<Eigen::Vector3d> zeros{{0, 0, 0}, {10, 0, 0}};
+  std::vector<Eigen::Vector3d> ones{{0.05, 0, 0}, {10, 0.05, 0}};
+  int round = 0;
+  const auto step = [&] {
+    zero.set_own_map(map_of(0, zeros), round);
+    one.set_own_map(map_of(1, ones), round);
+    const auto to_one = zero.message_for(1, round);
+    const auto to_zero = one.message_for(0, round);
+    one.receive(to_one, round);
+    zero.receive(to_zero, round);
+    zero.finish_round(round);
+    one.finish_round(round);
+    ++round;
+  };
+  for (int k = 0; k < 3; ++k) step();
+  ASSERT_EQ(zero.shared_objects(1).size(), 2u);
+  step();  // robot 1 learns robot 0's record
+  ASSERT_EQ(one.shared_objects(0).size(), 2u);
+  EXPECT_EQ(one.team_id(0), zero.team_id(0));
+  ones[0] = Eigen::Vector3d(3.0, 0.0, 0.0);
+  step();
+  EXPECT_EQ(zero.shared_objects(1).size(), 2u);  // one disagreement is not enough
+  step();
+  EXPECT_EQ(zero.counters().links_split, 1);
+  ASSERT_EQ(zero.shared_objects(1).size(), 1u);
+  EXPECT_EQ(zero.shared_objects(1)[0], (std::pair<LandmarkId, LandmarkId>{1, 1}));
+  EXPECT_EQ(zero.team_id(0), -1);
+  step();
+  EXPECT_EQ(one.shared_objects(0).size(), 1u);
+  EXPECT_EQ(one.team_id(0), -1);
+  // It stays split while they disagree.
+  for (int k = 0; k < 4; ++k) step();
+  EXPECT_EQ(zero.shared_objects(1).size(), 1u);
+}
+
+TEST(NegotiationTest, OptionsAreValidatedNamingTheKey) {
+  NegotiationOptions options;
+  options.confirmations = 0;
+  options.association.min_inliers = 2;
+  const auto problems = options.validate();
+  ASSERT_EQ(problems.size(), 2u);
+  EXPECT_NE(problems[0].find("association.min_inliers"), std::string::npos);
+  EXPECT_NE(problems[1].find("association.confirmations"), std::string::npos);
+  EXPECT_THROW(Negotiator(0, 0, options), std::invalid_argument);
+}
+
+}  // namespace
+}  // namespace concord::association

@@ -1,0 +1,469 @@
+// The negotiated association in the daemons (issue 11): the wire form of the negotiation is exact
+// and refuses malformed descriptions (bounds, non-finite values, indefinite covariances, bad
+// links and transforms) without stalling a lockstep round; ConsensusExchanges wired to each other
+// and concordd processes in lockstep reproduce concord replay's negotiated run (team ids, frames,
+// estimates) on a simulated team with private ids and unknown starts.
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <cmath>
+#include <fstream>
+#include <limits>
+#include <nlohmann/json.hpp>
+#include <thread>
+
+#include "concord/association/negotiation.h"
+#include "concord/config/options_file.h"
+#include "concord/daemon/association_session.h"
+#include "concord/daemon/consensus_exchange.h"
+#include "concord/daemon/negotiation_wire.h"
+#include "concord/dataset/dataset.h"
+#include "concord/dataset/result_io.h"
+#include "concord/estimator/estimator.h"
+#include "concord/v1/concord.pb.h"
+#include "launch/launch.h"
+#include "launch/process.h"
+#include "replay/team_replay.h"
+#include "sim/simulator.h"
+
+namespace concord::daemon {
+namespace {
+
+namespace fs = std::filesystem;
+using namespace std::chrono_literals;
+
+const fs::path kSource = CONCORD_SOURCE_DIR;
+
+/// A small team with private ids and unknown starts whose robots align within its frames.
+dataset::Dataset negotiated_team(int frames) {
+  sim::SimulationOptions options;
+  options.robots = 3;
+  options.frames = frames;
+  options.points_per_frame = 0;
+  options.classes = 4;
+  options.private_ids = true;
+  options.unknown_start = true;
+  options.seed = 3;
+  return sim::simulate(options);
+}
+
+association::NegotiationMessage sample_message() {
+  association::NegotiationMessage message;
+  message.sender = 1;
+  message.frame = 1;
+  association::MapDescription map;
+  map.robot = 1;
+  map.frame = 1;
+  for (int n = 0; n < 3; ++n) {
+    association::ObjectDescription object;
+    object.id = 10 + n;
+    object.object_class = n - 1;
+    object.observations = 7 + n;
+    object.position = Eigen::Vector3d(0.1 * n, 1.0 / 3.0, -2.0 + n);
+    object.covariance << 0.3, 0.01, 0.0, 0.01, 0.2, 0.02, 0.0, 0.02, 0.1;
+    object.local_covariance = 0.5 * object.covariance;
+    map.objects.push_back(object);
+  }
+  message.map = map;
+  association::OwnerRecord record;
+  record.owner = 0;
+  record.version = 4;
+  record.links.push_back(association::ObjectLink::make(association::object_key(0, 3),
+                                                       association::object_key(1, 11), 1.25));
+  association::FrameEdge edge;
+  edge.frame_a = 0;
+  edge.frame_b = 1;
+  edge.T_a_b = Eigen::Translation3d(1.0, 2.0, 3.0) *
+               Eigen::AngleAxisd(0.3, Eigen::Vector3d(1, 2, 3).normalized());
+  edge.covariance = 0.01 * lie::Matrix6d::Identity();
+  edge.covariance(0, 5) = edge.covariance(5, 0) = 0.001;
+  edge.round = 15;
+  edge.owner = 0;
+  record.frame_edges.push_back(edge);
+  message.records.push_back(record);
+  return message;
+}
+
+std::optional<association::NegotiationMessage> decode(const v1::Negotiation& wire,
+                                                      std::string& error,
+                                                      NegotiationLimits limits = {}) {
+  return from_wire(wire, 1, limits, error);
+}
+
+TEST(NegotiationWire, RoundTripIsExact) {
+  const auto message = sample_message();
+  v1::Negotiation wire;
+  to_wire(message, wire);
+  // Through bytes, as on a connection.
+  v1::Negotiation parsed;
+  ASSERT_TRUE(parsed.ParseFromString(wire.SerializeAsString()));
+  std::string error;
+  const auto decoded = decode(parsed, error);
+  ASSERT_TRUE(decoded) << error;
+  EXPECT_EQ(decoded->sender, 1);
+  EXPECT_EQ(decoded->frame, 1);
+  ASSERT_TRUE(decoded->map);
+  ASSERT_EQ(decoded->map->objects.size(), 3u);
+  for (std::size_t n = 0; n < 3; ++n) {
+    const auto& a = message.map->objects[n];
+    const auto& b = decoded->map->objects[n];
+    EXPECT_EQ(a.id, b.id);
+    EXPECT_EQ(a.object_class, b.object_class);
+    EXPECT_EQ(a.observations, b.observations);
+    EXPECT_EQ(a.position, b.position);  // bit for bit
+    EXPECT_EQ(a.covariance, b.covariance);
+    EXPECT_EQ(a.local_covariance, b.local_covariance);
+  }
+  ASSERT_EQ(decoded->records.size(), 1u);
+  const auto& record = decoded->records[0];
+  EXPECT_EQ(record.owner, 0);
+  EXPECT_EQ(record.version, 4);
+  ASSERT_EQ(record.links.size(), 1u);
+  EXPECT_EQ(record.links[0].a, message.records[0].links[0].a);
+  EXPECT_EQ(record.links[0].b, message.records[0].links[0].b);
+  EXPECT_EQ(record.links[0].mahalanobis_squared, 1.25);
+  ASSERT_EQ(record.frame_edges.size(), 1u);
+  EXPECT_EQ(record.frame_edges[0].T_a_b.matrix(), message.records[0].frame_edges[0].T_a_b.matrix());
+  EXPECT_EQ(record.frame_edges[0].covariance, message.records[0].frame_edges[0].covariance);
+  EXPECT_EQ(record.frame_edges[0].round, 15);
+}
+
+TEST(NegotiationWire, MalformedDescriptionsAreRefusedNamingTheProblem) {
+  const auto message = sample_message();
+  v1::Negotiation good;
+  to_wire(message, good);
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  struct Case {
+    std::string name;
+    std::function<void(v1::Negotiation&)> corrupt;
+    std::string expected;  // part of the error
+  };
+  const std::vector<Case> cases = {
+      {"nan position",
+       [&](v1::Negotiation& m) { m.mutable_map()->mutable_objects(1)->set_position(0, nan); },
+       "non-finite position"},
+      {"infinite covariance",
+       [&](v1::Negotiation& m) {
+         m.mutable_map()->mutable_objects(0)->set_covariance(
+             3, std::numeric_limits<double>::infinity());
+       },
+       "positive definite"},
+      {"indefinite covariance",
+       [&](v1::Negotiation& m) {
+         m.mutable_map()->mutable_objects(2)->set_local_covariance(0, -1.0);
+       },
+       "positive definite"},
+      {"short covariance",
+       [&](v1::Negotiation& m) {
+         m.mutable_map()->mutable_objects(2)->mutable_covariance()->RemoveLast();
+       },
+       "positive definite"},
+      {"two positions",
+       [&](v1::Negotiation& m) { m.mutable_map()->mutable_objects(0)->add_position(1.0); },
+       "position of 4 values"},
+      {"unsorted ids", [&](v1::Negotiation& m) { m.mutable_map()->mutable_objects(2)->set_id(5); },
+       "not sorted"},
+      {"negative id", [&](v1::Negotiation& m) { m.mutable_map()->mutable_objects(0)->set_id(-4); },
+       "out of range"},
+      {"bad class",
+       [&](v1::Negotiation& m) { m.mutable_map()->mutable_objects(0)->set_object_class(-7); },
+       "class"},
+      {"map in another frame", [&](v1::Negotiation& m) { m.mutable_map()->set_frame(2); },
+       "description in frame 2"},
+      {"link of others",
+       [&](v1::Negotiation& m) {
+         m.mutable_records(0)->mutable_links(0)->set_a(association::object_key(2, 1));
+         m.mutable_records(0)->mutable_links(0)->set_b(association::object_key(3, 1));
+       },
+       "malformed link"},
+      {"nan link",
+       [&](v1::Negotiation& m) {
+         m.mutable_records(0)->mutable_links(0)->set_mahalanobis_squared(nan);
+       },
+       "malformed link"},
+      {"not a rotation",
+       [&](v1::Negotiation& m) { m.mutable_records(0)->mutable_frame_edges(0)->set_t_a_b(0, 2.0); },
+       "rigid motion"},
+      {"edge covariance",
+       [&](v1::Negotiation& m) {
+         m.mutable_records(0)->mutable_frame_edges(0)->set_covariance(0, nan);
+       },
+       "covariance"},
+      {"edge of another owner",
+       [&](v1::Negotiation& m) { m.mutable_records(0)->mutable_frame_edges(0)->set_owner(5); },
+       "malformed frame edge"},
+      {"frame out of range", [&](v1::Negotiation& m) { m.set_frame(-5); }, "out of range"},
+  };
+  for (const Case& c : cases) {
+    v1::Negotiation wire = good;
+    c.corrupt(wire);
+    std::string error;
+    EXPECT_FALSE(decode(wire, error)) << c.name;
+    EXPECT_NE(error.find(c.expected), std::string::npos) << c.name << ": " << error;
+  }
+  // Bounds: objects per description, records per message, links and edges per record.
+  NegotiationLimits limits;
+  limits.max_description_objects = 2;
+  std::string error;
+  EXPECT_FALSE(decode(good, error, limits));
+  EXPECT_NE(error.find("above the limit of 2"), std::string::npos) << error;
+  limits = {};
+  limits.max_records = 0;
+  EXPECT_FALSE(decode(good, error, limits));
+  limits = {};
+  limits.max_links_per_record = 0;
+  EXPECT_FALSE(decode(good, error, limits));
+  limits = {};
+  limits.max_frame_edges_per_record = 0;
+  EXPECT_FALSE(decode(good, error, limits));
+  EXPECT_TRUE(decode(good, error)) << error;
+}
+
+/// Exchanges that deliver to each other directly, optionally corrupting what one robot sends.
+struct Team {
+  Team(int robots, ConsensusConfig config,
+       std::function<void(int, v1::Envelope&)> corrupt = nullptr) {
+    for (int i = 0; i < robots; ++i) {
+      exchanges.push_back(std::make_unique<ConsensusExchange>(
+          config, [this, i, corrupt](int robot, const v1::Envelope& envelope) {
+            v1::Envelope sent = envelope;
+            if (corrupt) corrupt(i, sent);
+            exchanges[robot]->on_message(i, sent);
+            return true;
+          }));
+    }
+  }
+  void connect_all() {
+    for (std::size_t i = 0; i < exchanges.size(); ++i)
+      for (std::size_t j = 0; j < exchanges.size(); ++j)
+        if (i != j) exchanges[i]->on_peer(static_cast<int>(j), true);
+  }
+  std::vector<std::unique_ptr<ConsensusExchange>> exchanges;
+};
+
+struct TeamRun {
+  std::vector<std::vector<Eigen::Isometry3d>> trajectories;
+  std::vector<std::vector<ObjectEstimate>> objects;
+  std::vector<std::vector<LandmarkId>> team_ids;
+  std::vector<int> frames;
+  std::vector<ExchangeCounters> counters;
+  int timed_out = 0;
+};
+
+/// The team on `inputs` with one thread per robot, as concordd's estimator threads do.
+TeamRun run_exchanges(const dataset::TeamInputs& inputs, const EstimatorOptions& options,
+                      const association::NegotiationOptions& negotiation,
+                      std::function<void(int, v1::Envelope&)> corrupt = nullptr) {
+  ConsensusConfig config;
+  config.mode = ConsensusMode::kLockstep;
+  config.round_deadline = std::chrono::seconds(30);
+  const int robots = static_cast<int>(inputs.robots.size());
+  Team team(robots, config, std::move(corrupt));
+  std::vector<std::unique_ptr<AssociationSession>> sessions;
+  for (int i = 0; i < robots; ++i) {
+    sessions.push_back(std::make_unique<AssociationSession>(i, i, negotiation));
+    team.exchanges[i]->set_association(sessions[i].get());
+  }
+  team.connect_all();
+  TeamRun run;
+  run.trajectories.resize(robots);
+  run.objects.resize(robots);
+  run.team_ids.resize(robots);
+  run.frames.resize(robots);
+  std::atomic<int> timed_out{0};
+  std::vector<std::thread> threads;
+  for (int i = 0; i < robots; ++i) {
+    threads.emplace_back([&, i] {
+      const dataset::RobotInputs& robot = inputs.robots[i];
+      Estimator estimator(options, inputs.camera, Eigen::Isometry3d::Identity(), 0);
+      for (int k = 0; k < robot.num_frames(); ++k) {
+        const FrameInput input = robot.frame_input(k);
+        estimator.process(input);
+        sessions[i]->observe(input.objects, robot.object_classes[k]);
+        timed_out +=
+            team.exchanges[i]->run_round(static_cast<std::uint64_t>(k), estimator).timed_out;
+        run.trajectories[i].push_back(estimator.current_pose());
+      }
+      run.objects[i] = estimator.objects();
+      run.team_ids[i] = sessions[i]->team_ids(run.objects[i]);
+      run.frames[i] = sessions[i]->frame();
+    });
+  }
+  for (auto& thread : threads) thread.join();
+  run.timed_out = timed_out;
+  for (int i = 0; i < robots; ++i) run.counters.push_back(team.exchanges[i]->counters());
+  return run;
+}
+
+/// Two labellings name the same partition of (robot, object) pairs into teams.
+void expect_same_partition(const std::vector<std::vector<ObjectEstimate>>& objects,
+                           const std::vector<std::vector<LandmarkId>>& a,
+                           const std::vector<std::vector<LandmarkId>>& b) {
+  std::map<LandmarkId, LandmarkId> a_to_b, b_to_a;
+  for (std::size_t i = 0; i < objects.size(); ++i) {
+    ASSERT_EQ(a[i].size(), b[i].size());
+    for (std::size_t n = 0; n < a[i].size(); ++n) {
+      EXPECT_EQ(a[i][n] < 0, b[i][n] < 0) << "robot " << i << " object " << objects[i][n].id;
+      if (a[i][n] < 0 || b[i][n] < 0) continue;
+      const auto [x, new_x] = a_to_b.emplace(a[i][n], b[i][n]);
+      const auto [y, new_y] = b_to_a.emplace(b[i][n], a[i][n]);
+      EXPECT_EQ(x->second, b[i][n]);
+      EXPECT_EQ(y->second, a[i][n]);
+    }
+  }
+}
+
+TEST(DaemonAssociation, ExchangesReproduceTheNegotiatedReplay) {
+  const dataset::Dataset data = negotiated_team(150);
+  const dataset::TeamInputs inputs = dataset::sensor_inputs(data);
+  const EstimatorOptions options =
+      config::load_estimator_options(kSource / "configs/sensors/sim.yaml");
+  const association::NegotiationOptions negotiation =
+      config::load_negotiation_options(kSource / "configs/sensors/sim.yaml");
+  replay::ReplayOptions replay_options;
+  replay_options.negotiation = negotiation;
+  const auto reference = replay::run_team(inputs, options, replay_options);
+  ASSERT_EQ(reference.association, replay::AssociationMode::kNegotiated);
+
+  const TeamRun run = run_exchanges(inputs, options, negotiation);
+  EXPECT_EQ(run.timed_out, 0);
+  int moved = 0, shared = 0;
+  std::vector<std::vector<LandmarkId>> reference_ids;
+  for (int i = 0; i < 3; ++i) {
+    const auto& expected = reference.robots[i];
+    moved += expected.moved ? 1 : 0;
+    EXPECT_EQ(run.frames[i], expected.trajectory_frames.back()) << "robot " << i;
+    ASSERT_EQ(run.trajectories[i].size(), expected.trajectory.size());
+    for (std::size_t k = 0; k < expected.trajectory.size(); ++k)
+      ASSERT_TRUE(run.trajectories[i][k].isApprox(expected.trajectory[k], 1e-9))
+          << "robot " << i << " frame " << k;
+    ASSERT_EQ(run.objects[i].size(), expected.objects.size());
+    for (std::size_t o = 0; o < expected.objects.size(); ++o) {
+      EXPECT_EQ(run.objects[i][o].id, expected.objects[o].id);
+      EXPECT_TRUE(run.objects[i][o].p_world.isApprox(expected.objects[o].p_world, 1e-9));
+    }
+    for (LandmarkId id : run.team_ids[i]) shared += id >= 0 ? 1 : 0;
+    reference_ids.push_back(expected.team_ids);
+    EXPECT_EQ(run.counters[i].negotiations_refused, 0u);
+  }
+  expect_same_partition(run.objects, run.team_ids, reference_ids);
+  // The run means something: robots moved into the team frame and share objects.
+  EXPECT_GE(moved, 1);
+  EXPECT_GT(shared, 10);
+  EXPECT_GT(run.counters[0].marginals_fused, 20u);
+}
+
+TEST(DaemonAssociation, MalformedDescriptionsAreCountedAndNeverStallTheRound) {
+  // Robot 2 sends every description with a NaN position: its neighbours refuse them (counted),
+  // the rounds go on without waiting, and robots 0 and 1 still negotiate between themselves.
+  const dataset::Dataset data = negotiated_team(80);
+  const dataset::TeamInputs inputs = dataset::sensor_inputs(data);
+  const EstimatorOptions options =
+      config::load_estimator_options(kSource / "configs/sensors/sim.yaml");
+  const association::NegotiationOptions negotiation =
+      config::load_negotiation_options(kSource / "configs/sensors/sim.yaml");
+  const TeamRun run = run_exchanges(inputs, options, negotiation, [](int sender, v1::Envelope& e) {
+    if (sender != 2 || !e.has_landmark_set() || !e.landmark_set().negotiation().has_map()) return;
+    auto* map = e.mutable_landmark_set()->mutable_negotiation()->mutable_map();
+    if (map->objects_size() > 0)
+      map->mutable_objects(0)->set_position(0, std::numeric_limits<double>::quiet_NaN());
+  });
+  EXPECT_EQ(run.timed_out, 0);
+  EXPECT_GT(run.counters[0].negotiations_refused, 0u);
+  EXPECT_EQ(run.counters[0].negotiations_refused, run.counters[1].negotiations_refused);
+  EXPECT_EQ(run.counters[2].negotiations_refused, 0u);
+  for (int i = 0; i < 3; ++i) EXPECT_EQ(run.trajectories[i].size(), 80u);
+}
+
+/// Ports of this test process, below Linux's ephemeral range (as daemon_process_test.cc).
+std::uint16_t port_base(int offset) {
+  return static_cast<std::uint16_t>(11000 + (getpid() % 700) * 30 + offset);
+}
+
+TEST(DaemonAssociation, DaemonsInLockstepMatchTheNegotiatedReplay) {
+  const fs::path out =
+      fs::path(CONCORD_BINARY_DIR) / "test-out" / ("association-" + std::to_string(getpid()));
+  fs::remove_all(out);
+  const fs::path dataset_folder = out / "dataset";
+  dataset::write_dataset(negotiated_team(150), dataset_folder);
+
+  launch::LaunchOptions options;
+  options.dataset = dataset_folder;
+  options.out = out / "team";
+  options.concordd = CONCORD_DAEMON_PATH;
+  options.estimator_config = kSource / "configs/sensors/sim.yaml";
+  options.base_port = port_base(25);
+  options.http_base_port = port_base(28) + 10;
+  options.timeout = 240s;
+  options.rate_hz =
+      60.0;  // pacing (the lockstep results do not depend on it): time to ask /objects
+  // While the team runs, robot 0 serves team ids in /objects (polled with a deadline).
+  launch::LaunchResult result;
+  std::atomic<bool> finished{false};
+  std::thread team([&] {
+    result = launch::launch_team(options, 3, nullptr);
+    finished = true;
+  });
+  bool served_team_id = false;
+  const auto deadline = std::chrono::steady_clock::now() + 240s;
+  while (!finished && !served_team_id && std::chrono::steady_clock::now() < deadline) {
+    if (const auto body =
+            launch::http_get("127.0.0.1", options.http_base_port, "/objects", 1000ms)) {
+      const auto objects = nlohmann::json::parse(*body, nullptr, false);
+      if (!objects.is_discarded() && objects.contains("objects"))
+        for (const auto& object : objects["objects"])
+          served_team_id = served_team_id || object.value("team_id", -1) >= 0;
+    }
+    if (!served_team_id) std::this_thread::sleep_for(20ms);
+  }
+  team.join();
+  EXPECT_TRUE(served_team_id) << "no object with a team id in robot 0's /objects";
+  ASSERT_FALSE(result.timed_out);
+  for (int code : result.exit_codes) ASSERT_EQ(code, 0);
+
+  // The replay on the same files.
+  const dataset::Dataset data = dataset::read_dataset(dataset_folder);
+  const auto reference = replay::run_team(
+      dataset::sensor_inputs(data), config::load_estimator_options(options.estimator_config), [&] {
+        replay::ReplayOptions replay_options;
+        replay_options.negotiation = config::load_negotiation_options(options.estimator_config);
+        return replay_options;
+      }());
+  std::vector<std::vector<ObjectEstimate>> objects(3);
+  std::vector<std::vector<LandmarkId>> team_ids(3), reference_ids(3);
+  int moved = 0;
+  for (int robot = 0; robot < 3; ++robot) {
+    const auto& expected = reference.robots[robot];
+    const fs::path folder = options.out / dataset::robot_folder_name(robot);
+    const auto trajectory = dataset::read_trajectory_kitti(folder / "trajectory.kitti");
+    ASSERT_EQ(trajectory.size(), expected.trajectory.size());
+    for (std::size_t k = 0; k < trajectory.size(); ++k)
+      ASSERT_TRUE(trajectory[k].isApprox(expected.trajectory[k], 1e-6))
+          << "robot " << robot << " frame " << k;
+    objects[robot] = dataset::read_objects_csv(folder / "objects.csv", &team_ids[robot]);
+    ASSERT_EQ(objects[robot].size(), expected.objects.size());
+    for (std::size_t o = 0; o < objects[robot].size(); ++o) {
+      EXPECT_EQ(objects[robot][o].id, expected.objects[o].id);
+      EXPECT_TRUE(objects[robot][o].p_world.isApprox(expected.objects[o].p_world, 1e-6));
+    }
+    reference_ids[robot] = expected.team_ids;
+    const dataset::AlignmentRecord alignment =
+        dataset::read_alignment_json(folder / "alignment.json");
+    EXPECT_EQ(alignment.moved, expected.moved) << "robot " << robot;
+    EXPECT_EQ(alignment.aligned_at_frame, expected.aligned_at_frame) << "robot " << robot;
+    EXPECT_EQ(alignment.team_frame_robot, std::optional<int>(expected.trajectory_frames.back()));
+    EXPECT_TRUE(alignment.T_team_own.isApprox(expected.T_team_own, 1e-6));
+    moved += alignment.moved ? 1 : 0;
+    std::ifstream stats_file(folder / "stats.json");
+    const auto stats = nlohmann::json::parse(stats_file);
+    EXPECT_EQ(stats["association"], "negotiated");
+    EXPECT_EQ(stats["negotiation"]["negotiations_refused"], 0);
+    EXPECT_GT(stats["negotiation"]["bytes_sent"].get<double>(), 0.0);
+  }
+  expect_same_partition(objects, team_ids, reference_ids);
+  EXPECT_GE(moved, 1);
+}
+
+}  // namespace
+}  // namespace concord::daemon

@@ -1,0 +1,101 @@
+// StateHelper::reanchor: moving a state into another frame with an uncertain transform (issue 11,
+// robots that start at unknown poses). Means are moved exactly; the covariance matches a
+// Monte-Carlo sample of the moved errors.
+#include <gtest/gtest.h>
+
+#include <random>
+
+#include "concord/estimator/lie.h"
+#include "concord/estimator/state_helper.h"
+#include "test_support.h"
+
+namespace concord {
+namespace {
+
+Eigen::Isometry3d transform(double yaw, const Eigen::Vector3d& t) {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix() *
+               Eigen::AngleAxisd(0.1, Eigen::Vector3d::UnitX()).toRotationMatrix();
+  T.translation() = t;
+  return T;
+}
+
+TEST(ReanchorTest, MovesMeansAndLinearizationPoints) {
+  std::mt19937 random(1);
+  State state = testing::random_state(3, 2, random);
+  state.archived[500] = {500, Eigen::Vector3d(1, 2, 3), 0.2 * Eigen::Matrix3d::Identity()};
+  const State before = state;
+  const Eigen::Isometry3d T = transform(1.2, Eigen::Vector3d(5, -3, 1));
+  StateHelper::reanchor(state, T, lie::Matrix6d::Zero());
+  for (int i = 0; i < 3; ++i) {
+    EXPECT_TRUE(state.poses[i].T_world_body.isApprox(T * before.poses[i].T_world_body, 1e-12));
+  }
+  for (int j = 0; j < 2; ++j) {
+    EXPECT_TRUE(state.landmarks[j].p_world.isApprox(T * before.landmarks[j].p_world, 1e-12));
+    EXPECT_TRUE(state.landmarks[j].p_linearization.isApprox(T * before.landmarks[j].p_linearization,
+                                                            1e-12));
+  }
+  EXPECT_TRUE(state.archived.at(500).p_world.isApprox(T * Eigen::Vector3d(1, 2, 3), 1e-12));
+  // A certain transform rotates the archived covariance and keeps its eigenvalues.
+  EXPECT_NEAR(state.archived.at(500).covariance.trace(), 0.6, 1e-12);
+  // The identity with no uncertainty changes nothing.
+  State same = before;
+  StateHelper::reanchor(same, Eigen::Isometry3d::Identity(), lie::Matrix6d::Zero());
+  EXPECT_TRUE(same.covariance.isApprox(before.covariance, 1e-12));
+}
+
+TEST(ReanchorTest, CovarianceMatchesMonteCarlo) {
+  std::mt19937 random(7);
+  State state = testing::random_state(2, 2, random);
+  state.covariance *= 0.01;  // small errors: the first-order model holds
+  state.archived[9] = {9, Eigen::Vector3d(4, 1, 0), 0.02 * Eigen::Matrix3d::Identity()};
+  const Eigen::Isometry3d T = transform(0.7, Eigen::Vector3d(2, 8, -1));
+  lie::Matrix6d sigma = lie::Matrix6d::Zero();
+  sigma.diagonal() << 0.02, 0.01, 0.03, 2e-4, 1e-4, 3e-4;
+  State moved = state;
+  StateHelper::reanchor(moved, T, sigma);
+
+  // Sample: true state = exp(eps) T_hat for poses, p_hat + p~ for landmarks; true transform
+  // exp(e) T. The moved truth's error against the moved estimate, in the state's convention.
+  const int n = state.dimension();
+  const Eigen::LLT<Eigen::MatrixXd> state_llt(state.covariance);
+  const Eigen::LLT<lie::Matrix6d> transform_llt(sigma);
+  std::normal_distribution<double> normal;
+  Eigen::MatrixXd sample = Eigen::MatrixXd::Zero(n, n);
+  Eigen::Matrix3d archived_sample = Eigen::Matrix3d::Zero();
+  const Eigen::LLT<Eigen::Matrix3d> archived_llt(state.archived.at(9).covariance);
+  const int draws = 20000;
+  for (int draw = 0; draw < draws; ++draw) {
+    const Eigen::VectorXd x = state_llt.matrixL() * testing::random_vector(n, random);
+    lie::Vector6d y;
+    for (int k = 0; k < 6; ++k) y(k) = normal(random);
+    const Eigen::Isometry3d T_true = lie::se3_exp(transform_llt.matrixL() * y) * T;
+    Eigen::VectorXd error(n);
+    for (int i = 0; i < state.num_poses(); ++i) {
+      const int index = state.pose_index(i);
+      const Eigen::Isometry3d truth =
+          T_true * lie::se3_exp(x.segment<6>(index)) * state.poses[i].T_world_body;
+      error.segment<6>(index) = lie::se3_log(truth * moved.poses[i].T_world_body.inverse());
+    }
+    for (int j = 0; j < state.num_landmarks(); ++j) {
+      const int index = state.landmark_index(j);
+      const Eigen::Vector3d truth = T_true * (state.landmarks[j].p_world + x.segment<3>(index));
+      error.segment<3>(index) = truth - moved.landmarks[j].p_world;
+    }
+    sample += error * error.transpose();
+    Eigen::Vector3d z{normal(random), normal(random), normal(random)};  // in order
+    const Eigen::Vector3d archived_truth =
+        T_true * (state.archived.at(9).p_world + archived_llt.matrixL() * z);
+    const Eigen::Vector3d archived_error = archived_truth - moved.archived.at(9).p_world;
+    archived_sample += archived_error * archived_error.transpose();
+  }
+  sample /= draws;
+  archived_sample /= draws;
+  EXPECT_LT((sample - moved.covariance).norm() / moved.covariance.norm(), 0.05);
+  EXPECT_LT((archived_sample - moved.archived.at(9).covariance).norm() /
+                moved.archived.at(9).covariance.norm(),
+            0.05);
+}
+
+}  // namespace
+}  // namespace concord
