@@ -34,7 +34,9 @@ const fs::path kDaemon = CONCORD_DAEMON_PATH;
 
 /// Ports of this test process (20 per process), below Linux's ephemeral range.
 std::uint16_t port_base(int offset) {
-  return static_cast<std::uint16_t>(32000 + (getpid() % 600) * 20 + offset);
+  // Below Linux's ephemeral range (32768-60999: the source ports of outgoing connections) and
+  // apart from the other process tests' ranges (11000-32150).
+  return static_cast<std::uint16_t>(5000 + (getpid() % 300) * 20 + offset);
 }
 
 fs::path fresh_folder(const std::string& name) {

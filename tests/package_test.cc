@@ -125,7 +125,8 @@ TEST(Package, DebHoldsTheDaemonAndItsInstalledConfigStartsToReadiness) {
   replace_all(config, "/usr/share/concord", (root / "usr/share/concord").string());
   replace_all(config, "/var/lib/concord", (root / "var/lib/concord").string());
   replace_all(config, "ingest_port: 7600", "ingest_port: 0");
-  const auto discovery_port = std::to_string(40000 + getpid() % 20000);
+  // Below the ephemeral range and the other process tests' ports.
+  const auto discovery_port = std::to_string(4000 + getpid() % 1000);
   replace_all(config, "discovery_port: 47600", "discovery_port: " + discovery_port);
   const fs::path installed_config = root / "etc/concord/robot_00.yaml";
   dataset::write_file_atomically(installed_config, config);
