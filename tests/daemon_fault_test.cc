@@ -29,9 +29,17 @@
 #include "concord/v1/concord.pb.h"
 #include "launch/launch.h"
 #include "launch/process.h"
+#include "process_support.h"
 
 namespace concord {
 namespace {
+
+using testing::eventually;
+using testing::fresh_folder;
+using testing::get_json;
+using testing::line_count;
+using testing::read_json;
+using testing::read_text;
 
 namespace fs = std::filesystem;
 using namespace std::chrono_literals;
@@ -61,14 +69,6 @@ std::uint16_t port_base(int offset) {
   return static_cast<std::uint16_t>(20000 + (getpid() % 600) * 20 + offset);
 }
 
-fs::path fresh_folder(const std::string& name) {
-  const fs::path folder =
-      fs::path(CONCORD_BINARY_DIR) / "test-out" / (name + "-" + std::to_string(getpid()));
-  fs::remove_all(folder);
-  fs::create_directories(folder);
-  return folder;
-}
-
 launch::LaunchOptions team_options(const fs::path& out) {
   launch::LaunchOptions options;
   options.dataset = kSource / "data/kitti00-300";
@@ -79,41 +79,6 @@ launch::LaunchOptions team_options(const fs::path& out) {
   options.http_base_port = port_base(10);
   options.timeout = 240s;
   return options;
-}
-
-template <typename Condition>
-bool eventually(Condition condition, std::chrono::milliseconds timeout) {
-  const auto deadline = Clock::now() + timeout;
-  while (!condition()) {
-    if (Clock::now() > deadline) return false;
-    std::this_thread::sleep_for(20ms);  // polling interval, not synchronisation
-  }
-  return true;
-}
-
-std::optional<json> get_json(std::uint16_t port, const std::string& target) {
-  const auto body = launch::http_get("127.0.0.1", port, target, 1000ms);
-  if (!body) return std::nullopt;
-  json parsed = json::parse(*body, nullptr, false);
-  if (parsed.is_discarded()) return std::nullopt;
-  return parsed;
-}
-
-json read_json(const fs::path& file) {
-  std::ifstream stream(file);
-  return json::parse(stream);
-}
-
-std::string read_text(const fs::path& file) {
-  std::ifstream stream(file);
-  std::ostringstream text;
-  text << stream.rdbuf();
-  return text.str();
-}
-
-std::size_t line_count(const fs::path& file) {
-  const std::string text = read_text(file);
-  return static_cast<std::size_t>(std::count(text.begin(), text.end(), '\n'));
 }
 
 /// Writes the configs of a team and starts its daemons (robot -> extra arguments).

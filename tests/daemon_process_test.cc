@@ -21,10 +21,16 @@
 #include "concord/v1/concord.pb.h"
 #include "launch/launch.h"
 #include "launch/process.h"
+#include "process_support.h"
 #include "replay/team_replay.h"
 
 namespace concord {
 namespace {
+
+using testing::eventually;
+using testing::fresh_folder;
+using testing::get_json;
+using testing::line_count;
 
 namespace fs = std::filesystem;
 using namespace std::chrono_literals;
@@ -40,14 +46,6 @@ std::uint16_t port_base(int offset) {
   return static_cast<std::uint16_t>(11000 + (getpid() % 700) * 30 + offset);
 }
 
-fs::path fresh_folder(const std::string& name) {
-  const fs::path folder =
-      fs::path(CONCORD_BINARY_DIR) / "test-out" / (name + "-" + std::to_string(getpid()));
-  fs::remove_all(folder);
-  fs::create_directories(folder);
-  return folder;
-}
-
 launch::LaunchOptions team_options(const fs::path& out, int port_offset) {
   launch::LaunchOptions options;
   options.dataset = kSource / "data/kitti00-300";
@@ -60,36 +58,12 @@ launch::LaunchOptions team_options(const fs::path& out, int port_offset) {
   return options;
 }
 
-/// Polls `condition` every 20 ms until it holds or `timeout` passes.
-template <typename Condition>
-bool eventually(Condition condition, std::chrono::milliseconds timeout) {
-  const auto deadline = std::chrono::steady_clock::now() + timeout;
-  while (!condition()) {
-    if (std::chrono::steady_clock::now() > deadline) return false;
-    std::this_thread::sleep_for(20ms);
-  }
-  return true;
-}
-
-std::optional<json> get_json(std::uint16_t port, const std::string& target) {
-  const auto body = launch::http_get("127.0.0.1", port, target, 1000ms);
-  if (!body) return std::nullopt;
-  return json::parse(*body, nullptr, false);
-}
-
 std::optional<json> peer_entry(std::uint16_t http_port, int robot) {
   const auto peers = get_json(http_port, "/peers");
   if (!peers || peers->is_discarded()) return std::nullopt;
   for (const auto& peer : (*peers)["peers"])
     if (peer["robot"] == robot) return peer;
   return std::nullopt;
-}
-
-std::size_t line_count(const fs::path& file) {
-  std::ifstream stream(file);
-  std::size_t lines = 0;
-  for (std::string line; std::getline(stream, line);) lines += line.empty() ? 0 : 1;
-  return lines;
 }
 
 void expect_close(double a, double b, const std::string& what) {

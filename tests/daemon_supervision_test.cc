@@ -16,10 +16,16 @@
 #include "concord/dataset/result_io.h"
 #include "launch/launch.h"
 #include "launch/process.h"
+#include "process_support.h"
 #include "service_manager_fake.h"
 
 namespace concord {
 namespace {
+
+using testing::eventually;
+using testing::fresh_folder;
+using testing::get_json;
+using testing::read_text;
 
 namespace fs = std::filesystem;
 using namespace std::chrono_literals;
@@ -39,41 +45,8 @@ std::uint16_t port_base(int offset) {
   return static_cast<std::uint16_t>(5000 + (getpid() % 300) * 20 + offset);
 }
 
-fs::path fresh_folder(const std::string& name) {
-  const fs::path folder =
-      fs::path(CONCORD_BINARY_DIR) / "test-out" / (name + "-" + std::to_string(getpid()));
-  fs::remove_all(folder);
-  fs::create_directories(folder);
-  return folder;
-}
-
-std::string read_text(const fs::path& file) {
-  std::ifstream stream(file);
-  std::ostringstream text;
-  text << stream.rdbuf();
-  return text.str();
-}
-
 void write_text(const fs::path& file, const std::string& text) {
   dataset::write_file_atomically(file, text);
-}
-
-template <typename Condition>
-bool eventually(Condition condition, std::chrono::milliseconds timeout) {
-  const auto deadline = Clock::now() + timeout;
-  while (!condition()) {
-    if (Clock::now() > deadline) return false;
-    std::this_thread::sleep_for(20ms);  // polling interval, not synchronisation
-  }
-  return true;
-}
-
-std::optional<json> get_json(std::uint16_t port, const std::string& target) {
-  const auto body = launch::http_get("127.0.0.1", port, target, 1000ms);
-  if (!body) return std::nullopt;
-  json parsed = json::parse(*body, nullptr, false);
-  if (parsed.is_discarded()) return std::nullopt;
-  return parsed;
 }
 
 /// The port after `label` in a READY status line ("http on port 41234").

@@ -18,9 +18,15 @@
 #include "launch/launch.h"
 #include "launch/process.h"
 #include "netns_lab.h"
+#include "process_support.h"
 
 namespace concord {
 namespace {
+
+using testing::eventually;
+using testing::fresh_folder;
+using testing::get_json;
+using testing::read_text;
 
 namespace fs = std::filesystem;
 using namespace std::chrono_literals;
@@ -32,31 +38,6 @@ using Clock = std::chrono::steady_clock;
 const fs::path kSource = CONCORD_SOURCE_DIR;
 const fs::path kDaemon = CONCORD_DAEMON_PATH;
 constexpr std::uint16_t kHttpPort = 8080;  // every robot has its own namespace: same ports
-
-fs::path fresh_folder(const std::string& name) {
-  const fs::path folder =
-      fs::path(CONCORD_BINARY_DIR) / "test-out" / (name + "-" + std::to_string(getpid()));
-  fs::remove_all(folder);
-  fs::create_directories(folder);
-  return folder;
-}
-
-std::string read_text(const fs::path& file) {
-  std::ifstream stream(file);
-  std::ostringstream text;
-  text << stream.rdbuf();
-  return text.str();
-}
-
-template <typename Condition>
-bool eventually(Condition condition, std::chrono::milliseconds timeout) {
-  const auto deadline = Clock::now() + timeout;
-  while (!condition()) {
-    if (Clock::now() > deadline) return false;
-    std::this_thread::sleep_for(50ms);  // polling interval, not synchronisation
-  }
-  return true;
-}
 
 /// The lab, or why the test is skipped.
 std::optional<NetnsLab> make_lab(int robots, const fs::path& scratch, std::string& skip) {

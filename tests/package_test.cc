@@ -14,10 +14,13 @@
 #include "concord/dataset/result_io.h"
 #include "launch/launch.h"
 #include "launch/process.h"
+#include "process_support.h"
 #include "service_manager_fake.h"
 
 namespace concord {
 namespace {
+
+using testing::read_text;
 
 namespace fs = std::filesystem;
 using namespace std::chrono_literals;
@@ -37,13 +40,6 @@ constexpr bool kSanitized = false;
 #else
 constexpr bool kSanitized = false;
 #endif
-
-std::string read_text(const fs::path& file) {
-  std::ifstream stream(file);
-  std::ostringstream text;
-  text << stream.rdbuf();
-  return text.str();
-}
 
 /// Runs a command to completion (2 min at most); its exit code and output.
 std::pair<int, std::string> run(const std::vector<std::string>& argv, const fs::path& log) {
