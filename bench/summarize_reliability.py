@@ -91,9 +91,11 @@ t = tests.get("AKilledRobotResumesFromItsCheckpointInLockstep")
 row("robot 1 SIGKILLed mid-run and restarted", outcome(t) +
     ": resumes from its checkpoint at the team's round and fuses marginals again",
     "frames it missed reported as a gap; its trajectory + gap = 300 frames")
-t = tests.get("SigtermEndsWithinOneSecondAtASlowRate")
+t = tests.get("SigtermDoesNotWaitForTheNextFrameAtASlowRate")
 if t:
-    row("SIGTERM at 0.1 Hz", outcome(t), "exited in %s ms (limit 1000 ms)" % t.get("sigterm_ms", "?"))
+    row("SIGTERM at 0.01 Hz (next frame 100 s away)", outcome(t),
+        "exited in %s ms (target 1000 ms; the test's bound is 10 s, for loaded machines)"
+        % t.get("sigterm_ms", "?"))
 t = tests.get("StartUpAndOutputFailuresExitWithTheDocumentedCodes")
 row("unwritable output directory, `output.fail`, CLI errors, a world-readable key", outcome(t),
     "exit 2 naming the path; exit 3; exit 2; exit 2")
