@@ -43,7 +43,9 @@ const fs::path kDaemon = CONCORD_DAEMON_PATH;
 /// Ports of this test process: distinct between test processes run in parallel, and below
 /// Linux's ephemeral range (32768-60999) so that no outgoing connection holds them.
 std::uint16_t port_base(int offset) {
-  return static_cast<std::uint16_t>(11000 + (getpid() % 700) * 30 + offset);
+  // A block of 160 ports per test process (the tests use offsets up to 152): with a smaller
+  // block, tests started one after the other (neighbouring pids) shared ports.
+  return static_cast<std::uint16_t>(11000 + (getpid() % 130) * 160 + offset);
 }
 
 launch::LaunchOptions team_options(const fs::path& out, int port_offset) {
