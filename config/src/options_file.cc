@@ -155,15 +155,15 @@ class Loader {
       return;
     }
     StereoNoise noise = field;
-    for_each_entry(node, key + ".",
-                   [&](const std::string& name, const YAML::Node& key_node, const YAML::Node& value) {
-                     if (!read_field(noise, name, key + "." + name, value,
-                                     [](auto& target, auto&& visit) {
-                                       for_each_noise_field(target, visit);
-                                     })) {
-                       add(key_node, "unknown key " + key + "." + name);
-                     }
-                   });
+    for_each_entry(
+        node, key + ".",
+        [&](const std::string& name, const YAML::Node& key_node, const YAML::Node& value) {
+          if (!read_field(noise, name, key + "." + name, value, [](auto& target, auto&& visit) {
+                for_each_noise_field(target, visit);
+              })) {
+            add(key_node, "unknown key " + key + "." + name);
+          }
+        });
     field = noise;
   }
 
@@ -317,10 +317,11 @@ std::string format_value(const Correlation& values) {
 
 namespace {
 
-/// Reads YAML text into `options` (keys not given keep their value), then validates; throws
-/// ConfigError naming source_name and every problem.
-void read_into(EstimatorOptions& options, const std::string& yaml_text,
-               const std::string& source_name) {
+/// Reads YAML text into `options` with `read` (keys not given keep their value), then validates;
+/// throws ConfigError naming source_name, `what` and every problem.
+template <typename Options, typename Read>
+void read_validated(Options& options, const std::string& yaml_text, const std::string& source_name,
+                    const std::string& what, Read read) {
   YAML::Node root;
   try {
     root = YAML::Load(yaml_text);
@@ -331,17 +332,24 @@ void read_into(EstimatorOptions& options, const std::string& yaml_text,
 
   Loader loader;
   if (root.IsMap()) {
-    loader.read_options(root, options);
+    read(loader, root);
   } else if (!root.IsNull()) {
     loader.add(root, "expected a map of option keys, found " + describe(root));
   }
   for (const std::string& problem : options.validate()) loader.add(problem);
 
   if (!loader.problems().empty()) {
-    std::string message = source_name + ": invalid estimator options:";
+    std::string message = source_name + ": invalid " + what + ":";
     for (const std::string& problem : loader.problems()) message += "\n  " + problem;
     throw ConfigError(message);
   }
+}
+
+void read_into(EstimatorOptions& options, const std::string& yaml_text,
+               const std::string& source_name) {
+  read_validated(
+      options, yaml_text, source_name, "estimator options",
+      [&](Loader& loader, const YAML::Node& root) { loader.read_options(root, options); });
 }
 
 }  // namespace
@@ -359,25 +367,10 @@ namespace {
 /// naming source_name and every problem.
 void read_association_into(association::NegotiationOptions& options, const std::string& yaml_text,
                            const std::string& source_name) {
-  YAML::Node root;
-  try {
-    root = YAML::Load(yaml_text);
-  } catch (const YAML::ParserException& error) {
-    throw ConfigError(source_name + ":" + std::to_string(error.mark.line + 1) +
-                      ": invalid YAML: " + error.msg);
-  }
-  Loader loader;
-  if (root.IsMap()) {
-    loader.read_association_section(root, options);
-  } else if (!root.IsNull()) {
-    loader.add(root, "expected a map of option keys, found " + describe(root));
-  }
-  for (const std::string& problem : options.validate()) loader.add(problem);
-  if (!loader.problems().empty()) {
-    std::string message = source_name + ": invalid association options:";
-    for (const std::string& problem : loader.problems()) message += "\n  " + problem;
-    throw ConfigError(message);
-  }
+  read_validated(options, yaml_text, source_name, "association options",
+                 [&](Loader& loader, const YAML::Node& root) {
+                   loader.read_association_section(root, options);
+                 });
 }
 
 bool is_association_override(const std::string& entry) {
