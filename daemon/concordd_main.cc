@@ -13,7 +13,10 @@
 #include <spdlog/spdlog.h>
 
 #include <CLI/CLI.hpp>
+#include <chrono>
+#include <csignal>
 #include <iostream>
+#include <thread>
 
 #include "concord/config/options_file.h"
 #include "concord/daemon/config.h"
@@ -152,5 +155,17 @@ int main(int argc, char** argv) {
   hooks.reload_peers = [&load] { return load().network.peers; };
   if (log_file) hooks.reopen_logs = [log_file] { return log_file->reopen(); };
   daemon::Daemon instance(config, hooks);
-  return instance.run();
+  const int exit_code = instance.run();
+  // The run is over and its outputs are written: a SIGTERM from now on (a supervisor stopping a
+  // daemon that is already on its way out) must not turn a clean exit into death by signal.
+  std::signal(SIGINT, SIG_IGN);
+  std::signal(SIGTERM, SIG_IGN);
+  std::signal(SIGHUP, SIG_IGN);
+  if (config.failpoints.exit_linger_seconds > 0.0) {
+    spdlog::warn("failpoint exit.linger: exiting with {} in {} s", exit_code,
+                 config.failpoints.exit_linger_seconds);
+    std::this_thread::sleep_for(
+        std::chrono::duration<double>(config.failpoints.exit_linger_seconds));
+  }
+  return exit_code;
 }

@@ -434,6 +434,30 @@ TEST(DaemonFault, SigtermDoesNotWaitForTheNextFrameAtASlowRate) {
   EXPECT_EQ(daemon.exit_code(), 0);
 }
 
+TEST(DaemonFault, AStopSignalWhileTheDaemonExitsLeavesItsExitCode) {
+  // A supervisor may send SIGTERM just as the daemon finishes by itself (a CI run saw exit 143
+  // from a daemon that had written all its outputs). The failpoint holds the process after its
+  // outputs are written and its services are stopped, the moment the signal sets are gone.
+  const fs::path out = fresh_folder("sigterm-at-exit");
+  auto options = team_options(out);
+  options.mode = "off";
+  options.frames = 5;
+  options.rate_hz = 0.0;
+  const fs::path config = out / "robot_00.yaml";
+  dataset::write_file_atomically(config, launch::daemon_config_yaml(options, 0, 1));
+  ChildProcess daemon({kDaemon, "--config", config, "--failpoint", "exit.linger=3"},
+                      out / "robot_00.log");
+  ASSERT_TRUE(eventually(
+      [&] { return read_text(out / "robot_00.log").find("exit.linger: exiting") != std::string::npos; },
+      30s));
+  daemon.signal(SIGTERM);
+  daemon.signal(SIGINT);
+  daemon.signal(SIGHUP);
+  ASSERT_TRUE(daemon.wait_for(30s));
+  EXPECT_EQ(daemon.exit_code(), 0);
+  EXPECT_EQ(line_count(out / "robot_00" / "trajectory.kitti"), 5u);
+}
+
 TEST(DaemonFault, StartUpAndOutputFailuresExitWithTheDocumentedCodes) {
   const fs::path out = fresh_folder("exit-codes");
   auto options = team_options(out);

@@ -1452,6 +1452,11 @@ int Daemon::Impl::run() {
   shutdown_services();
   io_thread_.join();
   http_thread_.join();
+  // Destroying a signal_set restores the default action (a stop signal would now kill the
+  // process with 128+signal while it exits normally); the caller ignores them from here on:
+  // see concordd_main.cc.
+  signals_.reset();
+  reload_signals_.reset();
   return written ? kExitOk : kExitOutputFailed;
 }
 

@@ -18,22 +18,24 @@ std::string enable_failpoint(const std::string& text, Failpoints& failpoints) {
   if (name == "marginal.silence") return no_argument(failpoints.marginal_silence);
   if (name == "marginal.garbage") return no_argument(failpoints.marginal_garbage);
   if (name == "output.fail") return no_argument(failpoints.output_fail);
-  if (name == "estimator.hang") {
-    double seconds = 0.0;
+  auto seconds_argument = [&](double& seconds) -> std::string {
+    double value = 0.0;
     try {
       std::size_t used = 0;
-      seconds = std::stod(argument, &used);
+      value = std::stod(argument, &used);
       if (used != argument.size()) throw std::invalid_argument(argument);
     } catch (const std::exception&) {
-      return "failpoint estimator.hang needs =SECONDS, got '" + argument + "'";
+      return "failpoint " + name + " needs =SECONDS, got '" + argument + "'";
     }
-    if (!(seconds > 0.0 && seconds <= 86400.0))
-      return "failpoint estimator.hang: SECONDS must be in (0, 86400], got " + argument;
-    failpoints.estimator_hang_seconds = seconds;
+    if (!(value > 0.0 && value <= 86400.0))
+      return "failpoint " + name + ": SECONDS must be in (0, 86400], got " + argument;
+    seconds = value;
     return {};
-  }
+  };
+  if (name == "estimator.hang") return seconds_argument(failpoints.estimator_hang_seconds);
+  if (name == "exit.linger") return seconds_argument(failpoints.exit_linger_seconds);
   return "unknown failpoint '" + name +
-         "' (known: marginal.silence, marginal.garbage, estimator.hang=SECONDS, output.fail)";
+         "' (known: marginal.silence, marginal.garbage, estimator.hang=SECONDS, output.fail, exit.linger=SECONDS)";
 }
 
 }  // namespace concord::daemon

@@ -9,6 +9,9 @@
 ///   estimator.hang=SECONDS  the estimator thread hangs that long before its second frame
 ///                           (heartbeats go on: the network thread is not affected)
 ///   output.fail             every output write fails (as on a full or read-only disk)
+///   exit.linger=SECONDS     after the outputs are written and the services stopped, the
+///                           process waits that long before it exits (a stop signal then must
+///                           not turn the clean exit into death by signal)
 
 #include <string>
 
@@ -19,9 +22,11 @@ struct Failpoints {
   bool marginal_garbage = false;
   double estimator_hang_seconds = 0.0;
   bool output_fail = false;
+  double exit_linger_seconds = 0.0;
 
   bool any() const {
-    return marginal_silence || marginal_garbage || estimator_hang_seconds > 0.0 || output_fail;
+    return marginal_silence || marginal_garbage || estimator_hang_seconds > 0.0 || output_fail ||
+           exit_linger_seconds > 0.0;
   }
 };
 
