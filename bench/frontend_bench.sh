@@ -56,8 +56,7 @@ import re, sys
 path, translation, rotation, pixel = sys.argv[1], *map(float, sys.argv[2:])
 values = {"odometry_translation_sigma": translation, "odometry_rotation_sigma": rotation,
           "object_noise": pixel, "feature_noise": pixel,
-          "object_init_max_reprojection_error": 5 * pixel,
-          "feature_max_reprojection_error": 5 * pixel}
+          "object_init_max_reprojection_error": 5 * pixel}
 text = open("configs/sensors/sim.yaml").read()
 for key, value in values.items():
     text = re.sub(rf"^{key}: .*$", f"{key}: {value:.6g}", text, flags=re.M)

@@ -283,7 +283,7 @@ TEST(OptionsValidateTest, EachRuleNamesTheKeyTheValueAndTheRange) {
       {"object reprojection", [](auto& o) { o.object_init_max_reprojection_error = 0; },
        "object_init_max_reprojection_error = 0: must be finite and > 0"},
       {"feature reprojection", [](auto& o) { o.feature_max_reprojection_error = -1; },
-       "feature_max_reprojection_error = -1: must be finite and > 0"},
+       "feature_max_reprojection_error = -1: must be finite and >= 0 (0 disables)"},
       {"object chi2", [](auto& o) { o.object_chi2_probability = 1; },
        "object_chi2_probability = 1: must be in [0, 1)"},
       {"feature chi2", [](auto& o) { o.feature_chi2_probability = -0.1; },

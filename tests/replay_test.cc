@@ -207,13 +207,13 @@ TEST(FeatureUpdate, ReducesTheDriftOfBiasedOdometry) {
     return std::sqrt(squared / frames);
   };
   const double without = run_with(false, 1);  // the world does not matter without features
-  // Five worlds: the median. (One world in eight, seed 5 of this generator, keeps 1.7 m: its
-  // first tracks are refused and the filter never catches up; see docs/estimator.md.)
-  std::vector<double> with;
-  for (unsigned seed = 1; seed <= 5; ++seed) with.push_back(run_with(true, seed));
-  std::sort(with.begin(), with.end());
-  EXPECT_LT(with[2], 0.1 * without)
-      << "with features (median of 5 worlds) " << with[2] << " m, without " << without << " m";
+  // Every one of eight worlds. (With a fixed 4 px reprojection bound, world 5 kept 1.7 m: its
+  // first tracks were refused under drift and the filter never caught up.)
+  for (unsigned seed = 1; seed <= 8; ++seed) {
+    const double with = run_with(true, seed);
+    EXPECT_LT(with, 0.1 * without) << "world " << seed << ": with features " << with
+                                   << " m, without " << without << " m";
+  }
 }
 
 }  // namespace

@@ -66,7 +66,9 @@ FeatureUpdateStats FeatureUpdater::process(State& state,
           UpdaterHelper::rms_reprojection_error(camera_, poses, observations, *p_world) *
           camera_.focal_length();
       const auto newest = UpdaterHelper::project(camera_, poses.back(), *p_world);
-      usable = rms <= options_.feature_max_reprojection_error && newest &&
+      const bool fits = options_.feature_max_reprojection_error == 0.0 ||
+                        rms <= options_.feature_max_reprojection_error;
+      usable = fits && newest &&
                newest->depth_left >= options_.feature_min_distance &&
                newest->depth_left <= options_.feature_max_distance;
     }

@@ -34,6 +34,11 @@ class Problems {
     if (!(std::isfinite(value) && value > 0.0)) add(key, value, "finite and > 0");
   }
 
+  /// An optional bound: finite and >= 0, 0 disables.
+  void check_optional_bound(std::string_view key, double value) {
+    if (!(std::isfinite(value) && value >= 0.0)) add(key, value, "finite and >= 0 (0 disables)");
+  }
+
   /// A chi-square gate probability: in [0, 1), 0 disables.
   void check_probability(std::string_view key, double value) {
     if (!(value >= 0.0 && value < 1.0)) add(key, value, "in [0, 1) (0 disables)");
@@ -102,7 +107,7 @@ std::vector<std::string> EstimatorOptions::validate() const {
 
   problems.check_stereo_noise("feature_noise", feature_noise);
   problems.check_at_least("feature_min_observations", feature_min_observations, 2);
-  problems.check_positive("feature_max_reprojection_error", feature_max_reprojection_error);
+  problems.check_optional_bound("feature_max_reprojection_error", feature_max_reprojection_error);
   problems.check_distance_range("feature_min_distance", feature_min_distance,
                                 "feature_max_distance", feature_max_distance);
   problems.check_probability("feature_chi2_probability", feature_chi2_probability);

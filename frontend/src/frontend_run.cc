@@ -229,7 +229,7 @@ EstimatorOptions suggested_estimator_options(const FrontendRunSummary& summary,
   estimator.odometry_rotation_sigma = std::max(median_of(rotation), 1e-5);
   const double feature_sigma = std::max(median_of(feature), 0.05);
   estimator.feature_noise = StereoNoise::isotropic(feature_sigma);
-  estimator.feature_max_reprojection_error = 4.0 * feature_sigma;
+  estimator.feature_max_reprojection_error = 0.0;  // no fixed bound: the chi-square gate decides
   estimator.object_noise = StereoNoise::isotropic(options.objects.detection_sigma);
   estimator.object_init_max_reprojection_error = 3.0 * options.objects.detection_sigma;
   const double focal_baseline = camera.K(0, 0) * camera.baseline();

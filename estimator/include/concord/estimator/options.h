@@ -102,8 +102,11 @@ struct EstimatorOptions {
   StereoNoise feature_noise = StereoNoise::isotropic(1.0);
   /// feature_min_observations: stereo observations of a track needed to use it.
   int feature_min_observations = 3;
-  /// feature_max_reprojection_error: largest RMS reprojection error of a triangulated track.
-  double feature_max_reprojection_error = 4.0;
+  /// feature_max_reprojection_error: largest RMS reprojection error of a triangulated track
+  /// (image units); 0, the default, sets no bound. A fixed bound refuses good tracks when the
+  /// window's poses drift (the reprojection error then grows with the pose uncertainty, not with
+  /// the track's quality); the chi-square gate, which uses that uncertainty, decides instead.
+  double feature_max_reprojection_error = 0.0;
   /// feature_min_distance / feature_max_distance: accepted depth of a triangulated track (m).
   double feature_min_distance = 0.5;
   double feature_max_distance = 60.0;
