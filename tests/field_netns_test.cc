@@ -2,7 +2,8 @@
 // (tests/netns_lab.h), found by UDP beacon discovery with no static peers, partitioned (a link
 // down) and healed, and on tc token-bucket links. Skipped with a message where namespaces cannot
 // be created (not root, no iproute2, no CAP_NET_ADMIN). Every wait has a deadline; the namespaces
-// are removed even when an assertion fails (RAII).
+// are removed even when an assertion fails (RAII). A robot killed under a supervisor-like wrapper
+// (restart on failure, as the systemd unit's Restart=on-failure) comes back from its checkpoint.
 #include <gtest/gtest.h>
 #include <signal.h>
 
@@ -198,6 +199,112 @@ TEST(FieldNetns, RateLimitedLinksUnderALinkBudgetTrimMarginalsAndKeepTheFrameRat
     ASSERT_TRUE(daemons[robot].wait_for(10s));
     EXPECT_EQ(daemons[robot].exit_code(), 0) << log_of(robot);
   }
+}
+
+/// A supervisor-like wrapper (the systemd unit's Restart=on-failure): runs the command, writes
+/// the running child's pid to `pid_file`, restarts it whenever it exits with a failure, and
+/// exits 0 once it exits 0.
+std::vector<std::string> supervised(const fs::path& pid_file, std::vector<std::string> command) {
+  std::vector<std::string> argv{
+      "/bin/sh", "-c",
+      "pid_file=$1; shift; restarts=0\n"
+      "while true; do\n"
+      "  \"$@\" & child=$!; echo $child > \"$pid_file.tmp\"; mv \"$pid_file.tmp\" \"$pid_file\"\n"
+      "  wait $child; code=$?\n"
+      "  [ $code -eq 0 ] && exit 0\n"
+      "  restarts=$((restarts + 1)); echo \"supervisor: exit $code, restart $restarts\"\n"
+      "done",
+      "supervisor", pid_file.string()};
+  argv.insert(argv.end(), command.begin(), command.end());
+  return argv;
+}
+
+/// The pid in `pid_file` if it names a live process other than `not_this` (0 if none).
+pid_t supervised_pid(const fs::path& pid_file, pid_t not_this = 0) {
+  std::ifstream stream(pid_file);
+  long pid = 0;
+  if (!(stream >> pid) || pid <= 0 || pid == not_this) return 0;
+  return ::kill(static_cast<pid_t>(pid), 0) == 0 ? static_cast<pid_t>(pid) : 0;
+}
+
+TEST(FieldNetns, ARobotKilledUnderItsSupervisorComesBackFromItsCheckpoint) {
+  const fs::path out = fresh_folder("field-restart");
+  std::string skip;
+  auto lab = make_lab(3, out, skip);
+  if (!lab) GTEST_SKIP() << skip;
+  launch::LaunchOptions options;
+  options.out = out;
+  const fs::path key = launch::ensure_team_key(options);
+  const fs::path pid_file = out / "robot_01.pid";
+  std::vector<ChildProcess> processes;  // robot 1's is its supervisor
+  for (int robot = 0; robot < 3; ++robot) {
+    const fs::path config = out / (dataset::robot_folder_name(robot) + ".yaml");
+    std::string yaml = robot_config(out, key, robot, 3, 10.0);
+    // A checkpoint with every output write, five times a second.
+    yaml.replace(yaml.find("write_interval_ms: 0"), 20, "write_interval_ms: 200");
+    dataset::write_file_atomically(config, yaml);
+    std::vector<std::string> command{kDaemon, "--config", config};
+    if (robot == 1) command = supervised(pid_file, command);
+    processes.push_back(
+        lab->spawn(robot, command, out / (dataset::robot_folder_name(robot) + ".log")));
+  }
+  auto log_of = [&](int robot) {
+    return read_text(out / (dataset::robot_folder_name(robot) + ".log"));
+  };
+  for (int robot = 0; robot < 3; ++robot)
+    ASSERT_TRUE(eventually([&] { return live_peers(*lab, robot) == 2; }, 20s)) << log_of(robot);
+  ASSERT_TRUE(eventually(
+      [&] {
+        const auto status = get_json(*lab, 1, "/status");
+        return status && (*status)["frames_processed"].get<int>() >= 60;
+      },
+      30s))
+      << log_of(1);
+
+  // SIGKILL robot 1's daemon (not its supervisor): nothing is written on the way out.
+  const pid_t first = supervised_pid(pid_file);
+  ASSERT_GT(first, 0);
+  ASSERT_EQ(::kill(first, SIGKILL), 0);
+
+  // The supervisor starts it again; it resumes from its checkpoint (a round past the first 50
+  // frames), is found again by both others and fuses again.
+  pid_t second = 0;
+  ASSERT_TRUE(eventually([&] { return (second = supervised_pid(pid_file, first)) > 0; }, 20s))
+      << log_of(1);
+  ASSERT_TRUE(eventually(
+      [&] {
+        const auto status = get_json(*lab, 1, "/status");
+        return status && (*status)["resumed_from_round"].get<int>() >= 50 &&
+               (*status)["live_peers"].size() == 2;
+      },
+      30s))
+      << log_of(1);
+  for (int robot : {0, 2}) {
+    EXPECT_TRUE(eventually(
+        [&] {
+          const auto peers = get_json(*lab, robot, "/peers");
+          if (!peers) return false;
+          for (const auto& peer : (*peers)["peers"])
+            if (peer["robot"] == 1) return peer["up"] == true && peer["reconnects"].get<int>() >= 1;
+          return false;
+        },
+        20s))
+        << "robot " << robot << " did not take robot 1 back";
+  }
+  EXPECT_TRUE(
+      eventually([&] { return metric(*lab, 1, "concord_marginals_fused_total") > 0.0; }, 20s))
+      << log_of(1);
+  EXPECT_NE(log_of(1).find("supervisor: exit 137, restart 1"), std::string::npos) << log_of(1);
+
+  // A clean stop ends the daemons, and the supervisor with them (exit 0: not restarted).
+  ::kill(second, SIGTERM);
+  processes[0].signal(SIGTERM);
+  processes[2].signal(SIGTERM);
+  for (int robot = 0; robot < 3; ++robot) {
+    ASSERT_TRUE(processes[robot].wait_for(20s)) << log_of(robot);
+    EXPECT_EQ(processes[robot].exit_code(), 0) << log_of(robot);
+  }
+  EXPECT_EQ(log_of(1).find("restart 2"), std::string::npos) << log_of(1);
 }
 
 }  // namespace

@@ -1068,6 +1068,7 @@ void Daemon::Impl::register_routes() {
     body["frame"] = live_.trajectory.empty() ? json(nullptr) : json(live_.trajectory.back().frame);
     body["frames_processed"] = live_.trajectory.size();
     body["rounds"] = live_.rounds;
+    body["resumed_from_round"] = live_.resumed_from_round;  // -1: a fresh start
     return web::json_response(200, body);
   });
   http_->get("/pose", [this](const web::Request&) {
