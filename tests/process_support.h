@@ -15,6 +15,7 @@
 #include <thread>
 
 #include "launch/launch.h"
+#include "launch/process.h"
 
 namespace concord::testing {
 
