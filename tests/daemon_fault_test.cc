@@ -70,15 +70,7 @@ std::uint16_t port_base(int offset) {
 }
 
 launch::LaunchOptions team_options(const fs::path& out) {
-  launch::LaunchOptions options;
-  options.dataset = kSource / "data/kitti00-300";
-  options.out = out;
-  options.concordd = kDaemon;
-  options.estimator_config = kSource / "configs/sensors/kitti-stereo.yaml";
-  options.base_port = port_base(0);
-  options.http_base_port = port_base(10);
-  options.timeout = 240s;
-  return options;
+  return testing::kitti_team_options(out, port_base(0), port_base(10));
 }
 
 /// Writes the configs of a team and starts its daemons (robot -> extra arguments).

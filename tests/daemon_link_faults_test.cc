@@ -33,8 +33,6 @@ namespace fs = std::filesystem;
 using namespace std::chrono_literals;
 using Clock = std::chrono::steady_clock;
 
-const fs::path kSource = CONCORD_SOURCE_DIR;
-const fs::path kDaemon = CONCORD_DAEMON_PATH;
 
 /// Ports of this test process: a block of 20 per process (the tests use offsets up to 17), in
 /// 1100-3899: below Linux's ephemeral range and clear of the other process tests' blocks
@@ -146,14 +144,9 @@ struct RelayedTeam {
 
 RelayedTeam relayed_team(const fs::path& out, int port_offset, const FaultProfile& profile) {
   RelayedTeam team;
+  team.options =
+      testing::kitti_team_options(out, port_base(port_offset), port_base(port_offset + 5));
   auto& options = team.options;
-  options.dataset = kSource / "data/kitti00-300";
-  options.out = out;
-  options.concordd = kDaemon;
-  options.estimator_config = kSource / "configs/sensors/kitti-stereo.yaml";
-  options.base_port = port_base(port_offset);
-  options.http_base_port = port_base(port_offset + 5);
-  options.timeout = 240s;
   team.relays.resize(3);
   for (int robot = 0; robot < 3; ++robot) {
     std::vector<std::string> arguments;

@@ -49,15 +49,7 @@ std::uint16_t port_base(int offset) {
 }
 
 launch::LaunchOptions team_options(const fs::path& out, int port_offset) {
-  launch::LaunchOptions options;
-  options.dataset = kSource / "data/kitti00-300";
-  options.out = out;
-  options.concordd = kDaemon;
-  options.estimator_config = kSource / "configs/sensors/kitti-stereo.yaml";
-  options.base_port = port_base(port_offset);
-  options.http_base_port = port_base(port_offset + 10);
-  options.timeout = 240s;
-  return options;
+  return testing::kitti_team_options(out, port_base(port_offset), port_base(port_offset + 10));
 }
 
 std::optional<json> peer_entry(std::uint16_t http_port, int robot) {

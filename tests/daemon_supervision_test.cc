@@ -217,12 +217,8 @@ std::pair<int, std::string> check_config(const fs::path& config, const fs::path&
 
 TEST(DaemonSupervision, CheckConfigAcceptsAGoodConfigAndNamesEachProblem) {
   const fs::path out = fresh_folder("supervision-check");
-  launch::LaunchOptions options;
-  options.dataset = kSource / "data/kitti00-300";
-  options.out = out;
-  options.estimator_config = kSource / "configs/sensors/kitti-stereo.yaml";
-  options.base_port = port_base(0);
-  options.http_base_port = port_base(10);
+  const launch::LaunchOptions options =
+      testing::kitti_team_options(out, port_base(0), port_base(10));
   const fs::path key = launch::ensure_team_key(options);
   const std::string good = launch::daemon_config_yaml(options, 0, 3);
   write_text(out / "good.yaml", good);

@@ -40,17 +40,28 @@ const fs::path kSource = CONCORD_SOURCE_DIR;
 const fs::path kDaemon = CONCORD_DAEMON_PATH;
 constexpr std::uint16_t kHttpPort = 8080;  // every robot has its own namespace: same ports
 
-/// The lab, or why the test is skipped.
-std::optional<NetnsLab> make_lab(int robots, const fs::path& scratch, std::string& skip) {
-  skip = NetnsLab::unavailable();
-  if (!skip.empty()) return std::nullopt;
-  try {
-    return std::optional<NetnsLab>(std::in_place, robots, scratch);
-  } catch (const std::exception& error) {
-    skip = std::string("cannot create network namespaces here: ") + error.what();
-    return std::nullopt;
+/// A test's scratch folder, its lab of namespaces and the team key; no lab (and `skip` says
+/// why) where namespaces cannot be created.
+struct Field {
+  Field(const std::string& name, int robots) : out(fresh_folder(name)) {
+    skip = NetnsLab::unavailable();
+    if (!skip.empty()) return;
+    try {
+      lab.emplace(robots, out);
+    } catch (const std::exception& error) {
+      skip = std::string("cannot create network namespaces here: ") + error.what();
+      return;
+    }
+    launch::LaunchOptions options;
+    options.out = out;
+    key = launch::ensure_team_key(options);
   }
-}
+
+  fs::path out;
+  std::optional<NetnsLab> lab;
+  fs::path key;
+  std::string skip;
+};
 
 /// Robot `robot`'s config: discovery only (no static peers), async consensus.
 std::string robot_config(const fs::path& out, const fs::path& key, int robot, int robots,
@@ -99,13 +110,11 @@ double metric(const NetnsLab& lab, int robot, const std::string& name) {
 }
 
 TEST(FieldNetns, DiscoveryAcrossNamespacesThenPartitionAndHeal) {
-  const fs::path out = fresh_folder("field-partition");
-  std::string skip;
-  auto lab = make_lab(3, out, skip);
-  if (!lab) GTEST_SKIP() << skip;
-  launch::LaunchOptions options;
-  options.out = out;
-  const fs::path key = launch::ensure_team_key(options);
+  Field field("field-partition", 3);
+  if (!field.lab) GTEST_SKIP() << field.skip;
+  const fs::path& out = field.out;
+  const fs::path& key = field.key;
+  auto& lab = field.lab;
   std::vector<ChildProcess> daemons;
   for (int robot = 0; robot < 3; ++robot) {
     const fs::path config = out / (dataset::robot_folder_name(robot) + ".yaml");
@@ -150,13 +159,11 @@ TEST(FieldNetns, DiscoveryAcrossNamespacesThenPartitionAndHeal) {
 }
 
 TEST(FieldNetns, RateLimitedLinksUnderALinkBudgetTrimMarginalsAndKeepTheFrameRate) {
-  const fs::path out = fresh_folder("field-budget");
-  std::string skip;
-  auto lab = make_lab(3, out, skip);
-  if (!lab) GTEST_SKIP() << skip;
-  launch::LaunchOptions options;
-  options.out = out;
-  const fs::path key = launch::ensure_team_key(options);
+  Field field("field-budget", 3);
+  if (!field.lab) GTEST_SKIP() << field.skip;
+  const fs::path& out = field.out;
+  const fs::path& key = field.key;
+  auto& lab = field.lab;
   constexpr double kBudget = 8000.0;  // bytes per second for consensus, far below what it wants
   std::vector<ChildProcess> daemons;
   for (int robot = 0; robot < 3; ++robot) {
@@ -228,13 +235,11 @@ pid_t supervised_pid(const fs::path& pid_file, pid_t not_this = 0) {
 }
 
 TEST(FieldNetns, ARobotKilledUnderItsSupervisorComesBackFromItsCheckpoint) {
-  const fs::path out = fresh_folder("field-restart");
-  std::string skip;
-  auto lab = make_lab(3, out, skip);
-  if (!lab) GTEST_SKIP() << skip;
-  launch::LaunchOptions options;
-  options.out = out;
-  const fs::path key = launch::ensure_team_key(options);
+  Field field("field-restart", 3);
+  if (!field.lab) GTEST_SKIP() << field.skip;
+  const fs::path& out = field.out;
+  const fs::path& key = field.key;
+  auto& lab = field.lab;
   const fs::path pid_file = out / "robot_01.pid";
   std::vector<ChildProcess> processes;  // robot 1's is its supervisor
   for (int robot = 0; robot < 3; ++robot) {

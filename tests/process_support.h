@@ -69,4 +69,22 @@ inline std::size_t line_count(const std::filesystem::path& file) {
   return lines;
 }
 
+/// A team of daemons on the repository's kitti00-300 slice with configs/sensors/kitti-stereo.yaml:
+/// robot i listens on base_port + i and serves HTTP on http_base_port + i; 240 s at most.
+inline launch::LaunchOptions kitti_team_options(const std::filesystem::path& out,
+                                                std::uint16_t base_port,
+                                                std::uint16_t http_base_port) {
+  using namespace std::chrono_literals;
+  const std::filesystem::path source = CONCORD_SOURCE_DIR;
+  launch::LaunchOptions options;
+  options.dataset = source / "data/kitti00-300";
+  options.out = out;
+  options.concordd = CONCORD_DAEMON_PATH;
+  options.estimator_config = source / "configs/sensors/kitti-stereo.yaml";
+  options.base_port = base_port;
+  options.http_base_port = http_base_port;
+  options.timeout = 240s;
+  return options;
+}
+
 }  // namespace concord::testing
