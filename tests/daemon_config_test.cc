@@ -79,6 +79,11 @@ TEST(DaemonConfig, CrossFieldChecks) {
                 .find("heartbeat_timeout"),
             std::string::npos);
   EXPECT_NE(problems_of("[1, 2]\n").find("expected a map"), std::string::npos);
+  // The one YAML reader (config/yaml_section.h): a key given twice, with its line.
+  EXPECT_NE(problems_of("robot_id: 1\nrobot_id: 2\n").find("line 2: key robot_id appears more than once"),
+            std::string::npos);
+  EXPECT_NE(problems_of("http: {port: many}\n").find("http.port = 'many': expected a port"),
+            std::string::npos);
   EXPECT_NE(problems_of("a: [\n").find("invalid YAML"), std::string::npos);
   EXPECT_THROW((void)load_daemon_config("/nonexistent/robot.yaml"), config::ConfigError);
 }

@@ -286,8 +286,8 @@ TEST(FrontendOptionsFile, ReadsWritesAndNamesEveryProblem) {
         "tracker: {target_feature: 3, klt_window: 4, grid_rows: many}\nodometer: {}\n", "fe.yaml");
   });
   EXPECT_THAT(message, AllOf(HasSubstr("fe.yaml"), HasSubstr("unknown key tracker.target_feature"),
-                             HasSubstr("tracker.grid_rows: expected an integer"),
-                             HasSubstr("unknown section 'odometer'")));
+                             HasSubstr("tracker.grid_rows = 'many': expected an integer"),
+                             HasSubstr("unknown key odometer")));
   EXPECT_THAT(error_of([] { (void)parse_frontend_options("tracker: {klt_window: 4}\n", "fe.yaml"); }),
               HasSubstr("klt_window = 4"));
 }

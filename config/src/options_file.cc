@@ -1,5 +1,7 @@
 #include "concord/config/options_file.h"
 
+#include "concord/config/yaml_section.h"
+
 #include <yaml-cpp/yaml.h>
 
 #include <array>
@@ -96,189 +98,94 @@ void for_each_field(Options& options, Visitor&& visit) {
 
 using Correlation = decltype(EstimatorOptions::feature_odometry_correlation);
 
-/// A YAML node as a user wrote it, for error messages.
-std::string describe(const YAML::Node& node) {
-  if (node.IsScalar()) return "'" + node.Scalar() + "'";
-  if (node.IsSequence()) return "a sequence";
-  if (node.IsMap()) return "a map";
-  return "nothing (null)";
+/// Reads the option maps with the project's one YAML reader (yaml_section.h): every key a
+/// for_each_* list names, a key given with no value included (an error), then the unknown ones.
+void read_node(YamlSection& section, const YAML::Node& value, const std::string& key, int& field) {
+  section.read_value(value, key, field, "an integer");
+}
+void read_node(YamlSection& section, const YAML::Node& value, const std::string& key,
+               double& field) {
+  section.read_value(value, key, field, "a number");
+}
+void read_node(YamlSection& section, const YAML::Node& value, const std::string& key, bool& field) {
+  section.read_value(value, key, field, "true or false");
+}
+void read_node(YamlSection& section, const YAML::Node& node, const std::string& key,
+               Correlation& field) {
+  if (!node.IsSequence() || node.size() != field.size()) {
+    const std::string found = node.IsSequence()
+                                  ? "a sequence of " + std::to_string(node.size()) + " entries"
+                                  : describe(node);
+    section.add(line_of(node) + key + " = " + found + ": expected a sequence of " +
+                std::to_string(field.size()) + " numbers");
+    return;
+  }
+  Correlation values = field;
+  bool all_read = true;
+  for (std::size_t index = 0; index < values.size(); ++index) {
+    all_read &= section.read_value(node[index], key + "[" + std::to_string(index) + "]",
+                                   values[index], "a number");
+  }
+  if (all_read) field = values;
 }
 
-/// "line N" of a node (yaml-cpp counts from 0), or an empty string when unknown.
-std::string line_of(const YAML::Node& node) {
-  const YAML::Mark mark = node.Mark();
-  if (mark.is_null()) return {};
-  return "line " + std::to_string(mark.line + 1) + ": ";
+template <typename Options, typename ForEach>
+void read_map(YamlSection& section, Options& options, ForEach&& for_each);
+
+/// A StereoNoise: one number (isotropic) or a map of its four components.
+void read_node(YamlSection& section, const YAML::Node& node, const std::string& key,
+               StereoNoise& field) {
+  const std::string expected = "a number or a map of noise components";
+  if (node.IsScalar()) {
+    double sigma = 0.0;
+    if (section.read_value(node, key, sigma, expected)) field = StereoNoise::isotropic(sigma);
+    return;
+  }
+  if (!node.IsMap()) return section.problem(node, key, expected);
+  YamlSection noise_section(node, key + ".", section.problems());
+  StereoNoise noise = field;
+  read_map(noise_section, noise, [](auto& target, auto&& visit) {
+    for_each_noise_field(target, visit);
+  });
+  noise_section.finish();
+  field = noise;
 }
 
-/// Reads values into fields, collecting every problem instead of stopping at the first.
-class Loader {
- public:
-  void read(const YAML::Node& node, const std::string& key, int& field) {
-    read_scalar(node, key, field, "an integer");
-  }
-  void read(const YAML::Node& node, const std::string& key, double& field) {
-    read_scalar(node, key, field, "a number");
-  }
-  void read(const YAML::Node& node, const std::string& key, bool& field) {
-    read_scalar(node, key, field, "true or false");
-  }
-  void read(const YAML::Node& node, const std::string& key, Correlation& field) {
-    if (!node.IsSequence() || node.size() != field.size()) {
-      const std::string found = node.IsSequence()
-                                    ? "a sequence of " + std::to_string(node.size()) + " entries"
-                                    : describe(node);
-      add(node, key + " = " + found + ": expected a sequence of " + std::to_string(field.size()) +
-                    " numbers");
-      return;
-    }
-    Correlation values = field;
-    bool all_read = true;
-    for (std::size_t index = 0; index < values.size(); ++index) {
-      all_read &= read_scalar(node[index], key + "[" + std::to_string(index) + "]", values[index],
-                              "a number");
-    }
-    if (all_read) field = values;
-  }
+/// Reads every field that `for_each(options, visit)` names from `section`.
+template <typename Options, typename ForEach>
+void read_map(YamlSection& section, Options& options, ForEach&& for_each) {
+  for_each(options, [&](std::string_view name, auto& field) {
+    const std::string key(name);
+    const YAML::Node value = section.child(key);
+    if (value) read_node(section, value, section.prefix() + key, field);
+  });
+}
 
-  /// A StereoNoise: one number (isotropic) or a map of its four components.
-  void read(const YAML::Node& node, const std::string& key, StereoNoise& field) {
-    if (node.IsScalar()) {
-      double sigma = 0.0;
-      if (read_scalar(node, key, sigma, "a number or a map of noise components")) {
-        field = StereoNoise::isotropic(sigma);
-      }
-      return;
-    }
-    if (!node.IsMap()) {
-      add(node, key + " = " + describe(node) + ": expected a number or a map of noise components");
-      return;
-    }
-    StereoNoise noise = field;
-    for_each_entry(
-        node, key + ".",
-        [&](const std::string& name, const YAML::Node& key_node, const YAML::Node& value) {
-          if (!read_field(noise, name, key + "." + name, value, [](auto& target, auto&& visit) {
-                for_each_noise_field(target, visit);
-              })) {
-            add(key_node, "unknown key " + key + "." + name);
-          }
-        });
-    field = noise;
+/// The top-level map of estimator options (its association section is left to
+/// read_association_section).
+void read_options(YamlSection& top, EstimatorOptions& options) {
+  read_map(top, options, [](auto& target, auto&& visit) { for_each_field(target, visit); });
+  if (const YAML::Node map = top.child(std::string(kConsensusKey))) {
+    YamlSection consensus(map, std::string(kConsensusKey) + ".", top.problems(),
+                          "a map of consensus options");
+    read_map(consensus, options.consensus,
+             [](auto& target, auto&& visit) { for_each_consensus_field(target, visit); });
+    consensus.finish();
   }
+  top.child(std::string(kAssociationKey));
+  top.finish();
+}
 
-  /// Reads a top-level map of option keys into `options`.
-  void read_options(const YAML::Node& map, EstimatorOptions& options) {
-    for_each_entry(
-        map, "", [&](const std::string& name, const YAML::Node& key_node, const YAML::Node& value) {
-          if (name == kConsensusKey) {
-            read_consensus(value, options.consensus);
-          } else if (name == kAssociationKey) {
-            // Read by load_negotiation_options.
-          } else if (!read_field(options, name, name, value, [](auto& target, auto&& visit) {
-                       for_each_field(target, visit);
-                     })) {
-            add(key_node, "unknown key " + name);
-          }
-        });
-  }
-
-  /// Reads the `association:` section of a map of option keys (other keys are ignored).
-  void read_association_section(const YAML::Node& root, association::NegotiationOptions& options) {
-    const YAML::Node section = root[std::string(kAssociationKey)];
-    if (!section) return;
-    const std::string prefix = std::string(kAssociationKey) + ".";
-    if (!section.IsMap()) {
-      add(section, std::string(kAssociationKey) + " = " + describe(section) +
-                       ": expected a map of association options");
-      return;
-    }
-    for_each_entry(
-        section, prefix,
-        [&](const std::string& name, const YAML::Node& key_node, const YAML::Node& value) {
-          if (!read_field(options, name, prefix + name, value, [](auto& target, auto&& visit) {
-                for_each_association_field(target, visit);
-              })) {
-            add(key_node, "unknown key " + prefix + name);
-          }
-        });
-  }
-
-  void add(const YAML::Node& node, const std::string& problem) {
-    problems_.push_back(line_of(node) + problem);
-  }
-  void add(const std::string& problem) { problems_.push_back(problem); }
-  const std::vector<std::string>& problems() const { return problems_; }
-
- private:
-  /// Reads the nested `consensus:` map.
-  void read_consensus(const YAML::Node& map, ConsensusOptions& consensus) {
-    const std::string prefix = std::string(kConsensusKey) + ".";
-    if (!map.IsMap()) {
-      add(map, std::string(kConsensusKey) + " = " + describe(map) +
-                   ": expected a map of consensus options");
-      return;
-    }
-    for_each_entry(
-        map, prefix,
-        [&](const std::string& name, const YAML::Node& key_node, const YAML::Node& value) {
-          if (!read_field(consensus, name, prefix + name, value, [](auto& target, auto&& visit) {
-                for_each_consensus_field(target, visit);
-              })) {
-            add(key_node, "unknown key " + prefix + name);
-          }
-        });
-  }
-
-  /// Calls handle(name, key node, value node) for each entry of `map`, reporting keys that are
-  /// not plain names or appear twice.
-  template <typename Handle>
-  void for_each_entry(const YAML::Node& map, const std::string& prefix, Handle&& handle) {
-    std::set<std::string> seen;
-    for (const auto& entry : map) {
-      if (!entry.first.IsScalar()) {
-        add(entry.first, "key " + prefix + describe(entry.first) + " is not a plain name");
-        continue;
-      }
-      const std::string name = entry.first.Scalar();
-      if (!seen.insert(name).second) {
-        add(entry.first, "key " + prefix + name + " appears more than once");
-        continue;
-      }
-      handle(name, entry.first, entry.second);
-    }
-  }
-
-  /// Reads `value` into the field of `target` called `name` (offered by for_each); false if there
-  /// is no such field.
-  template <typename Target, typename ForEach>
-  bool read_field(Target& target, const std::string& name, const std::string& key,
-                  const YAML::Node& value, ForEach&& for_each) {
-    bool known = false;
-    for_each(target, [&](std::string_view field_name, auto& field) {
-      if (field_name != name) return;
-      known = true;
-      read(value, key, field);
-    });
-    return known;
-  }
-
-  template <typename Value>
-  bool read_scalar(const YAML::Node& node, const std::string& key, Value& field,
-                   std::string_view expected) {
-    if (node.IsScalar()) {
-      try {
-        field = node.as<Value>();
-        return true;
-      } catch (const YAML::BadConversion&) {
-      }
-    }
-    add(node, key + " = " + describe(node) + ": expected " + std::string(expected));
-    return false;
-  }
-
-  std::vector<std::string> problems_;
-};
+/// The `association:` section of a map of option keys (other keys are not looked at).
+void read_association_section(YamlSection& top, association::NegotiationOptions& options) {
+  const YAML::Node map = top.child(std::string(kAssociationKey));
+  if (!map) return;
+  YamlSection section(map, std::string(kAssociationKey) + ".", top.problems(),
+                      "a map of association options");
+  read_map(section, options,
+           [](auto& target, auto&& visit) { for_each_association_field(target, visit); });
+  section.finish();
+}
 
 /// Shortest YAML text that reads back as exactly `value`.
 std::string format_number(double value) {
@@ -322,25 +229,14 @@ namespace {
 template <typename Options, typename Read>
 void read_validated(Options& options, const std::string& yaml_text, const std::string& source_name,
                     const std::string& what, Read read) {
-  YAML::Node root;
-  try {
-    root = YAML::Load(yaml_text);
-  } catch (const YAML::ParserException& error) {
-    throw ConfigError(source_name + ":" + std::to_string(error.mark.line + 1) +
-                      ": invalid YAML: " + error.msg);
-  }
-
-  Loader loader;
-  if (root.IsMap()) {
-    read(loader, root);
-  } else if (!root.IsNull()) {
-    loader.add(root, "expected a map of option keys, found " + describe(root));
-  }
-  for (const std::string& problem : options.validate()) loader.add(problem);
-
-  if (!loader.problems().empty()) {
+  const YAML::Node root = load_yaml(yaml_text, source_name);
+  std::vector<std::string> problems;
+  YamlSection top(root, "", problems, "a map of option keys");
+  read(top);
+  for (const std::string& problem : options.validate()) problems.push_back(problem);
+  if (!problems.empty()) {
     std::string message = source_name + ": invalid " + what + ":";
-    for (const std::string& problem : loader.problems()) message += "\n  " + problem;
+    for (const std::string& problem : problems) message += "\n  " + problem;
     throw ConfigError(message);
   }
 }
@@ -349,7 +245,7 @@ void read_into(EstimatorOptions& options, const std::string& yaml_text,
                const std::string& source_name) {
   read_validated(
       options, yaml_text, source_name, "estimator options",
-      [&](Loader& loader, const YAML::Node& root) { loader.read_options(root, options); });
+      [&](YamlSection& top) { read_options(top, options); });
 }
 
 }  // namespace
@@ -368,9 +264,7 @@ namespace {
 void read_association_into(association::NegotiationOptions& options, const std::string& yaml_text,
                            const std::string& source_name) {
   read_validated(options, yaml_text, source_name, "association options",
-                 [&](Loader& loader, const YAML::Node& root) {
-                   loader.read_association_section(root, options);
-                 });
+                 [&](YamlSection& top) { read_association_section(top, options); });
 }
 
 bool is_association_override(const std::string& entry) {

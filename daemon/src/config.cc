@@ -8,6 +8,7 @@
 #include <set>
 
 #include "concord/config/options_file.h"
+#include "concord/config/yaml_section.h"
 
 namespace concord::daemon {
 
@@ -15,170 +16,8 @@ namespace {
 
 using config::ConfigError;
 
-std::string line_of(const YAML::Node& node) {
-  const YAML::Mark mark = node.Mark();
-  if (mark.is_null()) return {};
-  return "line " + std::to_string(mark.line + 1) + ": ";
-}
-
-/// Reads one YAML map section, remembering which keys were read so the rest can be reported as
-/// unknown, and collecting every problem instead of stopping at the first.
-class Section {
- public:
-  Section(const YAML::Node& node, std::string prefix, std::vector<std::string>& problems)
-      : node_(node), prefix_(std::move(prefix)), problems_(problems) {
-    if (node_ && !node_.IsNull() && !node_.IsMap()) {
-      problems_.push_back(line_of(node_) + name() + ": expected a map");
-      valid_ = false;
-    }
-  }
-
-  /// The sub-node of a key (null node if absent), marked as known.
-  YAML::Node child(const std::string& key) {
-    known_.insert(key);
-    if (!valid_ || !node_ || node_.IsNull()) return YAML::Node();
-    return node_[key];
-  }
-
-  template <typename Value>
-  void read(const std::string& key, Value& field, const char* expected) {
-    const YAML::Node value = child(key);
-    if (!value || value.IsNull()) return;
-    if (value.IsScalar()) {
-      try {
-        field = value.as<Value>();
-        return;
-      } catch (const YAML::BadConversion&) {
-      }
-    }
-    problems_.push_back(line_of(value) + prefix_ + key + ": expected " + expected);
-  }
-  void read(const std::string& key, int& field) { read<int>(key, field, "an integer"); }
-  void read(const std::string& key, double& field) { read<double>(key, field, "a number"); }
-  void read(const std::string& key, bool& field) { read<bool>(key, field, "true or false"); }
-  void read(const std::string& key, std::string& field) {
-    read<std::string>(key, field, "a string");
-  }
-  void read(const std::string& key, std::filesystem::path& field,
-            const std::filesystem::path& base) {
-    std::string text;
-    read(key, text);
-    if (!text.empty()) field = resolve(text, base);
-  }
-  void read_port(const std::string& key, std::uint16_t& field, bool allow_zero) {
-    int value = field;
-    read(key, value);
-    if (value < (allow_zero ? 0 : 1) || value > 65535) {
-      problems_.push_back(prefix_ + key + ": expected a port " + (allow_zero ? "0" : "1") +
-                          "-65535, got " + std::to_string(value));
-      return;
-    }
-    field = static_cast<std::uint16_t>(value);
-  }
-  void read_milliseconds(const std::string& key, std::chrono::milliseconds& field,
-                         bool allow_zero) {
-    int value = static_cast<int>(field.count());
-    read(key, value);
-    if (value < 0 || (!allow_zero && value == 0)) {
-      problems_.push_back(prefix_ + key + ": expected a " +
-                          (allow_zero ? "non-negative" : "positive") + " number of ms, got " +
-                          std::to_string(value));
-      return;
-    }
-    field = std::chrono::milliseconds(value);
-  }
-  void read_size(const std::string& key, std::size_t& field) {
-    int value = static_cast<int>(std::min<std::size_t>(field, std::numeric_limits<int>::max()));
-    read(key, value);
-    if (value < 1) {
-      problems_.push_back(prefix_ + key + ": expected a positive integer, got " +
-                          std::to_string(value));
-      return;
-    }
-    field = static_cast<std::size_t>(value);
-  }
-  void read_ints(const std::string& key, std::vector<int>& field) {
-    const YAML::Node value = child(key);
-    if (!value || value.IsNull()) return;
-    std::vector<int> numbers;
-    bool valid = value.IsSequence();
-    if (valid) {
-      for (const auto& item : value) {
-        try {
-          numbers.push_back(item.as<int>());
-        } catch (const YAML::Exception&) {
-          valid = false;
-          break;
-        }
-      }
-    }
-    if (!valid) {
-      problems_.push_back(line_of(value) + prefix_ + key + ": expected a sequence of integers");
-      return;
-    }
-    field = std::move(numbers);
-  }
-  void read_strings(const std::string& key, std::vector<std::string>& field) {
-    const YAML::Node value = child(key);
-    if (!value || value.IsNull()) return;
-    if (!value.IsSequence()) {
-      problems_.push_back(line_of(value) + prefix_ + key + ": expected a sequence of strings");
-      return;
-    }
-    field.clear();
-    for (const auto& item : value) {
-      if (!item.IsScalar()) {
-        problems_.push_back(line_of(item) + prefix_ + key + ": expected a sequence of strings");
-        return;
-      }
-      field.push_back(item.Scalar());
-    }
-  }
-  void read_numbers(const std::string& key, std::vector<double>& field, std::size_t count) {
-    const YAML::Node value = child(key);
-    if (!value || value.IsNull()) return;
-    std::vector<double> numbers;
-    if (value.IsSequence() && value.size() == count) {
-      for (const auto& item : value) {
-        try {
-          numbers.push_back(item.as<double>());
-        } catch (const YAML::Exception&) {
-          break;
-        }
-      }
-    }
-    if (numbers.size() != count) {
-      problems_.push_back(line_of(value) + prefix_ + key + ": expected a sequence of " +
-                          std::to_string(count) + " numbers");
-      return;
-    }
-    field = std::move(numbers);
-  }
-
-  /// Reports every key of the map that was never asked for.
-  void finish() {
-    if (!valid_ || !node_ || node_.IsNull()) return;
-    for (const auto& entry : node_) {
-      const std::string key = entry.first.IsScalar() ? entry.first.Scalar() : "?";
-      if (!known_.count(key)) problems_.push_back(line_of(entry.first) + "unknown key " + prefix_ + key);
-    }
-  }
-
-  static std::filesystem::path resolve(const std::string& text,
-                                       const std::filesystem::path& base) {
-    const std::filesystem::path path(text);
-    return path.is_absolute() || base.empty() ? path : (base / path).lexically_normal();
-  }
-
- private:
-  std::string name() const { return prefix_.empty() ? "config" : prefix_.substr(0, prefix_.size() - 1); }
-
-  YAML::Node node_;
-  std::string prefix_;
-  std::vector<std::string>& problems_;
-  std::set<std::string> known_;
-  bool valid_ = true;
-};
+using Section = config::YamlSection;
+using config::line_of;
 
 }  // namespace
 
@@ -321,13 +160,7 @@ std::vector<std::string> DaemonConfig::validate() const {
 
 DaemonConfig parse_daemon_config(const std::string& yaml_text, const std::string& source_name,
                                  const std::filesystem::path& base_directory) {
-  YAML::Node root;
-  try {
-    root = YAML::Load(yaml_text);
-  } catch (const YAML::ParserException& error) {
-    throw ConfigError(source_name + ":" + std::to_string(error.mark.line + 1) +
-                      ": invalid YAML: " + error.msg);
-  }
+  const YAML::Node root = config::load_yaml(yaml_text, source_name);
   DaemonConfig config;
   std::vector<std::string> problems;
   if (!root.IsMap()) {

@@ -1,11 +1,11 @@
 #include "concord/frontend/frontend_options_file.h"
 
-#include <yaml-cpp/yaml.h>
-
 #include <charconv>
-#include <set>
-#include <type_traits>
+#include <map>
+#include <memory>
 
+#include "concord/config/options_file.h"
+#include "concord/config/yaml_section.h"
 #include "concord/frontend/sequence.h"
 #include "options_fields.h"
 #include "text_lines.h"
@@ -13,11 +13,6 @@
 namespace concord::frontend {
 
 namespace {
-
-std::string line_of(const YAML::Node& node) {
-  const YAML::Mark mark = node.Mark();
-  return mark.is_null() ? std::string() : "line " + std::to_string(mark.line + 1) + ": ";
-}
 
 std::string number_text(double value) {
   char buffer[32];
@@ -31,50 +26,26 @@ FrontendOptions parse_frontend_options(const std::string& yaml_text,
                                        const std::string& source_name) {
   YAML::Node root;
   try {
-    root = YAML::Load(yaml_text);
-  } catch (const YAML::ParserException& error) {
-    throw FrontendError(source_name + ":" + std::to_string(error.mark.line + 1) +
-                        ": invalid YAML: " + error.msg);
+    root = config::load_yaml(yaml_text, source_name);
+  } catch (const config::ConfigError& error) {
+    throw FrontendError(error.what());
   }
   FrontendOptions options;
   std::vector<std::string> problems;
-  if (!root || root.IsNull()) return options;
-  if (!root.IsMap()) throw FrontendError(source_name + ": expected a map of front-end options");
-
-  std::set<std::string> known_sections, known_keys;
+  // The project's one YAML reader: a map of sections (tracker, odometry, objects), each a map of
+  // the fields options_fields.h names.
+  config::YamlSection top(root, "", problems, "a map of front-end option sections");
+  std::map<std::string, std::unique_ptr<config::YamlSection>> sections;
   visit_option_fields(options, [&](const char* section, const char* key, auto& field) {
-    known_sections.insert(section);
-    known_keys.insert(std::string(section) + "." + key);
-    const YAML::Node map = root[section];
-    if (!map || !map.IsMap()) return;
-    const YAML::Node value = map[key];
-    if (!value || value.IsNull()) return;
-    using Field = std::remove_reference_t<decltype(field)>;
-    try {
-      if (!value.IsScalar()) throw YAML::Exception(value.Mark(), "not a scalar");
-      field = value.as<Field>();
-    } catch (const YAML::Exception&) {
-      problems.push_back(line_of(value) + section + "." + key + ": expected " +
-                         (std::is_integral_v<Field> ? "an integer" : "a number"));
+    auto& reader = sections[section];
+    if (!reader) {
+      reader = std::make_unique<config::YamlSection>(top.child(section), std::string(section) + ".",
+                                                     problems);
     }
+    reader->read(key, field);
   });
-  for (const auto& section : root) {
-    const std::string name = section.first.as<std::string>("?");
-    if (!known_sections.count(name)) {
-      problems.push_back(line_of(section.first) + "unknown section '" + name +
-                         "' (expected tracker, odometry or objects)");
-      continue;
-    }
-    if (!section.second.IsMap()) {
-      if (!section.second.IsNull())
-        problems.push_back(line_of(section.second) + name + ": expected a map");
-      continue;
-    }
-    for (const auto& entry : section.second) {
-      const std::string key = name + "." + entry.first.as<std::string>("?");
-      if (!known_keys.count(key)) problems.push_back(line_of(entry.first) + "unknown key " + key);
-    }
-  }
+  for (auto& [name, reader] : sections) reader->finish();
+  top.finish();
   if (problems.empty()) problems = options.validate();
   if (!problems.empty()) {
     std::string message = source_name + ": invalid front-end options:";
