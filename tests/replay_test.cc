@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <random>
 
 #include "concord/config/options_file.h"
 #include "concord/dataset/dataset.h"
@@ -125,6 +126,92 @@ TEST(Graphs, RandomGraphsAreConnected) {
     }
     EXPECT_EQ(std::count(seen.begin(), seen.end(), true), 9) << "seed " << seed;
   }
+}
+
+// The simulated radio's limits on a round's graph, against a brute-force check on random teams.
+TEST(Graphs, RadioLimitsKeepOnlyShortEdgesNearestNeighboursAndTheDegreeBound) {
+  std::mt19937 random(3);
+  std::uniform_real_distribution<double> coordinate(0.0, 100.0);
+  for (int trial = 0; trial < 20; ++trial) {
+    const int robots = 12;
+    std::vector<Eigen::Vector3d> positions;
+    for (int i = 0; i < robots; ++i) {
+      const double x = coordinate(random);
+      const double y = coordinate(random);
+      positions.emplace_back(x, y, 0.0);
+    }
+    const auto complete = replay::make_graph(replay::GraphKind::kComplete, robots, 1);
+    auto distance = [&](int i, int j) { return (positions[i] - positions[j]).norm(); };
+    auto symmetric = [&](const std::vector<std::vector<int>>& graph) {
+      for (int i = 0; i < robots; ++i)
+        for (int j : graph[i])
+          if (std::count(graph[j].begin(), graph[j].end(), i) != 1) return false;
+      return true;
+    };
+
+    replay::RadioLimits range;
+    range.range_m = 40.0;
+    const auto in_range = replay::limit_graph(complete, positions, range);
+    EXPECT_TRUE(symmetric(in_range));
+    for (int i = 0; i < robots; ++i)
+      for (int j = 0; j < robots; ++j) {
+        if (i == j) continue;
+        const bool linked = std::count(in_range[i].begin(), in_range[i].end(), j) == 1;
+        EXPECT_EQ(linked, distance(i, j) <= 40.0) << "trial " << trial << " " << i << "-" << j;
+      }
+
+    replay::RadioLimits nearest;
+    nearest.nearest = 2;
+    const auto knn = replay::limit_graph(complete, positions, nearest);
+    EXPECT_TRUE(symmetric(knn));
+    for (int i = 0; i < robots; ++i) {
+      // Its two closest are linked; any other link is one where i is among the other's two.
+      std::vector<int> others;
+      for (int j = 0; j < robots; ++j)
+        if (j != i) others.push_back(j);
+      std::sort(others.begin(), others.end(),
+                [&](int a, int b) { return distance(i, a) < distance(i, b); });
+      for (int k = 0; k < 2; ++k)
+        EXPECT_EQ(std::count(knn[i].begin(), knn[i].end(), others[k]), 1);
+      for (int j : knn[i]) {
+        const bool mine = j == others[0] || j == others[1];
+        int closer_to_j = 0;  // robots closer to j than i is
+        for (int m = 0; m < robots; ++m)
+          if (m != j && m != i && distance(j, m) < distance(j, i)) ++closer_to_j;
+        EXPECT_TRUE(mine || closer_to_j < 2) << "trial " << trial << " " << i << "-" << j;
+      }
+    }
+
+    replay::RadioLimits degree;
+    degree.max_degree = 3;
+    const auto bounded = replay::limit_graph(complete, positions, degree);
+    EXPECT_TRUE(symmetric(bounded));
+    for (int i = 0; i < robots; ++i) EXPECT_LE(bounded[i].size(), 3u);
+    // Maximal: no two robots with room left stay unlinked.
+    for (int i = 0; i < robots; ++i)
+      for (int j = i + 1; j < robots; ++j)
+        if (bounded[i].size() < 3 && bounded[j].size() < 3)
+          EXPECT_EQ(std::count(bounded[i].begin(), bounded[i].end(), j), 1);
+  }
+}
+
+// A replay with radio limits runs on a slice and fuses over fewer edges than the complete graph.
+TEST(TeamReplay, RadioLimitsThinTheGraphAndTheTeamStillFuses) {
+  auto data = dataset::read_dataset(kData + "sim15-3x200", first_frames(80));
+  const auto options = config::load_estimator_options(kConfigs + "sim.yaml");
+  replay::ReplayOptions complete;
+  replay::ReplayOptions limited;
+  limited.radio.max_degree = 1;
+  const auto full = replay::run_team(data, options, complete);
+  const auto thin = replay::run_team(data, options, limited);
+  EXPECT_EQ(full.statistics.edge_rounds, 3 * 80);  // 3 robots: 3 edges every round
+  EXPECT_EQ(thin.statistics.edge_rounds, 80);      // degree 1 among 3: one edge a round
+  EXPECT_GT(thin.statistics.landmarks_fused, 0);
+  EXPECT_LT(thin.statistics.landmarks_fused, full.statistics.landmarks_fused);
+  // Without ground truth, limits are refused with a message.
+  replay::ReplayOptions no_positions = limited;
+  EXPECT_THROW(replay::run_team(dataset::sensor_inputs(data), options, no_positions),
+               std::invalid_argument);
 }
 
 // A robot driving straight past a known object with exact odometry and noiseless stereo.

@@ -1,5 +1,6 @@
 /// `concord`: the team replay, evaluation and dataset tools on the command line.
 ///   concord replay --dataset DIR --out DIR [--separate] [--config FILE] [--graph G] [--loss R]
+///                  [--range M] [--nearest K] [--max-degree D]
 ///                  [--seed S] [--frames N] [--no-point-features] [--set KEY=VALUE ...]
 ///                  [--association given|negotiated]
 ///   concord eval --dataset DIR --result DIR [--first-frames-from DIR]
@@ -215,7 +216,8 @@ dataset::AlignmentRecord alignment_record(const replay::RobotOutput& output) {
 int run_replay(const fs::path& dataset_dir, const fs::path& out, bool separate,
                const std::string& config_file, const std::string& graph, double loss,
                std::uint64_t seed, int frames, bool no_point_features,
-               const std::vector<std::string>& overrides, const std::string& association_mode) {
+               const std::vector<std::string>& overrides, const std::string& association_mode,
+               replay::RadioLimits radio) {
   dataset::ReadOptions read_options;
   if (frames > 0) read_options.max_frames = frames;
   read_options.load_features = !no_point_features;
@@ -248,6 +250,14 @@ int run_replay(const fs::path& dataset_dir, const fs::path& out, bool separate,
   replay_options.graph = replay::parse_graph_kind(graph);
   replay_options.link_loss = loss;
   replay_options.seed = seed;
+  if (radio.any()) {
+    // The simulated radio (who hears whom) follows the robots' true positions; the filters never
+    // see them.
+    radio.true_positions = replay::RadioLimits::positions_of(data);
+    std::cerr << "  radio: range " << radio.range_m << " m, nearest " << radio.nearest
+              << ", max degree " << radio.max_degree << " (0: no limit)\n";
+  }
+  replay_options.radio = radio;
   replay_options.negotiation = negotiation;
   if (!association_mode.empty()) {
     replay_options.association = replay::parse_association_mode(association_mode);
@@ -292,6 +302,8 @@ int run_replay(const fs::path& dataset_dir, const fs::path& out, bool separate,
       {"dataset", data.name},
       {"mode", separate ? "separate" : "consensus"},
       {"graph", graph},
+      {"radio", {{"range_m", radio.range_m}, {"nearest", radio.nearest}, {"max_degree", radio.max_degree}}},
+      {"edges_per_round", s.steps > 0 ? static_cast<double>(s.edge_rounds) / s.steps : 0.0},
       {"loss", loss},
       {"seed", seed},
       {"config", config_path.string()},
@@ -634,6 +646,20 @@ int main(int argc, char** argv) {
   replay_command->add_option("--loss", loss, "Per-round probability of dropping each edge")
       ->check(CLI::Range(0.0, 1.0));
   replay_command->add_option("--seed", seed, "Seed of the random graph and link loss");
+  replay::RadioLimits radio;
+  replay_command
+      ->add_option("--range", radio.range_m,
+                   "Simulated radio: a link only while the robots are within this many metres "
+                   "(true positions; 0: no limit)")
+      ->check(CLI::NonNegativeNumber);
+  replay_command
+      ->add_option("--nearest", radio.nearest,
+                   "Simulated radio: links only to each robot's K closest robots (0: no limit)")
+      ->check(CLI::NonNegativeNumber);
+  replay_command
+      ->add_option("--max-degree", radio.max_degree,
+                   "Simulated radio: at most D links a robot, the shortest first (0: no limit)")
+      ->check(CLI::NonNegativeNumber);
   replay_command->add_option("--frames", frames, "Use only the first N frames of each robot")
       ->check(CLI::PositiveNumber);
   replay_command->add_flag("--no-point-features", no_point_features,
@@ -1003,7 +1029,7 @@ int main(int argc, char** argv) {
     }
     if (replay_command->parsed()) {
       return run_replay(dataset_dir, out_dir, separate, config_file, graph, loss, seed, frames,
-                        no_point_features, overrides, association_mode);
+                        no_point_features, overrides, association_mode, radio);
     }
     if (eval_command->parsed()) return run_eval(dataset_dir, result_dir, first_frames_from);
     if (slice_command->parsed()) {

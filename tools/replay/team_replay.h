@@ -39,6 +39,25 @@ std::string to_string(GraphKind kind);
 /// spanning tree (connected) plus every other edge with probability 0.3, from seed.
 std::vector<std::vector<int>> make_graph(GraphKind kind, int robots, std::uint64_t seed);
 
+/// See ReplayOptions::radio.
+struct RadioLimits {
+  double range_m = 0.0;
+  int nearest = 0;
+  int max_degree = 0;
+  /// The robots' true positions, [robot][frame]: the simulated radio's input only (the robots'
+  /// filters never see them). Required when any limit is set.
+  std::vector<std::vector<Eigen::Vector3d>> true_positions;
+  bool any() const { return range_m > 0.0 || nearest > 0 || max_degree > 0; }
+  /// From a dataset's ground truth; std::invalid_argument if a robot lacks some.
+  static std::vector<std::vector<Eigen::Vector3d>> positions_of(const dataset::Dataset& dataset);
+};
+
+/// This round's graph: the edges of `candidates` (adjacency lists, symmetric) that `limits`
+/// keep, given the robots' positions. Symmetric, deterministic (ties broken by robot ids).
+std::vector<std::vector<int>> limit_graph(const std::vector<std::vector<int>>& candidates,
+                                          const std::vector<Eigen::Vector3d>& positions,
+                                          const RadioLimits& limits);
+
 enum class AssociationMode { kGiven, kNegotiated };
 
 /// "given" / "negotiated"; parse throws std::invalid_argument naming the bad value.
@@ -51,6 +70,12 @@ struct ReplayOptions {
   GraphKind graph = GraphKind::kComplete;
   /// Probability that an edge is dropped in a round, independently per edge and round (Fig. 4).
   double link_loss = 0.0;
+  /// Radio limits on each round's graph (docs/results-graphs.md), from the robots' true positions at
+  /// that frame (a simulation of who can hear whom; needs ground truth): an edge only while the
+  /// two robots are within range_m (0: no limit); only to each robot's `nearest` closest robots
+  /// (an edge when either is among the other's; 0: no limit); at most max_degree edges a robot,
+  /// the shortest first (0: no limit).
+  RadioLimits radio;
   std::uint64_t seed = 1;
   /// nullopt: given when the dataset's object ids are global and its start poses known,
   /// negotiated otherwise.
@@ -111,6 +136,8 @@ struct ReplayStatistics {
   /// Bytes of the marginals sent (8 per id, 8 per number of the mean and of each block's upper
   /// triangle), all runs.
   long long marginal_bytes = 0;
+  /// Sum over rounds of the number of edges of that round's graph.
+  long long edge_rounds = 0;
   /// Sums of the negotiators' counters (association::NegotiationCounters).
   long long searches = 0;
   long long ambiguous = 0;
@@ -140,5 +167,6 @@ ReplayResult run_team(const dataset::TeamInputs& team, const EstimatorOptions& e
 /// run_team on dataset::sensor_inputs(dataset).
 ReplayResult run_team(const dataset::Dataset& dataset, const EstimatorOptions& estimator_options,
                       const ReplayOptions& options, const ProgressCallback& progress = {});
+/// (With radio limits and no true positions given, this one fills them from the ground truth.)
 
 }  // namespace concord::replay
