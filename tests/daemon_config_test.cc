@@ -84,6 +84,9 @@ TEST(DaemonConfig, CrossFieldChecks) {
             std::string::npos);
   EXPECT_NE(problems_of("http: {port: many}\n").find("http.port = 'many': expected a port"),
             std::string::npos);
+  EXPECT_NE(problems_of("consensus: {graph: star}\n")
+                .find("consensus.graph: expected complete or ring, got 'star'"),
+            std::string::npos);
   EXPECT_NE(problems_of("a: [\n").find("invalid YAML"), std::string::npos);
   EXPECT_THROW((void)load_daemon_config("/nonexistent/robot.yaml"), config::ConfigError);
 }

@@ -3,6 +3,7 @@
 // for; async mode fuses each fresh marginal once.
 #include <gtest/gtest.h>
 
+#include <set>
 #include <thread>
 
 #include "concord/daemon/consensus_exchange.h"
@@ -85,6 +86,63 @@ TEST(DaemonExchange, LockstepReproducesTheReplay) {
     }
   }
   EXPECT_GT(team.exchanges[0]->counters().marginals_fused, 50u);
+}
+
+TEST(DaemonExchange, RingNeighboursAreTheMembersBeforeAndAfter) {
+  EXPECT_EQ(ring_neighbours(4, {9, 1, 4, 7, 2}), (std::set<int>{2, 7}));
+  EXPECT_EQ(ring_neighbours(9, {9, 1, 4, 7, 2}), (std::set<int>{1, 7}));
+  EXPECT_EQ(ring_neighbours(1, {9, 1, 4, 7, 2}), (std::set<int>{2, 9}));
+  EXPECT_EQ(ring_neighbours(0, {0, 1}), (std::set<int>{1}));
+  EXPECT_EQ(ring_neighbours(0, {0, 1, 2}), (std::set<int>{1, 2}));
+  EXPECT_TRUE(ring_neighbours(5, {0, 1, 2}).empty());  // not a member
+}
+
+// consensus.graph ring: five exchanges, each restricted to its ring neighbours, reproduce
+// `concord replay --graph ring` (Metropolis weights over the ring).
+TEST(DaemonExchange, LockstepOnARingReproducesTheRingReplay) {
+  sim::SimulationOptions simulation;
+  simulation.robots = 5;
+  simulation.frames = 80;
+  simulation.points_per_frame = 0;
+  const dataset::Dataset data = sim::simulate(simulation);
+  const EstimatorOptions options =
+      config::load_estimator_options(kSource / "configs/sensors/sim.yaml");
+  replay::ReplayOptions ring;
+  ring.graph = replay::GraphKind::kRing;
+  const auto reference = replay::run_team(data, options, ring);
+  const auto complete = replay::run_team(data, options, {});
+
+  ConsensusConfig config;
+  config.mode = ConsensusMode::kLockstep;
+  config.round_deadline = std::chrono::seconds(20);
+  Team team(5, config);
+  for (int i = 0; i < 5; ++i) team.exchanges[i]->restrict_to(ring_neighbours(i, {0, 1, 2, 3, 4}));
+  team.connect_all();
+  std::vector<std::vector<Eigen::Isometry3d>> trajectories(5);
+  std::vector<std::thread> robots;
+  std::atomic<int> timed_out{0};
+  for (int i = 0; i < 5; ++i) {
+    robots.emplace_back([&, i] {
+      Estimator estimator(options, data.camera, data.robots[i].groundtruth.front(), 0);
+      for (int k = 0; k < data.robots[i].num_frames(); ++k) {
+        estimator.process(data.robots[i].frame_input(k));
+        timed_out += team.exchanges[i]->run_round(static_cast<std::uint64_t>(k), estimator).timed_out;
+        trajectories[i].push_back(estimator.current_pose());
+      }
+    });
+  }
+  for (auto& robot : robots) robot.join();
+  EXPECT_EQ(timed_out, 0);
+  bool differs_from_complete = false;
+  for (int i = 0; i < 5; ++i) {
+    ASSERT_EQ(trajectories[i].size(), reference.robots[i].trajectory.size());
+    for (std::size_t k = 0; k < trajectories[i].size(); ++k) {
+      ASSERT_TRUE(trajectories[i][k].isApprox(reference.robots[i].trajectory[k], 1e-9))
+          << "robot " << i << " frame " << k;
+      differs_from_complete |= !trajectories[i][k].isApprox(complete.robots[i].trajectory[k], 1e-9);
+    }
+  }
+  EXPECT_TRUE(differs_from_complete) << "the ring made no difference: the test shows nothing";
 }
 
 TEST(DaemonExchange, ALyingNeighbourIsRefusedAndQuarantined) {

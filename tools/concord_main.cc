@@ -887,6 +887,10 @@ int main(int argc, char** argv) {
   launch_command->add_flag("--lockstep", launch_lockstep,
                            "Lockstep consensus (the default: reproducible)");
   launch_command->add_flag("--async", launch_async, "Asynchronous consensus");
+  launch_command
+      ->add_option("--graph", launch_options.graph,
+                   "Whom each daemon runs consensus with: complete or ring (members next to it)")
+      ->check(CLI::IsMember({"complete", "ring"}));
   launch_command->add_flag("--separate", launch_separate, "No consensus");
   launch_command->add_option("--base-port", launch_options.base_port,
                              "Robot i listens for peers on base-port + i")

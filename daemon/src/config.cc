@@ -40,6 +40,16 @@ std::string to_string(ConsensusMode mode) {
   return "unknown";
 }
 
+std::optional<ConsensusGraph> parse_consensus_graph(const std::string& text) {
+  if (text == "complete") return ConsensusGraph::kComplete;
+  if (text == "ring") return ConsensusGraph::kRing;
+  return std::nullopt;
+}
+
+std::string to_string(ConsensusGraph graph) {
+  return graph == ConsensusGraph::kRing ? "ring" : "complete";
+}
+
 std::optional<AssociationMode> parse_association_mode(const std::string& text) {
   if (text == "auto") return AssociationMode::kAuto;
   if (text == "given") return AssociationMode::kGiven;
@@ -249,6 +259,13 @@ DaemonConfig parse_daemon_config(const std::string& yaml_text, const std::string
     config.consensus.mode = *parsed;
   } else {
     problems.push_back("consensus.mode: expected off, lockstep or async, got '" + mode + "'");
+  }
+  std::string graph = to_string(config.consensus.graph);
+  if (consensus.read("graph", graph)) {
+    if (const auto parsed = parse_consensus_graph(graph))
+      config.consensus.graph = *parsed;
+    else
+      problems.push_back("consensus.graph: expected complete or ring, got '" + graph + "'");
   }
   consensus.read_milliseconds("round_deadline_ms", config.consensus.round_deadline, false);
   consensus.read("staleness_rounds", config.consensus.staleness_rounds);

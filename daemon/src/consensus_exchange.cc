@@ -93,6 +93,21 @@ ConsensusExchange::ConsensusExchange(ConsensusConfig config, Send send,
 
 ConsensusExchange::~ConsensusExchange() = default;
 
+std::set<int> ring_neighbours(int robot, std::vector<int> members) {
+  std::sort(members.begin(), members.end());
+  members.erase(std::unique(members.begin(), members.end()), members.end());
+  const auto at = std::find(members.begin(), members.end(), robot);
+  std::set<int> out;
+  if (at == members.end() || members.size() < 2) return out;
+  const auto n = static_cast<std::ptrdiff_t>(members.size());
+  const std::ptrdiff_t i = at - members.begin();
+  out.insert(members[static_cast<std::size_t>((i + 1) % n)]);
+  out.insert(members[static_cast<std::size_t>((i + n - 1) % n)]);
+  return out;
+}
+
+void ConsensusExchange::restrict_to(std::set<int> peers) { allowed_ = std::move(peers); }
+
 void ConsensusExchange::set_association(AssociationSession* session) {
   std::lock_guard lock(mutex_);
   association_ = session;
@@ -448,6 +463,7 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
     std::lock_guard lock(mutex_);
     for (const auto& [robot, peer] : peers_) {
       if (!peer->up || peer->goodbye) continue;
+      if (allowed_ && !allowed_->count(robot)) continue;
       candidates.push_back(robot);
       if (peer->fresh) reconnected.push_back(robot);
       peer->fresh = false;
@@ -584,6 +600,7 @@ RoundReport ConsensusExchange::async_round(std::uint64_t round, Estimator& estim
     std::lock_guard lock(mutex_);
     for (const auto& [robot, peer] : peers_) {
       if (!peer->up || peer->goodbye) continue;
+      if (allowed_ && !allowed_->count(robot)) continue;
       live.push_back(robot);
       if (peer->ids_known) known_ids[robot] = peer->ids;
     }

@@ -384,6 +384,8 @@ bool Daemon::Impl::start_services() {
           ExchangeFailpoints{config_.failpoints.marginal_silence,
                              config_.failpoints.marginal_garbage});
       if (association_) exchange_->set_association(association_.get());
+      if (config_.consensus.graph == ConsensusGraph::kRing)
+        exchange_->restrict_to(ring_neighbours(config_.robot_id, config_.members));
       network_->set_message_handler([this](int robot, const v1::Envelope& envelope) {
         exchange_->on_message(robot, envelope);
       });

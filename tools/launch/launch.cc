@@ -148,6 +148,7 @@ std::string daemon_config_yaml(const LaunchOptions& options, int robot, int robo
   yaml << YAML::EndSeq << YAML::EndMap;
   yaml << YAML::Key << "consensus" << YAML::Value << YAML::BeginMap;
   yaml << YAML::Key << "mode" << YAML::Value << options.mode;
+  if (options.graph != "complete") yaml << YAML::Key << "graph" << YAML::Value << options.graph;
   yaml << YAML::Key << "wait_for_peers" << YAML::Value << (options.mode == "off" ? 0 : robots - 1);
   if (options.round_deadline_ms > 0)
     yaml << YAML::Key << "round_deadline_ms" << YAML::Value << options.round_deadline_ms;

@@ -28,6 +28,15 @@ enum class ConsensusMode {
 std::optional<ConsensusMode> parse_consensus_mode(const std::string& text);
 std::string to_string(ConsensusMode mode);
 
+/// consensus.graph: whom a robot runs consensus with among its live peers.
+enum class ConsensusGraph {
+  kComplete,  ///< every live peer
+  kRing,      ///< the two members next to it in the sorted `members` list (as `concord replay --graph ring`)
+};
+
+std::optional<ConsensusGraph> parse_consensus_graph(const std::string& text);
+std::string to_string(ConsensusGraph graph);
+
 enum class SourceKind {
   kReplay,  ///< frames of one robot folder of a dataset
   kIngest,  ///< SensorFrame envelopes received on a TCP port
@@ -119,6 +128,9 @@ struct NegotiationLimits {
 
 struct ConsensusConfig {
   ConsensusMode mode = ConsensusMode::kLockstep;
+  /// consensus.graph: complete or ring. Both ends of a link decide alike (from `members`), so the
+  /// graph stays symmetric and the Metropolis weights over it doubly stochastic.
+  ConsensusGraph graph = ConsensusGraph::kComplete;
   /// Lockstep: how long round k waits for a live neighbour's messages before going on without it.
   std::chrono::milliseconds round_deadline{5000};
   /// Async: a neighbour's marginal older than this many rounds is not fused.

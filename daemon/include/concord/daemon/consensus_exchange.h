@@ -25,6 +25,7 @@
 #include <cstdint>
 #include <functional>
 #include <map>
+#include <optional>
 #include <memory>
 #include <mutex>
 #include <set>
@@ -111,6 +112,10 @@ struct ExchangeFailpoints {
   bool marginal_garbage = false;  ///< Marginals go out malformed
 };
 
+/// The ring neighbours of `robot` among `members` (sorted, ids unique): the members before and
+/// after it, wrapping around; every other member when there are at most three.
+std::set<int> ring_neighbours(int robot, std::vector<int> members);
+
 class ConsensusExchange {
  public:
   /// Queues an envelope (its body and round set) to a robot; false if it could not be queued.
@@ -131,6 +136,10 @@ class ConsensusExchange {
   /// Negotiated association (lockstep): the session that rides on the rounds (LandmarkSets carry
   /// its messages, consensus runs over team ids). Call before the network starts; not owned.
   void set_association(AssociationSession* session);
+
+  /// Consensus only with these peers (others stay connected, and are not sent landmark sets or
+  /// marginals); call before the network starts. Default: every live peer.
+  void restrict_to(std::set<int> peers);
 
   /// Estimator thread: consensus round `round` on `estimator` (after its update of that frame).
   RoundReport run_round(std::uint64_t round, Estimator& estimator);
@@ -181,6 +190,7 @@ class ConsensusExchange {
 
   ConsensusConfig config_;
   AssociationSession* association_ = nullptr;
+  std::optional<std::set<int>> allowed_;  ///< restrict_to()
   Send send_;
   ExchangeFailpoints failpoints_;
   std::unique_ptr<net::LogLimiter> log_limiter_;
