@@ -18,6 +18,7 @@
 ///               [--odometry-translation-noise T] [--odometry-rotation-noise R] [--pixel-noise S]
 ///               ... (camera, path and object-placement parameters: concord sim --help)
 
+#include <malloc.h>
 #include <yaml-cpp/yaml.h>
 
 #include <CLI/CLI.hpp>
@@ -622,6 +623,9 @@ int run_launch(launch::LaunchOptions options) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  // As concordd (daemon/concordd_main.cc): large blocks stay on the heap (fewer page faults).
+  mallopt(M_MMAP_THRESHOLD, 32 << 20);
+  mallopt(M_TRIM_THRESHOLD, 64 << 20);
   CLI::App app{"Concord: multi-robot object SLAM by distributed MSCKF (team replay and tools)"};
   app.require_subcommand(1);
 
