@@ -53,8 +53,8 @@ print("Written by `bench/graph_bench.sh`: `concord sim --robots 15` (seeds " + "
       " and the graph of each row (`--graph ring`, `--nearest 3`, `--max-degree 3`, `--range R`;"
       " the simulated radio follows the robots' true positions, the filters never see them)."
       " Metropolis weights over each round's live graph. Means over seeds of the team averages.\n")
-print("| graph | links a round | traj RMSE m | object err m | disagreement m | pose NEES | object NEES | marginal kB a round |")
-print("|---|---|---|---|---|---|---|---|")
+print("| graph | links a round | traj RMSE m | object err m | disagreement m | pose NEES | object NEES | marginal kB a round | consensus ms a robot and round | of it a neighbour marginal |")
+print("|---|---|---|---|---|---|---|---|---|---|")
 summary = {}
 for key, label in graphs:
     rows = []
@@ -70,12 +70,20 @@ for key, label in graphs:
     steps = mean(lambda r: r["run"]["steps"])
     kb = mean(lambda r: r["run"].get("marginal_bytes", 0) / max(r["run"]["steps"], 1) / 1000)
     summary[key] = (mean(lambda r: avg(r)['trajectory_rmse']), kb)
+    # Consensus time (marginals out, fuse, Proposition 2) over the marginals fused: each link
+    # of a round carries two.
+    per_robot = mean(lambda r: 1000 * r["run"]["consensus_seconds"] / max(r["run"]["robot_steps"], 1))
+    per_marginal = mean(lambda r: 1000 * r["run"]["consensus_seconds"] / max(2 * r["run"]["steps"] * r["run"].get("edges_per_round", 0.0), 1))
     print(f"| {label} | {links:.1f} | {mean(lambda r: avg(r)['trajectory_rmse']):.3f} | "
           f"{mean(lambda r: avg(r)['object_error']):.3f} | {mean(lambda r: avg(r)['disagreement']):.3f} | "
           f"{mean(lambda r: avg(r)['pose_nees']['mean']):.2f} | {mean(lambda r: avg(r)['object_nees']['mean']):.2f} | "
-          f"{kb:.1f} |")
+          f"{kb:.1f} | {per_robot:.3f} | {per_marginal:.3f} |")
 print("\nMarginal kB a round: what the whole team sends in one consensus round (fixed-width "
-      "encoding: 8 bytes a number, covariance blocks as triangles).")
+      "encoding: 8 bytes a number, covariance blocks as triangles). Consensus time: marginals "
+      "out, the average and Proposition 2, per robot and round, and divided by the neighbour "
+      "marginals fused (the robot's own marginal and Proposition 2 are shared by all of them, so "
+      "the share falls with the degree). Wall clock of single-threaded replays on the shared "
+      "2-core machine.")
 if "complete" in summary:
     traj, kb = summary["complete"]
     lines = []
