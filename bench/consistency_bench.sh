@@ -16,21 +16,7 @@ seeds="${1:-1 2 3 4 5}"
 sizes="${2:-3 5 10 15}"
 shared=../shared/datasets
 out=bench/out/consistency
-mkdir -p "$out"
-cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=Release >/dev/null
-cmake --build build --parallel 2 --target concord >/dev/null
-# A copy of the binary: rebuilding during a long bench must not change or break it.
-cp build/tools/concord "$out/concord"
-concord="$out/concord"
-
-run() {  # name dataset args...
-  local name=$1 dataset=$2
-  shift 2
-  [ -f "$out/$name/metrics.json" ] && return 0
-  $concord replay --dataset "$dataset" --out "$out/$name" "$@" >"$out/$name.log" 2>&1 ||
-    { echo "bench: $name FAILED (see $out/$name.log)" >&2; return 1; }
-  echo "bench: $name" >&2
-}
+source bench/replay_runs.sh
 
 # 1. Simulation sweeps. Odometry x2 doubles both odometry sigmas of the simulator and the config.
 jobs=()

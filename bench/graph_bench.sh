@@ -10,20 +10,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 seeds="${1:-1 2 3}"
 out=bench/out/graphs
-mkdir -p "$out"
-cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=Release >/dev/null
-cmake --build build --parallel 2 --target concord >/dev/null
-cp build/tools/concord "$out/concord"
-concord="$out/concord"
-
-run() {  # name dataset args...
-  local name=$1 dataset=$2
-  shift 2
-  [ -f "$out/$name/metrics.json" ] && return 0
-  $concord replay --dataset "$dataset" --out "$out/$name" "$@" >"$out/$name.log" 2>&1 ||
-    { echo "bench: $name FAILED (see $out/$name.log)" >&2; return 1; }
-  echo "bench: $name" >&2
-}
+source bench/replay_runs.sh
 
 for seed in $seeds; do
   data="$out/data-s$seed"
@@ -82,8 +69,8 @@ print("\nMarginal kB a round: what the whole team sends in one consensus round (
       "encoding: 8 bytes a number, covariance blocks as triangles). Consensus time: marginals "
       "out, the average and Proposition 2, per robot and round, and divided by the neighbour "
       "marginals fused (the robot's own marginal and Proposition 2 are shared by all of them, so "
-      "the share falls with the degree). Wall clock of single-threaded replays on the shared "
-      "2-core machine.")
+      "the share falls with the degree). Wall clock of single-threaded replays, two at a time on "
+      "the 2-core machine.")
 if "complete" in summary:
     traj, kb = summary["complete"]
     lines = []

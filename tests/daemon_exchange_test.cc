@@ -44,6 +44,37 @@ struct Team {
   std::set<std::pair<int, int>> cut;
 };
 
+struct LockstepRun {
+  std::vector<std::vector<Eigen::Isometry3d>> trajectories;
+  std::vector<std::vector<ObjectEstimate>> objects;
+  int timed_out = 0;
+};
+
+/// Every robot of `data` on its own thread (as concordd's estimator threads), starting at its true
+/// start pose, one run_round per frame through `team`.
+LockstepRun run_lockstep(Team& team, const dataset::Dataset& data, const EstimatorOptions& options) {
+  const int robots = static_cast<int>(data.robots.size());
+  LockstepRun run;
+  run.trajectories.resize(robots);
+  run.objects.resize(robots);
+  std::atomic<int> timed_out{0};
+  std::vector<std::thread> threads;
+  for (int i = 0; i < robots; ++i) {
+    threads.emplace_back([&, i] {
+      Estimator estimator(options, data.camera, data.robots[i].groundtruth.front(), 0);
+      for (int k = 0; k < data.robots[i].num_frames(); ++k) {
+        estimator.process(data.robots[i].frame_input(k));
+        timed_out += team.exchanges[i]->run_round(static_cast<std::uint64_t>(k), estimator).timed_out;
+        run.trajectories[i].push_back(estimator.current_pose());
+      }
+      run.objects[i] = estimator.objects();
+    });
+  }
+  for (auto& thread : threads) thread.join();
+  run.timed_out = timed_out;
+  return run;
+}
+
 TEST(DaemonExchange, LockstepReproducesTheReplay) {
   dataset::ReadOptions read;
   read.max_frames = 120;
@@ -57,23 +88,10 @@ TEST(DaemonExchange, LockstepReproducesTheReplay) {
   config.round_deadline = std::chrono::seconds(20);
   Team team(3, config);
   team.connect_all();
-  std::vector<std::vector<Eigen::Isometry3d>> trajectories(3);
-  std::vector<std::vector<ObjectEstimate>> objects(3);
-  std::vector<std::thread> robots;
-  std::atomic<int> timed_out{0};
-  for (int i = 0; i < 3; ++i) {
-    robots.emplace_back([&, i] {
-      Estimator estimator(options, data.camera, data.robots[i].groundtruth.front(), 0);
-      for (int k = 0; k < data.robots[i].num_frames(); ++k) {
-        estimator.process(data.robots[i].frame_input(k));
-        timed_out += team.exchanges[i]->run_round(static_cast<std::uint64_t>(k), estimator).timed_out;
-        trajectories[i].push_back(estimator.current_pose());
-      }
-      objects[i] = estimator.objects();
-    });
-  }
-  for (auto& robot : robots) robot.join();
-  EXPECT_EQ(timed_out, 0);
+  const LockstepRun run = run_lockstep(team, data, options);
+  const auto& trajectories = run.trajectories;
+  const auto& objects = run.objects;
+  EXPECT_EQ(run.timed_out, 0);
   for (int i = 0; i < 3; ++i) {
     ASSERT_EQ(trajectories[i].size(), reference.robots[i].trajectory.size());
     for (std::size_t k = 0; k < trajectories[i].size(); ++k) {
@@ -118,21 +136,9 @@ TEST(DaemonExchange, LockstepOnARingReproducesTheRingReplay) {
   Team team(5, config);
   for (int i = 0; i < 5; ++i) team.exchanges[i]->restrict_to(ring_neighbours(i, {0, 1, 2, 3, 4}));
   team.connect_all();
-  std::vector<std::vector<Eigen::Isometry3d>> trajectories(5);
-  std::vector<std::thread> robots;
-  std::atomic<int> timed_out{0};
-  for (int i = 0; i < 5; ++i) {
-    robots.emplace_back([&, i] {
-      Estimator estimator(options, data.camera, data.robots[i].groundtruth.front(), 0);
-      for (int k = 0; k < data.robots[i].num_frames(); ++k) {
-        estimator.process(data.robots[i].frame_input(k));
-        timed_out += team.exchanges[i]->run_round(static_cast<std::uint64_t>(k), estimator).timed_out;
-        trajectories[i].push_back(estimator.current_pose());
-      }
-    });
-  }
-  for (auto& robot : robots) robot.join();
-  EXPECT_EQ(timed_out, 0);
+  const LockstepRun run = run_lockstep(team, data, options);
+  const auto& trajectories = run.trajectories;
+  EXPECT_EQ(run.timed_out, 0);
   bool differs_from_complete = false;
   for (int i = 0; i < 5; ++i) {
     ASSERT_EQ(trajectories[i].size(), reference.robots[i].trajectory.size());
