@@ -52,17 +52,7 @@ const fs::path kDaemon = CONCORD_DAEMON_PATH;
 
 /// Whether this build (and so concordd) runs under a sanitizer: their allocators keep freed
 /// memory in quarantine, so RSS says nothing about the daemon's own bounds there.
-#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
-constexpr bool kSanitized = true;
-#elif defined(__has_feature)
-#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer)
-constexpr bool kSanitized = true;
-#else
-constexpr bool kSanitized = false;
-#endif
-#else
-constexpr bool kSanitized = false;
-#endif
+using testing::kSanitized;
 
 /// Ports of this test process (20 per process), below Linux's ephemeral range.
 std::uint16_t port_base(int offset) {

@@ -28,18 +28,7 @@ using launch::ChildProcess;
 using testing::FakeServiceManager;
 using testing::ScopedEnvironment;
 
-#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
-constexpr bool kSanitized = true;
-#elif defined(__has_feature)
-#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer) || \
-    __has_feature(undefined_behavior_sanitizer)
-constexpr bool kSanitized = true;
-#else
-constexpr bool kSanitized = false;
-#endif
-#else
-constexpr bool kSanitized = false;
-#endif
+using testing::kSanitized;
 
 /// Runs a command to completion (2 min at most); its exit code and output.
 std::pair<int, std::string> run(const std::vector<std::string>& argv, const fs::path& log) {
