@@ -41,14 +41,36 @@ ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1 \
   ctest --test-dir build-asan --output-on-failure --parallel 2 \
   -E '^(MonteCarloNees\..*|FeatureUpdate\.ReducesTheDriftOfBiasedOdometry)$'
 
+# Two fuzzers at a time (one per core), each for FUZZ_SECONDS; their reports are printed in turn.
 fuzz_seconds="${FUZZ_SECONDS:-45}"
-for target in frame_decoder channel marginal http_target; do
-  stage "fuzzing $target for ${fuzz_seconds} s"
+fuzz() {  # target: runs one fuzzer on a copy of its seed corpus, its report in build-asan/fuzz
+  local corpus
   corpus=$(mktemp -d)
-  cp fuzz/corpus/"$target"/* "$corpus"/
-  ./build-asan/fuzz/fuzz_"$target" -max_total_time="$fuzz_seconds" -max_len=65536 \
-    -print_final_stats=1 "$corpus" 2>&1 | tail -n 12
+  cp fuzz/corpus/"$1"/* "$corpus"/
+  local status=0
+  ./build-asan/fuzz/fuzz_"$1" -max_total_time="$fuzz_seconds" -max_len=65536 \
+    -print_final_stats=1 "$corpus" > build-asan/fuzz/"$1".log 2>&1 || status=$?
   rm -rf "$corpus"
+  return "$status"
+}
+for pair in "frame_decoder channel" "marginal http_target"; do
+  read -r first second <<< "$pair"
+  stage "fuzzing $first and $second for ${fuzz_seconds} s"
+  fuzz "$first" & first_pid=$!
+  fuzz "$second" & second_pid=$!
+  first_status=0; second_status=0
+  wait "$first_pid" || first_status=$?
+  wait "$second_pid" || second_status=$?
+  echo "--- fuzz_$first"; tail -n 12 build-asan/fuzz/"$first".log
+  echo "--- fuzz_$second"; tail -n 12 build-asan/fuzz/"$second".log
+  if [ "$first_status" != 0 ] || [ "$second_status" != 0 ]; then
+    for target in "$first" "$second"; do  # the whole report of a failed fuzzer
+      grep -q "ERROR\|BINGO\|crash-\|timeout-\|oom-" build-asan/fuzz/"$target".log &&
+        cat build-asan/fuzz/"$target".log
+    done
+    echo "a fuzzer failed (exit $first_status, $second_status; reports in build-asan/fuzz)" >&2
+    exit 1
+  fi
 done
 
 stage "TSan build (network, HTTP and daemon tests)"

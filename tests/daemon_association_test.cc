@@ -26,6 +26,7 @@
 #include "launch/process.h"
 #include "replay/team_replay.h"
 #include "sim/simulator.h"
+#include "test_paths.h"
 
 namespace concord::daemon {
 namespace {
@@ -33,7 +34,7 @@ namespace {
 namespace fs = std::filesystem;
 using namespace std::chrono_literals;
 
-const fs::path kSource = CONCORD_SOURCE_DIR;
+using testing::kSource;
 
 /// A small team with private ids and unknown starts whose robots align within its frames.
 dataset::Dataset negotiated_team(int frames) {
@@ -377,7 +378,7 @@ TEST(DaemonAssociation, MalformedDescriptionsAreCountedAndNeverStallTheRound) {
 }
 
 /// Ports of this test process, below Linux's ephemeral range (as daemon_process_test.cc).
-std::uint16_t port_base(int offset) {
+std::uint16_t association_port(int offset) {
   return static_cast<std::uint16_t>(11000 + (getpid() % 700) * 30 + offset);
 }
 
@@ -393,8 +394,8 @@ TEST(DaemonAssociation, DaemonsInLockstepMatchTheNegotiatedReplay) {
   options.out = out / "team";
   options.concordd = CONCORD_DAEMON_PATH;
   options.estimator_config = kSource / "configs/sensors/sim.yaml";
-  options.base_port = port_base(25);
-  options.http_base_port = port_base(28) + 10;
+  options.base_port = association_port(25);
+  options.http_base_port = association_port(28) + 10;
   options.timeout = 240s;
   options.rate_hz =
       60.0;  // pacing (the lockstep results do not depend on it): time to ask /objects

@@ -3,11 +3,12 @@
 
 #include "concord/config/options_file.h"
 #include "concord/daemon/config.h"
+#include "test_paths.h"
 
 namespace concord::daemon {
 namespace {
 
-const std::filesystem::path kSource = CONCORD_SOURCE_DIR;
+using testing::kSource;
 
 TEST(DaemonConfig, CheckedInTeamConfigsLoad) {
   for (int robot = 0; robot < 3; ++robot) {

@@ -15,15 +15,16 @@
 #include "replay/team_replay.h"
 #include "sim/simulator.h"
 #include "test_support.h"
+#include "test_paths.h"
 
 namespace concord::daemon {
 namespace {
 
-const std::filesystem::path kSource = CONCORD_SOURCE_DIR;
+using testing::kSource;
 
 /// Exchanges that deliver to each other directly (the network's job), sender id attached.
-struct Team {
-  explicit Team(int robots, ConsensusConfig config) {
+struct ExchangeTeam {
+  explicit ExchangeTeam(int robots, ConsensusConfig config) {
     for (int i = 0; i < robots; ++i) {
       exchanges.push_back(std::make_unique<ConsensusExchange>(
           config, [this, i](int robot, const v1::Envelope& envelope) {
@@ -52,7 +53,7 @@ struct LockstepRun {
 
 /// Every robot of `data` on its own thread (as concordd's estimator threads), starting at its true
 /// start pose, one run_round per frame through `team`.
-LockstepRun run_lockstep(Team& team, const dataset::Dataset& data, const EstimatorOptions& options) {
+LockstepRun run_lockstep(ExchangeTeam& team, const dataset::Dataset& data, const EstimatorOptions& options) {
   const int robots = static_cast<int>(data.robots.size());
   LockstepRun run;
   run.trajectories.resize(robots);
@@ -86,7 +87,7 @@ TEST(DaemonExchange, LockstepReproducesTheReplay) {
   ConsensusConfig config;
   config.mode = ConsensusMode::kLockstep;
   config.round_deadline = std::chrono::seconds(20);
-  Team team(3, config);
+  ExchangeTeam team(3, config);
   team.connect_all();
   const LockstepRun run = run_lockstep(team, data, options);
   const auto& trajectories = run.trajectories;
@@ -133,7 +134,7 @@ TEST(DaemonExchange, LockstepOnARingReproducesTheRingReplay) {
   ConsensusConfig config;
   config.mode = ConsensusMode::kLockstep;
   config.round_deadline = std::chrono::seconds(20);
-  Team team(5, config);
+  ExchangeTeam team(5, config);
   for (int i = 0; i < 5; ++i) team.exchanges[i]->restrict_to(ring_neighbours(i, {0, 1, 2, 3, 4}));
   team.connect_all();
   const LockstepRun run = run_lockstep(team, data, options);
@@ -216,7 +217,7 @@ Estimator single_object_estimator() {
 TEST(DaemonExchange, PeersDownOrBehindAreNotWaitedFor) {
   ConsensusConfig config;
   config.round_deadline = std::chrono::hours(1);  // a wait would hang the test: it must not
-  Team team(3, config);
+  ExchangeTeam team(3, config);
   team.connect_all();
   Estimator estimator = single_object_estimator();
   estimator.process(FrameInput{});
@@ -234,7 +235,7 @@ TEST(DaemonExchange, PeersDownOrBehindAreNotWaitedFor) {
 TEST(DaemonExchange, SilentLivePeerIsGivenUpAtTheDeadline) {
   ConsensusConfig config;
   config.round_deadline = std::chrono::milliseconds(50);
-  Team team(2, config);
+  ExchangeTeam team(2, config);
   team.cut.insert({0, 1});  // robot 1 is up but nothing gets through
   team.connect_all();
   Estimator estimator = single_object_estimator();
@@ -248,7 +249,7 @@ TEST(DaemonExchange, SilentLivePeerIsGivenUpAtTheDeadline) {
 TEST(DaemonExchange, GoodbyeEndsTheWait) {
   ConsensusConfig config;
   config.round_deadline = std::chrono::hours(1);
-  Team team(2, config);
+  ExchangeTeam team(2, config);
   team.connect_all();
   v1::Envelope goodbye;
   goodbye.mutable_goodbye()->set_reason("finished");
@@ -272,7 +273,7 @@ TEST(DaemonExchange, AsyncFusesTheNewestRecentMarginalOnce) {
   ConsensusConfig config;
   config.mode = ConsensusMode::kAsync;
   config.staleness_rounds = 2;
-  Team team(2, config);
+  ExchangeTeam team(2, config);
   team.cut.insert({0, 1});
   team.connect_all();
   EstimatorOptions options;
@@ -297,7 +298,7 @@ TEST(DaemonExchange, AsyncFusesTheNewestRecentMarginalOnce) {
 
 TEST(DaemonExchange, MalformedMarginalsAreCountedAndDropped) {
   ConsensusConfig config;
-  Team team(2, config);
+  ExchangeTeam team(2, config);
   team.connect_all();
   v1::Envelope bad = marginal_message(0, 5, Eigen::Vector3d::Zero());
   bad.mutable_marginal()->mutable_mean()->RemoveLast();

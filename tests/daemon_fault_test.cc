@@ -30,6 +30,7 @@
 #include "launch/launch.h"
 #include "launch/process.h"
 #include "process_support.h"
+#include "test_paths.h"
 
 namespace concord {
 namespace {
@@ -47,20 +48,20 @@ using launch::ChildProcess;
 using nlohmann::json;
 using Clock = std::chrono::steady_clock;
 
-const fs::path kSource = CONCORD_SOURCE_DIR;
-const fs::path kDaemon = CONCORD_DAEMON_PATH;
+using testing::kSource;
+using testing::kDaemon;
 
 /// Whether this build (and so concordd) runs under a sanitizer: their allocators keep freed
 /// memory in quarantine, so RSS says nothing about the daemon's own bounds there.
 using testing::kSanitized;
 
 /// Ports of this test process (20 per process), below Linux's ephemeral range.
-std::uint16_t port_base(int offset) {
+std::uint16_t fault_port(int offset) {
   return static_cast<std::uint16_t>(20000 + (getpid() % 600) * 20 + offset);
 }
 
 launch::LaunchOptions team_options(const fs::path& out) {
-  return testing::kitti_team_options(out, port_base(0), port_base(10));
+  return testing::kitti_team_options(out, fault_port(0), fault_port(10));
 }
 
 /// Writes the configs of a team and starts its daemons (robot -> extra arguments).
@@ -302,8 +303,8 @@ TEST(DaemonFault, FutureRoundFloodKeepsMemoryBounded) {
 
 TEST(DaemonFault, IngestBurstWithBadFramesNeverJamsAndHonoursLast) {
   const fs::path out = fresh_folder("burst");
-  const std::uint16_t ingest_port = port_base(15);
-  const std::uint16_t http = port_base(16);
+  const std::uint16_t ingest_port = fault_port(15);
+  const std::uint16_t http = fault_port(16);
   const fs::path config = out / "robot.yaml";
   dataset::write_file_atomically(
       config, "robot_id: 0\nteam: ingest\nqueue_capacity: 8\nestimator: " +

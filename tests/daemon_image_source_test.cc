@@ -39,7 +39,7 @@ TEST(DaemonImageSource, ConfigReadsTheSequenceDetectionsAndFrontEndOptions) {
 
 TEST(DaemonImageSource, TheDaemonRunsTheFrontEndIntoTheEstimator) {
   const auto& rendered = testing::rendered_sequence();
-  const fs::path out = testing::fresh_folder("daemon_images");
+  const fs::path out = testing::temporary_folder("daemon_images");
   const DaemonConfig config = parse_daemon_config(
       "source: {kind: images, images: " + rendered.sequence.string() +
           "}\n"
@@ -68,7 +68,7 @@ TEST(DaemonImageSource, TheDaemonRunsTheFrontEndIntoTheEstimator) {
 }
 
 TEST(DaemonImageSource, AnUnreadableSequenceStopsTheDaemonWithStatusTwo) {
-  const fs::path out = testing::fresh_folder("daemon_images_missing");
+  const fs::path out = testing::temporary_folder("daemon_images_missing");
   const DaemonConfig config = parse_daemon_config(
       "source: {kind: images, images: " + (out / "nothing").string() +
           "}\nconsensus: {mode: off}\nhttp: {enabled: false}\noutput: {directory: " + out.string() +

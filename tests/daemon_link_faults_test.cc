@@ -37,7 +37,7 @@ using Clock = std::chrono::steady_clock;
 /// Ports of this test process: a block of 20 per process (the tests use offsets up to 17), in
 /// 1100-3899: below Linux's ephemeral range and clear of the other process tests' blocks
 /// (4000-10999 supervision and package, 11000-31999 the other daemon tests).
-std::uint16_t port_base(int offset) {
+std::uint16_t link_fault_port(int offset) {
   return static_cast<std::uint16_t>(1100 + (getpid() % 140) * 20 + offset);
 }
 
@@ -145,7 +145,7 @@ struct RelayedTeam {
 RelayedTeam relayed_team(const fs::path& out, int port_offset, const FaultProfile& profile) {
   RelayedTeam team;
   team.options =
-      testing::kitti_team_options(out, port_base(port_offset), port_base(port_offset + 5));
+      testing::kitti_team_options(out, link_fault_port(port_offset), link_fault_port(port_offset + 5));
   auto& options = team.options;
   team.relays.resize(3);
   for (int robot = 0; robot < 3; ++robot) {

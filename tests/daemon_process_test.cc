@@ -23,6 +23,7 @@
 #include "launch/process.h"
 #include "process_support.h"
 #include "replay/team_replay.h"
+#include "test_paths.h"
 
 namespace concord {
 namespace {
@@ -37,19 +38,19 @@ using namespace std::chrono_literals;
 using launch::ChildProcess;
 using nlohmann::json;
 
-const fs::path kSource = CONCORD_SOURCE_DIR;
-const fs::path kDaemon = CONCORD_DAEMON_PATH;
+using testing::kSource;
+using testing::kDaemon;
 
 /// Ports of this test process: distinct between test processes run in parallel, and below
 /// Linux's ephemeral range (32768-60999) so that no outgoing connection holds them.
-std::uint16_t port_base(int offset) {
+std::uint16_t process_port(int offset) {
   // A block of 160 ports per test process (the tests use offsets up to 152): with a smaller
   // block, tests started one after the other (neighbouring pids) shared ports.
   return static_cast<std::uint16_t>(11000 + (getpid() % 130) * 160 + offset);
 }
 
 launch::LaunchOptions team_options(const fs::path& out, int port_offset) {
-  return testing::kitti_team_options(out, port_base(port_offset), port_base(port_offset + 10));
+  return testing::kitti_team_options(out, process_port(port_offset), process_port(port_offset + 10));
 }
 
 std::optional<json> peer_entry(std::uint16_t http_port, int robot) {
@@ -285,8 +286,8 @@ TEST(DaemonProcess, RejectsGarbageAndMalformedHttpAndStillAnswers) {
 
 TEST(DaemonProcess, IngestsSensorFramesOverTcp) {
   const fs::path out = fresh_folder("ingest");
-  const std::uint16_t ingest_port = port_base(120);
-  const std::uint16_t http = port_base(121);
+  const std::uint16_t ingest_port = process_port(120);
+  const std::uint16_t http = process_port(121);
   const fs::path config = out / "robot.yaml";
   dataset::write_file_atomically(
       config, "robot_id: 0\nteam: ingest\nestimator: " +

@@ -18,6 +18,7 @@
 #include "launch/process.h"
 #include "process_support.h"
 #include "service_manager_fake.h"
+#include "test_paths.h"
 
 namespace concord {
 namespace {
@@ -35,11 +36,11 @@ using testing::FakeServiceManager;
 using testing::ScopedEnvironment;
 using Clock = std::chrono::steady_clock;
 
-const fs::path kSource = CONCORD_SOURCE_DIR;
-const fs::path kDaemon = CONCORD_DAEMON_PATH;
+using testing::kSource;
+using testing::kDaemon;
 
 /// Ports of this test process (20 per process), below Linux's ephemeral range.
-std::uint16_t port_base(int offset) {
+std::uint16_t supervision_port(int offset) {
   // Below Linux's ephemeral range (32768-60999: the source ports of outgoing connections) and
   // apart from the other process tests' ranges (11000-32150).
   return static_cast<std::uint16_t>(5000 + (getpid() % 300) * 20 + offset);
@@ -141,7 +142,7 @@ TEST(DaemonSupervision, SighupReReadsThePeerListAndReopensTheLogFile) {
   launch::LaunchOptions options;
   options.out = out;
   const fs::path key = launch::ensure_team_key(options);
-  const std::uint16_t peer_port = port_base(0);
+  const std::uint16_t peer_port = supervision_port(0);
   // Two robots in async mode; robot 1 starts without static peers.
   auto yaml = [&](int robot, const std::string& peers) {
     return "robot_id: " + std::to_string(robot) + "\nteam: sighup\nteam_key_file: " + key.string() +
@@ -152,7 +153,7 @@ TEST(DaemonSupervision, SighupReReadsThePeerListAndReopensTheLogFile) {
            "network: {listen_address: 127.0.0.1, listen_port: " +
            std::to_string(peer_port + robot) + ", peers: [" + peers + "]}\n" +
            "consensus: {mode: async}\nhttp: {address: 127.0.0.1, port: " +
-           std::to_string(port_base(10 + robot)) +
+           std::to_string(supervision_port(10 + robot)) +
            "}\noutput: {directory: " + (out / ("robot_0" + std::to_string(robot))).string() +
            "}\nlog_file: " + (out / ("robot_0" + std::to_string(robot) + ".log")).string() + "\n";
   };
@@ -160,10 +161,10 @@ TEST(DaemonSupervision, SighupReReadsThePeerListAndReopensTheLogFile) {
   write_text(out / "robot_01.yaml", yaml(1, ""));
   ChildProcess robot0({kDaemon, "--config", out / "robot_00.yaml"}, out / "robot_00.stderr");
   ChildProcess robot1({kDaemon, "--config", out / "robot_01.yaml"}, out / "robot_01.stderr");
-  const std::uint16_t http1 = port_base(11);
+  const std::uint16_t http1 = supervision_port(11);
   ASSERT_TRUE(eventually([&] { return get_json(http1, "/healthz").has_value(); }, 30s))
       << read_text(out / "robot_01.log");
-  ASSERT_TRUE(eventually([&] { return get_json(port_base(10), "/healthz").has_value(); }, 30s));
+  ASSERT_TRUE(eventually([&] { return get_json(supervision_port(10), "/healthz").has_value(); }, 30s));
   auto robot0_up_at_robot1 = [&] {
     const auto peers = get_json(http1, "/peers");
     if (!peers) return false;
@@ -218,7 +219,7 @@ std::pair<int, std::string> check_config(const fs::path& config, const fs::path&
 TEST(DaemonSupervision, CheckConfigAcceptsAGoodConfigAndNamesEachProblem) {
   const fs::path out = fresh_folder("supervision-check");
   const launch::LaunchOptions options =
-      testing::kitti_team_options(out, port_base(0), port_base(10));
+      testing::kitti_team_options(out, supervision_port(0), supervision_port(10));
   const fs::path key = launch::ensure_team_key(options);
   const std::string good = launch::daemon_config_yaml(options, 0, 3);
   write_text(out / "good.yaml", good);

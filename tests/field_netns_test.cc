@@ -20,6 +20,7 @@
 #include "launch/process.h"
 #include "netns_lab.h"
 #include "process_support.h"
+#include "test_paths.h"
 
 namespace concord {
 namespace {
@@ -36,8 +37,8 @@ using nlohmann::json;
 using testing::NetnsLab;
 using Clock = std::chrono::steady_clock;
 
-const fs::path kSource = CONCORD_SOURCE_DIR;
-const fs::path kDaemon = CONCORD_DAEMON_PATH;
+using testing::kSource;
+using testing::kDaemon;
 constexpr std::uint16_t kHttpPort = 8080;  // every robot has its own namespace: same ports
 
 /// A test's scratch folder, its lab of namespaces and the team key; no lab (and `skip` says

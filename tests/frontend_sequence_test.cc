@@ -42,7 +42,7 @@ std::string error_of(Action&& action) {
 
 /// A tiny KITTI-layout sequence of `frames` 64x48 pairs with baseline 0.5 m.
 fs::path make_kitti_sequence(const std::string& name, int frames) {
-  const fs::path folder = testing::fresh_folder(name);
+  const fs::path folder = testing::temporary_folder(name);
   write_text(folder / "calib.txt",
              "P0: 50 0 32 0 0 50 24 0 0 0 1 0\n"
              "P1: 50 0 32 -25 0 50 24 0 0 0 1 0\n"
@@ -64,7 +64,7 @@ fs::path make_kitti_sequence(const std::string& name, int frames) {
 
 /// A copy of the repository's EuRoC frames that a test may break.
 fs::path copy_euroc(const std::string& name) {
-  const fs::path folder = testing::fresh_folder(name);
+  const fs::path folder = testing::temporary_folder(name);
   fs::copy(testing::euroc_frames(), folder, fs::copy_options::recursive);
   return folder;
 }
@@ -168,7 +168,7 @@ TEST(FrontendSequence, KittiErrorsNameTheFile) {
     EXPECT_THAT(error_of([&] { (void)read_stereo_sequence(folder); }),
                 AllOf(HasSubstr("poses.txt"), HasSubstr("has 1 poses but times.txt has 2")));
   }
-  EXPECT_THAT(error_of([&] { (void)read_stereo_sequence(testing::fresh_folder("not_a_sequence")); }),
+  EXPECT_THAT(error_of([&] { (void)read_stereo_sequence(testing::temporary_folder("not_a_sequence")); }),
               HasSubstr("not a stereo sequence"));
 }
 
@@ -234,7 +234,7 @@ TEST(FrontendSequence, EurocErrorsNameTheFile) {
 }
 
 TEST(FrontendDetections, ReadsPerFrameListsAndNamesBadRows) {
-  const fs::path folder = testing::fresh_folder("detections");
+  const fs::path folder = testing::temporary_folder("detections");
   const fs::path file = folder / "detections.csv";
   write_text(file,
              "frame,track_id,class,x_min,y_min,x_max,y_max\n"

@@ -21,7 +21,7 @@ inline std::filesystem::path euroc_frames() {
   return std::filesystem::path(CONCORD_SOURCE_DIR) / "data" / "euroc-v101-static-4";
 }
 
-/// The folders fresh_folder made, removed when the test process ends.
+/// The folders temporary_folder made, removed when the test process ends.
 class TemporaryFolders {
  public:
   void add(const std::filesystem::path& folder) { folders_.push_back(folder); }
@@ -40,7 +40,7 @@ inline TemporaryFolders& temporary_folders() {
 }
 
 /// A fresh temporary folder for one test (removed when the test process ends).
-inline std::filesystem::path fresh_folder(const std::string& name) {
+inline std::filesystem::path temporary_folder(const std::string& name) {
   const std::filesystem::path folder = std::filesystem::path(::testing::TempDir()) /
                                        ("concord_" + name + "_" + std::to_string(getpid()));
   std::filesystem::remove_all(folder);
@@ -83,7 +83,7 @@ inline const RenderedSequence& rendered_sequence() {
     sim::remove_objects(made.simulated, removed);
     made.camera = sim::render_camera(made.simulated.camera, made.simulation.horizontal_fov_degrees,
                                      made.render);
-    made.team = fresh_folder("rendered_sequence");
+    made.team = temporary_folder("rendered_sequence");
     dataset::write_dataset(made.simulated, made.team);
     sim::write_rendered_sequences(made.simulated, made.world, made.camera, made.render,
                                   made.simulation.min_depth, made.simulation.max_depth,

@@ -280,7 +280,7 @@ TEST(FrontendRendered, TheUsersOwnOdometryGoesThroughTheSameInterface) {
 }
 
 TEST(FrontendRendered, RunWritesADatasetThatReadsBack) {
-  const fs::path out = testing::fresh_folder("frontend_run");
+  const fs::path out = testing::temporary_folder("frontend_run");
   FrontendRunOptions options;
   options.max_frames = 6;
   options.name = "rendered-test";

@@ -15,8 +15,8 @@
 namespace concord::net {
 namespace {
 
-struct Pair {
-  explicit Pair(const TeamKey& initiator_key, const TeamKey& responder_key)
+struct ChannelPair {
+  explicit ChannelPair(const TeamKey& initiator_key, const TeamKey& responder_key)
       : initiator(initiator_key, SecureChannel::Role::kInitiator),
         responder(responder_key, SecureChannel::Role::kResponder) {}
   /// Runs the handshake; true when both sides are established.
@@ -35,7 +35,7 @@ struct Pair {
 
 TEST(SecureChannel, PeersWithTheKeyExchangeMessagesBothWays) {
   const TeamKey key = TeamKey::generate();
-  Pair pair(key, key);
+  ChannelPair pair(key, key);
   ASSERT_TRUE(pair.handshake());
   std::string error;
   for (int i = 0; i < 3; ++i) {
@@ -47,7 +47,7 @@ TEST(SecureChannel, PeersWithTheKeyExchangeMessagesBothWays) {
 }
 
 TEST(SecureChannel, AnotherKeyFailsTheProofOnBothSides) {
-  Pair pair(TeamKey::generate(), TeamKey::generate());
+  ChannelPair pair(TeamKey::generate(), TeamKey::generate());
   std::string error;
   const auto initiator_proof = pair.initiator.accept_hello(pair.responder.hello(), error);
   const auto responder_proof = pair.responder.accept_hello(pair.initiator.hello(), error);
@@ -62,30 +62,30 @@ TEST(SecureChannel, ForgedReplayedAndReorderedMessagesFail) {
   const TeamKey key = TeamKey::generate();
   std::string error;
   {
-    Pair pair(key, key);
+    ChannelPair pair(key, key);
     ASSERT_TRUE(pair.handshake());
     std::string sealed = pair.initiator.seal("payload");
     sealed[sealed.size() / 2] ^= 1;
     EXPECT_FALSE(pair.responder.open(sealed, error));
   }
   {
-    Pair pair(key, key);
+    ChannelPair pair(key, key);
     ASSERT_TRUE(pair.handshake());
     const std::string first = pair.initiator.seal("one");
     ASSERT_TRUE(pair.responder.open(first, error));
     EXPECT_FALSE(pair.responder.open(first, error));  // replayed
   }
   {
-    Pair pair(key, key);
+    ChannelPair pair(key, key);
     ASSERT_TRUE(pair.handshake());
     const std::string first = pair.initiator.seal("one");
     const std::string second = pair.initiator.seal("two");
     EXPECT_FALSE(pair.responder.open(second, error));  // reordered
   }
   {
-    Pair pair(key, key);
+    ChannelPair pair(key, key);
     ASSERT_TRUE(pair.handshake());
-    Pair other(key, key);  // a message of another connection with the same key
+    ChannelPair other(key, key);  // a message of another connection with the same key
     ASSERT_TRUE(other.handshake());
     EXPECT_FALSE(pair.responder.open(other.initiator.seal("elsewhere"), error));
   }

@@ -14,6 +14,7 @@
 #include "concord/net/log_limiter.h"
 #include "concord/v1/concord.pb.h"
 #include "link_budget.h"
+#include "steady_time.h"
 
 namespace concord::daemon {
 
@@ -38,11 +39,6 @@ void warn_limited(net::LogLimiter& limiter, int robot, const char* kind,
   if (!limiter.allow("robot " + std::to_string(robot) + " " + kind, suppressed)) return;
   spdlog::warn("{}{}", fmt::format(format, std::forward<Args>(args)...),
                net::suppressed_note(suppressed));
-}
-
-double seconds_between(std::chrono::steady_clock::time_point a,
-                       std::chrono::steady_clock::time_point b) {
-  return std::chrono::duration<double>(b - a).count();
 }
 
 }  // namespace

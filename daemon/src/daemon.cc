@@ -40,6 +40,7 @@
 #include "metrics_text.h"
 #include "output_files.h"
 #include "service_notifier.h"
+#include "steady_time.h"
 #include "trajectory_history.h"
 
 namespace concord::daemon {
@@ -48,10 +49,6 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 using nlohmann::json;
-
-double seconds_between(Clock::time_point a, Clock::time_point b) {
-  return std::chrono::duration<double>(b - a).count();
-}
 
 /// A frame waiting for the estimator, with when it arrived.
 struct QueuedFrame {

@@ -11,6 +11,7 @@
 #include "concord/frontend/frontend.h"
 #include "concord/frontend/track_statistics.h"
 #include "options_fields.h"
+#include "sample_median.h"
 #include "text_lines.h"
 
 namespace concord::frontend {
@@ -35,13 +36,6 @@ Percentiles percentiles_of(std::vector<double> values) {
   for (const double value : values) sum += value;
   result.mean = sum / values.size();
   return result;
-}
-
-double median_of(std::vector<double> values) {
-  if (values.empty()) return 0.0;
-  const auto middle = values.begin() + static_cast<std::ptrdiff_t>(values.size() / 2);
-  std::nth_element(values.begin(), middle, values.end());
-  return *middle;
 }
 
 

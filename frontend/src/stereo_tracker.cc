@@ -13,6 +13,7 @@
 #include <unordered_set>
 
 #include "concord/frontend/sequence.h"
+#include "sample_median.h"
 #include "text_lines.h"
 
 namespace concord::frontend {
@@ -21,14 +22,6 @@ namespace {
 
 /// Half side of the patch of the coarse stereo search, pixels at half resolution.
 constexpr int kSearchRadius = 4;
-
-/// Median of a sample (0 when empty); reorders `values`.
-double median_of(std::vector<double>& values) {
-  if (values.empty()) return 0.0;
-  const auto middle = values.begin() + static_cast<std::ptrdiff_t>(values.size() / 2);
-  std::nth_element(values.begin(), middle, values.end());
-  return *middle;
-}
 
 /// 1.4826 * median absolute deviation / sqrt(2): the per-coordinate standard deviation behind a
 /// sample of differences of two equally noisy coordinates.

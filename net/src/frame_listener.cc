@@ -10,6 +10,7 @@
 #include <stdexcept>
 
 #include "concord/net/host_port.h"
+#include "concord/net/frame_codec.h"
 #include "concord/net/log_limiter.h"
 #include "concord/net/secure_channel.h"
 #include "concord/v1/concord.pb.h"
@@ -23,7 +24,6 @@ using tcp = asio::ip::tcp;
 using Clock = std::chrono::steady_clock;
 using ErrorCode = boost::system::error_code;
 
-constexpr std::size_t kReadChunkBytes = 64 * 1024;
 
 }  // namespace
 

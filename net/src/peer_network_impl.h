@@ -17,6 +17,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "concord/net/frame_codec.h"
 #include "concord/net/log_limiter.h"
 #include "concord/net/peer_network.h"
 #include "concord/net/reconnect_backoff.h"
@@ -34,7 +35,6 @@ using Clock = std::chrono::steady_clock;
 using Strand = asio::strand<asio::io_context::executor_type>;
 using ErrorCode = boost::system::error_code;
 
-constexpr std::size_t kReadChunkBytes = 64 * 1024;
 constexpr std::size_t kWriteBatchBytes = 1 << 20;  // frames coalesced into one async_write
 constexpr std::size_t kMaxBeaconBytes = 1400;      // fits one Ethernet datagram
 constexpr auto kAcceptRetryDelay = std::chrono::milliseconds(100);

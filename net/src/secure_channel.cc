@@ -22,10 +22,6 @@ static_assert(kChannelProofBytes ==
 static_assert(kChannelOverheadBytes == crypto_secretstream_xchacha20poly1305_ABYTES);
 static_assert(TeamKey::kBytes == crypto_kdf_KEYBYTES);
 
-void ensure_sodium() {
-  if (sodium_init() < 0) throw std::runtime_error("libsodium could not be initialized");
-}
-
 using Key = std::array<unsigned char, 32>;
 
 Key derive(const TeamKey& team, std::uint64_t id) {

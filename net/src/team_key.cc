@@ -16,11 +16,11 @@ namespace {
 constexpr std::string_view kHeader = "concord-team-key-v1 ";
 constexpr std::size_t kMaxKeyFileBytes = 4096;
 
+}  // namespace
+
 void ensure_sodium() {
   if (sodium_init() < 0) throw TeamKeyError("libsodium could not be initialized");
 }
-
-}  // namespace
 
 TeamKey::TeamKey() = default;
 TeamKey::~TeamKey() { sodium_memzero(bytes_.data(), bytes_.size()); }

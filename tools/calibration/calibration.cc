@@ -13,7 +13,8 @@ namespace concord::calibration {
 
 namespace {
 
-double median_of(std::vector<double> v) {
+/// The upper median (the element at size / 2 after sorting; 0 when empty).
+double upper_median(std::vector<double> v) {
   if (v.empty()) return 0.0;
   const std::size_t middle = v.size() / 2;
   std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(middle), v.end());
@@ -24,9 +25,9 @@ double median_of(std::vector<double> v) {
 /// outliers.
 double robust_sigma(std::vector<double> values) {
   if (values.empty()) return 0.0;
-  const double median = median_of(values);
+  const double median = upper_median(values);
   for (double& value : values) value = std::abs(value - median);
-  return 1.4826 * median_of(std::move(values));
+  return 1.4826 * upper_median(std::move(values));
 }
 
 /// Accumulates stereo errors (u_left, v_left, u_right, v_right), in image units, as components,
@@ -49,8 +50,8 @@ class StereoErrors {
     out.vertical = robust_sigma(vertical_);
     out.disparity = robust_sigma(disparity_);
     out.vertical_disparity = robust_sigma(vertical_disparity_);
-    out.median = {median_of(horizontal_), median_of(vertical_), median_of(disparity_),
-                  median_of(vertical_disparity_)};
+    out.median = {upper_median(horizontal_), upper_median(vertical_), upper_median(disparity_),
+                  upper_median(vertical_disparity_)};
     int outliers = 0;
     for (std::size_t k = 0; k < horizontal_.size(); ++k) {
       const bool outlier = std::abs(horizontal_[k]) > 3.0 * out.horizontal ||

@@ -15,9 +15,12 @@
 #include <stdexcept>
 
 #include "concord/dataset/result_io.h"
+#include "evaluation/plot_style.h"
 
 namespace concord::evaluation {
 namespace {
+
+using namespace style;
 
 // Layout in pixels: the title on top, the y label (turned) and tick labels on the left, the
 // x tick labels and x label below, the legend in a column right of the plot area.
@@ -27,7 +30,6 @@ constexpr int kTickLabelGap = 4;
 constexpr int kLabelGap = 10;
 constexpr int kLegendPadding = 10;
 constexpr int kLegendSwatchLength = 40;
-constexpr int kLegendRowHeight = 24;
 constexpr double kLegendMaxWidthShare = 0.4;  // of the image width
 constexpr int kMinimumPlotSide = 20;
 // Pixels per tick interval at most, so that tick labels do not crowd.
@@ -39,10 +41,7 @@ constexpr int kTickLabelSpacing = 10;
 constexpr double kDataMargin = 0.05;  // of the data span, on each side
 constexpr int kLineThickness = 2;
 constexpr int kMarkerRadius = 4;
-constexpr double kDashLength = 10.0;
-constexpr double kDashGap = 7.0;
 
-constexpr int kFont = cv::FONT_HERSHEY_SIMPLEX;
 constexpr double kTitleScale = 0.7;
 constexpr int kTitleThickness = 2;
 constexpr double kAxisLabelScale = 0.55;
@@ -53,10 +52,7 @@ constexpr double kLegendScale = 0.5;
 constexpr int kShift = 4;
 constexpr double kShiftScale = 1 << kShift;
 
-const cv::Scalar kWhite(255, 255, 255);
-const cv::Scalar kBlack(0, 0, 0);
 const cv::Scalar kAxisGrey(60, 60, 60);
-const cv::Scalar kGridGrey(232, 232, 232);
 const cv::Scalar kLegendBorderGrey(180, 180, 180);
 
 /// Distinct colours (the "tab10" palette of matplotlib), RGB.

@@ -11,9 +11,12 @@
 #include <stdexcept>
 
 #include "concord/estimator/updater_helper.h"
+#include "evaluation/plot_style.h"
 
 namespace concord::evaluation {
 namespace {
+
+using namespace style;
 
 // Layout in pixels: the title on top, the plot on the left, the legend in a column on the right.
 constexpr int kTitleBaseline = 40;
@@ -23,14 +26,7 @@ constexpr int kLegendWidth = 280;
 constexpr int kPlotRight = kTopViewWidth - kLegendWidth - 20;
 constexpr int kPlotBottom = kTopViewHeight - 60;
 constexpr int kLegendLeft = kTopViewWidth - kLegendWidth;
-constexpr int kLegendRowHeight = 24;
-constexpr double kDashLength = 9.0;
-constexpr double kDashGap = 6.0;
-constexpr int kFont = cv::FONT_HERSHEY_SIMPLEX;
 
-const cv::Scalar kWhite(255, 255, 255);
-const cv::Scalar kBlack(0, 0, 0);
-const cv::Scalar kGridGrey(230, 230, 230);
 const cv::Scalar kTextGrey(90, 90, 90);
 
 /// Distinct colours (BGR) for the first robots; more robots get hues spread by the golden ratio.

@@ -15,19 +15,13 @@
 #include "concord/dataset/result_io.h"
 #include "concord/frontend/detections.h"
 #include "concord/frontend/sequence.h"
+#include "sim/sim_math.h"
 
 namespace concord::sim {
 
 namespace fs = std::filesystem;
 
 namespace {
-
-std::uint64_t splitmix64(std::uint64_t x) {
-  x += 0x9e3779b97f4a7c15ULL;
-  x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ULL;
-  x = (x ^ (x >> 27)) * 0x94d049bb133111ebULL;
-  return x ^ (x >> 31);
-}
 
 /// A small deterministic stream of uniforms (the world's layout; not <random>'s distributions,
 /// whose output differs between standard libraries).
@@ -75,10 +69,6 @@ inline int mirror(int i, int n) {
   int m = i % period;
   if (m < 0) m += period;
   return m < n ? m : period - 1 - m;
-}
-
-Eigen::Matrix3d yaw_rotation(double yaw) {
-  return Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix();
 }
 
 constexpr double kNearPlane = 0.05;

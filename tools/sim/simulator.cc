@@ -15,6 +15,7 @@
 #include <utility>
 
 #include "concord/estimator/lie.h"
+#include "sim/sim_math.h"
 
 namespace concord::sim {
 
@@ -59,13 +60,6 @@ class Problems {
 // ------------------------------------------------------------------------------------------------
 // Portable random numbers: std::mt19937_64's output is fixed by the standard, the distributions
 // are not, so uniform and normal variates are computed here.
-
-std::uint64_t splitmix64(std::uint64_t x) {
-  x += 0x9e3779b97f4a7c15ULL;
-  x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ULL;
-  x = (x ^ (x >> 27)) * 0x94d049bb133111ebULL;
-  return x ^ (x >> 31);
-}
 
 /// Independent streams of one robot (or of the scene), so that e.g. the number of point features
 /// does not change the odometry noise.
@@ -119,10 +113,6 @@ struct Path {
   double scale = 1.0;
   Eigen::Vector3d centre = Eigen::Vector3d::Zero();
 };
-
-Eigen::Matrix3d yaw_rotation(double yaw) {
-  return Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix();
-}
 
 Path make_path(const SimulationOptions& options, int robot) {
   Random random(options.seed, static_cast<std::uint64_t>(robot), Stream::kPath);

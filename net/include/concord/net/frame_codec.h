@@ -28,6 +28,8 @@ inline constexpr std::uint32_t kProtocolVersion = 2;
 inline constexpr std::size_t kFrameHeaderBytes = 4;
 /// Default hard maximum of one frame's payload.
 inline constexpr std::size_t kDefaultMaxFrameBytes = std::size_t{16} << 20;
+/// Bytes a session reads from its socket per call (frames larger than this take several reads).
+inline constexpr std::size_t kReadChunkBytes = 64 * 1024;
 
 /// Why a frame was rejected.
 enum class FrameErrorKind {

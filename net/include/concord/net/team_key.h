@@ -19,6 +19,9 @@ class TeamKeyError : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
+/// Initializes libsodium (once; later calls are cheap). Throws TeamKeyError if it cannot.
+void ensure_sodium();
+
 /// 32 secret bytes shared by the team.
 class TeamKey {
  public:
