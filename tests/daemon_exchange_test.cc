@@ -53,7 +53,8 @@ struct LockstepRun {
 
 /// Every robot of `data` on its own thread (as concordd's estimator threads), starting at its true
 /// start pose, one run_round per frame through `team`.
-LockstepRun run_lockstep(ExchangeTeam& team, const dataset::Dataset& data, const EstimatorOptions& options) {
+LockstepRun run_lockstep(ExchangeTeam& team, const dataset::Dataset& data,
+                         const EstimatorOptions& options) {
   const int robots = static_cast<int>(data.robots.size());
   LockstepRun run;
   run.trajectories.resize(robots);
