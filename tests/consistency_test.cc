@@ -220,6 +220,7 @@ dataset::Dataset one_robot(int frames) {
   simulation.robots = 1;
   simulation.frames = frames;
   simulation.seed = 11;
+  simulation.objects = 50;  // placed along these few frames: the state stays small
   simulation.points_per_frame = 0;
   return sim::simulate(simulation);
 }

@@ -27,6 +27,7 @@ namespace {
 using testing::FaultProfile;
 using testing::FaultRelay;
 using testing::fresh_folder;
+using testing::kSanitized;
 using testing::read_json;
 
 namespace fs = std::filesystem;
@@ -171,7 +172,9 @@ TEST(DaemonLinkFaults, LockstepOverDelayedJitteredLossyLinksGivesTheReplaysEstim
   profile.loss = 0.05;
   profile.retransmit_delay = 200ms;
   RelayedTeam team = relayed_team(out, 0, profile);
-  team.options.frames = 100;
+  // The rounds wait on the delayed links: 60 under the sanitizers, 100 in Release.
+  const int frames = kSanitized ? 60 : 100;
+  team.options.frames = frames;
   const launch::LaunchResult result = launch::launch_team(team.options, 3, nullptr);
   ASSERT_FALSE(result.timed_out);
   for (int code : result.exit_codes) ASSERT_EQ(code, 0);
@@ -185,17 +188,17 @@ TEST(DaemonLinkFaults, LockstepOverDelayedJitteredLossyLinksGivesTheReplaysEstim
   for (int robot = 0; robot < 3; ++robot) {
     const fs::path folder = out / dataset::robot_folder_name(robot);
     const auto trajectory = dataset::read_trajectory_kitti(folder / "trajectory.kitti");
-    ASSERT_EQ(trajectory.size(), 100u);
+    ASSERT_EQ(trajectory.size(), static_cast<std::size_t>(frames));
     const auto& expected = reference.robots[robot].trajectory;
     for (std::size_t k = 0; k < trajectory.size(); ++k) {
       const double difference = (trajectory[k].matrix() - expected[k].matrix()).cwiseAbs().maxCoeff();
       ASSERT_LE(difference, 1e-6) << "robot " << robot << " frame " << k;
     }
     const auto stats = read_json(folder / "stats.json");
-    EXPECT_EQ(stats["rounds"], 100);
+    EXPECT_EQ(stats["rounds"], frames);
     marginals_fused += stats["marginals_fused"].get<int>();
   }
-  EXPECT_GT(marginals_fused, 50);
+  EXPECT_GT(marginals_fused, frames / 2);
   std::uint64_t chunks = 0, losses = 0;
   for (const auto& dialled : team.relays)
     for (const auto& relay : dialled) {

@@ -1,11 +1,12 @@
 #pragma once
 /// Shared helpers for the front-end tests: a small rendered sequence (concord sim --render's code
-/// path: simulated path and objects, textured world, KITTI layout), made once per test process,
+/// path: simulated path and objects, textured world, KITTI layout), rendered once per build,
 /// and the repository's EuRoC frames.
 
 #include <unistd.h>
 
 #include <filesystem>
+#include <fstream>
 #include <string>
 #include <system_error>
 #include <vector>
@@ -49,6 +50,28 @@ inline std::filesystem::path temporary_folder(const std::string& name) {
   return folder;
 }
 
+/// Where the rendered sequence is kept between the test processes of one build (ctest runs each
+/// test in its own process; rendering is most of a front-end test's time, above all under the
+/// sanitizers): build/test-out/rendered-sequence-<time of the test binary>. A rebuilt binary
+/// renders afresh; the folders of earlier binaries are removed (a process renders into
+/// rendered-sequence-<time>-<pid> first).
+inline std::filesystem::path rendered_sequence_cache() {
+  namespace fs = std::filesystem;
+  std::error_code error;
+  const auto built = fs::last_write_time("/proc/self/exe", error);
+  const std::string name =
+      "rendered-sequence-" + std::to_string(error ? 0 : built.time_since_epoch().count());
+  const fs::path parent = fs::path(CONCORD_BINARY_DIR) / "test-out";
+  fs::create_directories(parent, error);
+  for (const auto& entry : fs::directory_iterator(parent, error)) {
+    const std::string other = entry.path().filename().string();
+    const bool ours = other == name || other.rfind(name + "-", 0) == 0;
+    if (other.rfind("rendered-sequence-", 0) == 0 && !ours)
+      fs::remove_all(entry.path(), error);
+  }
+  return parent / name;
+}
+
 /// One robot flying 16 frames of a Lissajous path (0.22 m a frame) through a textured hall with
 /// object cubes, rendered at 376 x 240 pixels.
 struct RenderedSequence {
@@ -83,11 +106,23 @@ inline const RenderedSequence& rendered_sequence() {
     sim::remove_objects(made.simulated, removed);
     made.camera = sim::render_camera(made.simulated.camera, made.simulation.horizontal_fov_degrees,
                                      made.render);
-    made.team = temporary_folder("rendered_sequence");
-    dataset::write_dataset(made.simulated, made.team);
-    sim::write_rendered_sequences(made.simulated, made.world, made.camera, made.render,
-                                  made.simulation.min_depth, made.simulation.max_depth,
-                                  made.simulation.seed, made.team);
+    made.team = rendered_sequence_cache();
+    if (!std::filesystem::exists(made.team / "complete")) {
+      // Rendered here, then moved into the cache in one rename: a concurrent test process
+      // either finds the whole sequence or none of it, and keeps its own if another won.
+      const std::filesystem::path rendered =
+          made.team.string() + "-" + std::to_string(getpid());  // on the cache's file system
+      std::filesystem::remove_all(rendered);
+      temporary_folders().add(rendered);
+      dataset::write_dataset(made.simulated, rendered);
+      sim::write_rendered_sequences(made.simulated, made.world, made.camera, made.render,
+                                    made.simulation.min_depth, made.simulation.max_depth,
+                                    made.simulation.seed, rendered);
+      std::ofstream(rendered / "complete") << "rendered\n";
+      std::error_code moved;
+      std::filesystem::rename(rendered, made.team, moved);
+      if (moved) made.team = rendered;
+    }
     made.sequence = made.team / "robot_00";
     return made;
   }();

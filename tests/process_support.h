@@ -16,23 +16,9 @@
 
 #include "launch/launch.h"
 #include "launch/process.h"
+#include "test_paths.h"
 
 namespace concord::testing {
-
-/// Whether this build runs under a sanitizer (ASan, TSan or UBSan): some tests skip or relax
-/// what only a Release build can show (the package, memory figures).
-#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
-constexpr bool kSanitized = true;
-#elif defined(__has_feature)
-#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer) || \
-    __has_feature(undefined_behavior_sanitizer)
-constexpr bool kSanitized = true;
-#else
-constexpr bool kSanitized = false;
-#endif
-#else
-constexpr bool kSanitized = false;
-#endif
 
 /// An empty folder build/test-out/NAME-PID (removed first if a crashed run left it).
 inline std::filesystem::path fresh_folder(const std::string& name) {
