@@ -42,14 +42,14 @@ using testing::kSource;
 constexpr int kNegotiatedFrames = kSanitized ? 80 : 150;
 
 /// A small team with private ids and unknown starts whose robots align within its frames. The
-/// objects are as dense along the paths as 210 over 150 frames (the state's size, which sets the
+/// objects are as dense along the paths as the simulator's default count over 150 frames (the state's size, which sets the
 /// filter's cost per frame, does not grow on shorter runs); robots 1 and 2 align at frames 46 and
 /// 61 with 80 frames or more.
 dataset::Dataset negotiated_team(int frames) {
   sim::SimulationOptions options;
   options.robots = 3;
   options.frames = frames;
-  options.objects = frames * 210 / 150;
+  options.objects = options.objects * frames / 150;
   options.points_per_frame = 0;
   options.classes = 4;
   options.private_ids = true;

@@ -123,7 +123,7 @@ TEST(DaemonExchange, LockstepOnARingReproducesTheRingReplay) {
   sim::SimulationOptions simulation;
   simulation.robots = 5;
   simulation.frames = testing::kSanitized ? 40 : 80;
-  simulation.objects = simulation.frames * 210 / 80;  // as dense along the paths in both
+  simulation.objects = simulation.objects * simulation.frames / 80;  // as dense in both
   simulation.points_per_frame = 0;
   const dataset::Dataset data = sim::simulate(simulation);
   const EstimatorOptions options =
