@@ -257,6 +257,85 @@ TEST(Resume, AStateWhoseShapesDisagreeIsRefused) {
   EXPECT_THROW(Estimator(options, data.camera, gap), std::invalid_argument);
 }
 
+TEST(Resume, AStateWithADisparityOffsetNeedsTheOptionsThatMadeIt) {
+  const dataset::Dataset data = one_robot(10);
+  EstimatorOptions options = config::load_estimator_options(kSimConfig);
+  options.disparity_offset_sigma = 0.05;
+  Estimator estimator(options, data.camera, data.robots.front().groundtruth.front());
+  for (int frame = 0; frame < 10; ++frame)
+    (void)estimator.process(data.robots.front().frame_input(frame));
+  ASSERT_EQ(estimator.state().calibration_dim, 1);
+  EXPECT_NO_THROW(Estimator(options, data.camera, estimator.state()));
+  options.disparity_offset_sigma = 0.0;
+  EXPECT_THROW(Estimator(options, data.camera, estimator.state()), std::invalid_argument);
+}
+
+/// Final position error and mean pose NEES over a run of one simulated robot whose every stereo
+/// observation has its right u shifted by `offset` (a calibration error shared by all tracks).
+struct OffsetRun {
+  double position_error_rms = 0.0;
+  double mean_pose_nees = 0.0;
+  State state;
+};
+OffsetRun run_with_disparity_offset(double offset, double prior_sigma) {
+  sim::SimulationOptions simulation;
+  simulation.robots = 1;
+  simulation.frames = 150;
+  simulation.seed = 5;
+  simulation.objects = 60;
+  simulation.points_per_frame = 30;
+  dataset::Dataset data = sim::simulate(simulation);
+  dataset::RobotData& robot = data.robots.front();
+  for (auto& frame : robot.features) {
+    for (StereoObservation& observation : frame) observation.uv(2) += offset;
+  }
+  for (auto& frame : robot.objects) {
+    for (StereoObservation& observation : frame) observation.uv(2) += offset;
+  }
+  EstimatorOptions options = config::load_estimator_options(kSimConfig);
+  options.disparity_offset_sigma = prior_sigma;
+  Estimator estimator(options, data.camera, robot.groundtruth.front());
+  OffsetRun out;
+  double squared = 0.0;
+  for (int frame = 0; frame < simulation.frames; ++frame) {
+    (void)estimator.process(robot.frame_input(frame));
+    const Eigen::Vector3d error =
+        estimator.current_pose().translation() - robot.groundtruth[frame].translation();
+    squared += error.squaredNorm();
+    out.mean_pose_nees += evaluation::pose_nees(estimator.current_pose(),
+                                                estimator.current_pose_covariance(),
+                                                robot.groundtruth[frame])
+                              .pose;
+  }
+  out.position_error_rms = std::sqrt(squared / simulation.frames);
+  out.mean_pose_nees /= simulation.frames;
+  out.state = estimator.state();
+  return out;
+}
+
+TEST(DisparityOffset, AnOffsetSharedByEveryTrackIsEstimatedAndKeepsTheFilterHonest) {
+  // The simulator's observations are in normalized units (K = I) with 0.01 noise per coordinate;
+  // an offset of twice that on every right u is what a slightly wrong rectification does.
+  const double offset = 0.02;
+  const OffsetRun ignored = run_with_disparity_offset(offset, 0.0);
+  const OffsetRun estimated = run_with_disparity_offset(offset, 0.05);
+  ASSERT_EQ(estimated.state.calibration_dim, 1);
+  const int index = estimated.state.calibration_index();
+  const double sigma = std::sqrt(estimated.state.covariance(index, index));
+  // Learned from the data (well inside the prior), and the truth within 3 sigma of it.
+  EXPECT_LT(sigma, 0.05 / 5.0);
+  EXPECT_LT(std::abs(estimated.state.disparity_offset - offset), 3.0 * sigma)
+      << "estimate " << estimated.state.disparity_offset << " +- " << sigma;
+  // Modelled, the shared error no longer biases the trajectory nor inflates the NEES.
+  EXPECT_LT(estimated.position_error_rms, ignored.position_error_rms);
+  EXPECT_LT(estimated.mean_pose_nees, ignored.mean_pose_nees);
+  // Without an offset in the data the state stays near zero and changes nothing much.
+  const OffsetRun none = run_with_disparity_offset(0.0, 0.05);
+  const int none_index = none.state.calibration_index();
+  EXPECT_LT(std::abs(none.state.disparity_offset),
+            3.0 * std::sqrt(none.state.covariance(none_index, none_index)));
+}
+
 TEST(OdometryCovariance, APerFrameCovarianceReplacesTheConfiguredNoise) {
   const dataset::Dataset data = one_robot(2);
   EstimatorOptions options = config::load_estimator_options(kSimConfig);

@@ -266,11 +266,11 @@ TEST(Augmentation, MatchesEquation30) {
   EXPECT_TRUE(state.landmarks[1].p_linearization.isApprox(Eigen::Vector3d(1, 2, 2.9)));
 }
 
-TEST(Linearization, FullAssemblyMatchesFiniteDifferencesOfTheState) {
-  // Two observations of in-state landmark 1 from poses 0 and 2 of a three-pose window: every
-  // column of H_state (all poses, all landmarks) against the change of the predicted
-  // observations when the state moves by a small correction (apply_correction: the filter's
-  // own retraction).
+// Two observations of in-state landmark 1 from poses 0 and 2 of a three-pose window: every
+// column of H_state (all poses, the disparity offset if there is one, all landmarks) against the
+// change of the predicted observations when the state moves by a small correction
+// (apply_correction: the filter's own retraction).
+void check_full_assembly(bool with_disparity_offset) {
   const StereoCamera camera = kitti_like_camera();
   std::mt19937 random(15);
   State state;
@@ -282,6 +282,10 @@ TEST(Linearization, FullAssemblyMatchesFiniteDifferencesOfTheState) {
   for (int j = 0; j < 2; ++j) {
     const Eigen::Vector3d p_world(14.0 + 3.0 * j, -1.0 + j, 0.5);
     state.landmarks.push_back({10 + j, p_world, 0, p_world});
+  }
+  if (with_disparity_offset) {
+    state.calibration_dim = 1;
+    state.disparity_offset = 0.3;  // pixels: the right image's u reads 0.3 px high
   }
   state.rebuild_landmark_index();
   state.covariance = Eigen::MatrixXd::Identity(state.dimension(), state.dimension());
@@ -304,6 +308,8 @@ TEST(Linearization, FullAssemblyMatchesFiniteDifferencesOfTheState) {
                                                     s.poses[track[i].frame].T_world_body,
                                                     s.landmarks[slot].p_world)
                                  ->xy;
+      // The model: u_right = u_right(true) + d, in normalized units d / fx.
+      if (s.calibration_dim == 1) xy(4 * i + 2) += s.disparity_offset / camera.K(0, 0);
     }
     return xy;
   };
@@ -322,6 +328,19 @@ TEST(Linearization, FullAssemblyMatchesFiniteDifferencesOfTheState) {
   Eigen::VectorXd observed(8);
   for (int i = 0; i < 2; ++i) observed.segment<4>(4 * i) = track[i].xy;
   EXPECT_TRUE(linearized->residual.isApprox(observed - predict(state), 1e-12));
+  if (with_disparity_offset) {
+    // The offset's column is there (not all zero) and landmarks sit after it.
+    EXPECT_GT(linearized->H_state.col(state.calibration_index()).norm(), 0.0);
+    EXPECT_EQ(state.landmark_index(0), state.calibration_index() + 1);
+  }
+}
+
+TEST(Linearization, FullAssemblyMatchesFiniteDifferencesOfTheState) {
+  check_full_assembly(false);
+}
+
+TEST(Linearization, FullAssemblyWithADisparityOffsetStateMatchesFiniteDifferences) {
+  check_full_assembly(true);
 }
 
 TEST(StereoNoise, CovarianceOfTheComponentsAndWhitening) {

@@ -346,6 +346,15 @@ int run_replay(const fs::path& dataset_dir, const fs::path& out, bool separate,
       {"consensus_ms_per_robot_step",
        s.consensus_robot_steps > 0 ? 1e3 * s.consensus_seconds / s.robot_steps : 0.0},
   };
+  nlohmann::json offsets = nlohmann::json::array();
+  for (std::size_t i = 0; i < result.robots.size(); ++i) {
+    if (const auto& offset = result.robots[i].disparity_offset) {
+      offsets.push_back({{"robot", i}, {"estimate", offset->first}, {"sigma", offset->second}});
+      std::cerr << "concord replay: robot " << i << " disparity offset " << offset->first
+                << " +- " << offset->second << " (image units)\n";
+    }
+  }
+  if (!offsets.empty()) run["disparity_offset"] = offsets;
   std::cerr << "concord replay: " << s.robot_steps << " robot-steps in " << s.total_seconds
             << " s (update " << s.update_seconds << " s, consensus " << s.consensus_seconds
             << " s, negotiation " << s.negotiation_seconds << " s)\n";

@@ -8,7 +8,7 @@ namespace concord::daemon {
 
 namespace {
 
-constexpr char kMagic[] = "CONCORD-CHECKPOINT-4\n";
+constexpr char kMagic[] = "CONCORD-CHECKPOINT-5\n";
 constexpr std::size_t kMagicBytes = sizeof(kMagic) - 1;
 
 std::uint64_t fnv1a(const char* data, std::size_t size) {
@@ -110,6 +110,8 @@ std::string serialize_checkpoint(const Checkpoint& checkpoint) {
       for (int i = 0; i < 4; ++i) w.put<double>(observation.xy[i]);
     }
   }
+  w.put<std::uint32_t>(static_cast<std::uint32_t>(state.calibration_dim));
+  w.put<double>(state.disparity_offset);
   const auto dimension = static_cast<std::uint32_t>(state.covariance.rows());
   w.put<std::uint32_t>(dimension);
   for (Eigen::Index i = 0; i < state.covariance.size(); ++i)
@@ -194,6 +196,10 @@ std::optional<Checkpoint> parse_checkpoint(const std::string& bytes, std::string
       track.push_back(observation);
     }
   }
+  std::uint32_t calibration_dim = 0;
+  if (!r.get(calibration_dim) || calibration_dim > 1 || !r.get(state.disparity_offset))
+    return fail("bad calibration entry");
+  state.calibration_dim = static_cast<int>(calibration_dim);
   std::uint32_t dimension = 0;
   if (!r.get(dimension) || dimension != static_cast<std::uint32_t>(state.dimension()) ||
       static_cast<std::uint64_t>(dimension) * dimension * 8 != content.size() - r.offset())

@@ -49,6 +49,15 @@ Estimator::Estimator(const EstimatorOptions& options, const StereoCamera& camera
   start.diagonal().tail<3>().setConstant(options_.initial_rotation_sigma *
                                          options_.initial_rotation_sigma);
   state_.covariance = lie::left_from_right_covariance(T_world_body_start, start);
+  if (options_.disparity_offset_sigma > 0.0) {
+    // The calibration state sits after the poses: [eps_start, d].
+    state_.calibration_dim = 1;
+    state_.disparity_offset = 0.0;
+    state_.covariance.conservativeResize(7, 7);
+    state_.covariance.row(6).setZero();
+    state_.covariance.col(6).setZero();
+    state_.covariance(6, 6) = options_.disparity_offset_sigma * options_.disparity_offset_sigma;
+  }
 }
 
 Estimator::Estimator(const EstimatorOptions& options, const StereoCamera& camera, State state,
@@ -65,6 +74,11 @@ Estimator::Estimator(const EstimatorOptions& options, const StereoCamera& camera
   bool consecutive = !state_.poses.empty();
   for (std::size_t k = 1; consecutive && k < state_.poses.size(); ++k) {
     consecutive = state_.poses[k].frame == state_.poses[k - 1].frame + 1;
+  }
+  if (state_.calibration_dim != (options_.disparity_offset_sigma > 0.0 ? 1 : 0)) {
+    throw std::invalid_argument(
+        "Estimator: the state was made with a different disparity_offset_sigma (a disparity "
+        "offset state is there in one and not in the other)");
   }
   if (!consecutive || state_.num_poses() > options_.window_size || state_.covariance.rows() != n ||
       state_.covariance.cols() != n || !state_.covariance.allFinite()) {

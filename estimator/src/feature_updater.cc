@@ -57,7 +57,7 @@ FeatureUpdateStats FeatureUpdater::process(State& state,
     std::vector<Eigen::Vector4d> observations;
     for (const TrackObservation& observation : track) {
       poses.push_back(state.poses[state.pose_slot(observation.frame)].T_world_body);
-      observations.push_back(observation.xy);
+      observations.push_back(UpdaterHelper::without_disparity_offset(state, camera_, observation.xy));
     }
     const auto p_world = UpdaterHelper::triangulate(camera_, poses, observations);
     bool usable = p_world.has_value();

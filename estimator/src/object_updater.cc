@@ -113,7 +113,7 @@ ObjectUpdater::InitResult ObjectUpdater::try_initialize(State& state, LandmarkId
     const int slot = state.pose_slot(observation.frame);
     if (slot < 0) continue;
     poses.push_back(state.poses[slot].T_world_body);
-    observations.push_back(observation.xy);
+    observations.push_back(UpdaterHelper::without_disparity_offset(state, camera_, observation.xy));
   }
   // 1. Stereo triangulation and refinement over the window's observations.
   const auto p_world = UpdaterHelper::triangulate(camera_, poses, observations);

@@ -93,6 +93,9 @@ std::vector<std::string> EstimatorOptions::validate() const {
     problems.add("odometry_translation_scale", odometry_translation_scale, "in (0.5, 2)");
   }
 
+  if (!(std::isfinite(disparity_offset_sigma) && disparity_offset_sigma >= 0.0)) {
+    problems.add("disparity_offset_sigma", disparity_offset_sigma, "finite and >= 0 (0 disables)");
+  }
   problems.check_stereo_noise("object_noise", object_noise);
   problems.check_at_least("object_min_observations", object_min_observations, 2);
   problems.check_distance_range("object_min_distance", object_min_distance, "object_max_distance",

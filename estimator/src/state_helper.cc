@@ -26,6 +26,7 @@ void StateHelper::apply_correction(State& state, const Eigen::VectorXd& correcti
   for (int slot = 0; slot < state.num_landmarks(); ++slot) {
     state.landmarks[slot].p_world += correction.segment<3>(state.landmark_index(slot));
   }
+  if (state.calibration_dim == 1) state.disparity_offset += correction(state.calibration_index());
 }
 
 bool StateHelper::update(State& state, const Eigen::MatrixXd& H, const Eigen::VectorXd& residual,
@@ -103,7 +104,7 @@ void StateHelper::remove_landmarks(State& state, const std::vector<int>& slots) 
   for (int slot : slots) removed[slot] = true;
   std::vector<int> keep;
   keep.reserve(state.dimension());
-  for (int i = 0; i < state.pose_block_size(); ++i) keep.push_back(i);
+  for (int i = 0; i < state.pose_block_size() + state.calibration_dim; ++i) keep.push_back(i);
   std::vector<ObjectLandmark> kept_landmarks;
   for (int slot = 0; slot < state.num_landmarks(); ++slot) {
     if (removed[slot]) continue;
@@ -159,7 +160,7 @@ void StateHelper::reanchor(State& state, const Eigen::Isometry3d& T_new_old,
   // 2. Joint covariance: P <- G P G^T + J covariance J^T, G block diagonal.
   const int n = state.dimension();
   Eigen::MatrixXd& P = state.covariance;
-  Eigen::MatrixXd J(n, 6);
+  Eigen::MatrixXd J = Eigen::MatrixXd::Zero(n, 6);  // the calibration does not move
   for (int slot = 0; slot < state.num_poses(); ++slot) {
     const int index = state.pose_index(slot);
     P.middleRows(index, 6) = (adjoint * P.middleRows(index, 6)).eval();

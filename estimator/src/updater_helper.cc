@@ -151,6 +151,9 @@ std::optional<LinearizedTrack> UpdaterHelper::linearize(const State& state,
   out.H_point.resize(rows, 3);
   out.residual.resize(rows);
   const int newest_frame = state.newest_pose().frame;
+  // With a disparity offset state d: the right image's x is predicted as x_r + d / fx.
+  const bool has_offset = state.calibration_dim == 1;
+  const double offset_x = has_offset ? state.disparity_offset / camera.K(0, 0) : 0.0;
   for (std::size_t i = 0; i < track.size(); ++i) {
     const int slot = state.pose_slot(track[i].frame);
     if (slot < 0) return std::nullopt;
@@ -162,6 +165,10 @@ std::optional<LinearizedTrack> UpdaterHelper::linearize(const State& state,
                            : projection->jacobian_pose;
     out.H_point.block<4, 3>(row, 0) = projection->jacobian_point;
     out.residual.segment<4>(row) = track[i].xy - projection->xy;
+    if (has_offset) {
+      out.residual(row + 2) -= offset_x;
+      out.H_state(row + 2, state.calibration_index()) = 1.0 / camera.K(0, 0);
+    }
     if (track[i].frame == newest_frame) out.newest_frame_row = static_cast<int>(row);
   }
   if (landmark_slot >= 0) {
@@ -169,6 +176,15 @@ std::optional<LinearizedTrack> UpdaterHelper::linearize(const State& state,
     out.H_state.middleCols<3>(index) = out.H_point;
   }
   return out;
+}
+
+Eigen::Vector4d UpdaterHelper::without_disparity_offset(const State& state,
+                                                        const StereoCamera& camera,
+                                                        const Eigen::Vector4d& xy) {
+  if (state.calibration_dim != 1) return xy;
+  Eigen::Vector4d corrected = xy;
+  corrected(2) -= state.disparity_offset / camera.K(0, 0);
+  return corrected;
 }
 
 Eigen::Matrix4d UpdaterHelper::observation_covariance(const StereoNoise& noise,

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <map>
 #include <numeric>
 #include <random>
@@ -375,6 +376,11 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
   for (int i = 0; i < robots; ++i) {
     RobotOutput& output = result.robots[i];
     output.objects = estimators[i].objects();
+    if (const State& state = estimators[i].state(); state.calibration_dim == 1) {
+      const int index = state.calibration_index();
+      output.disparity_offset = {state.disparity_offset,
+                                 std::sqrt(std::max(state.covariance(index, index), 0.0))};
+    }
     for (const ObjectEstimate& object : output.objects) {
       output.team_ids.push_back(negotiated ? negotiators[i].team_id(object.id) : object.id);
     }

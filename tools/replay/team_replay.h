@@ -95,6 +95,9 @@ struct RobotOutput {
   /// start pose is known).
   std::vector<int> trajectory_frames;
   std::vector<ObjectEstimate> objects;
+  /// The estimated disparity offset and its standard deviation (image units) at the end, when
+  /// the config makes it a state (disparity_offset_sigma > 0).
+  std::optional<std::pair<double, double>> disparity_offset;
   /// Team id of each object (parallel to objects): -1 while unshared. Given runs: the object's
   /// global id.
   std::vector<LandmarkId> team_ids;

@@ -60,6 +60,14 @@ struct EstimatorOptions {
   /// the odometry's scale, e.g. stereo VO with a slightly wrong baseline; measured on a
   /// calibration segment by `concord calibrate`). 1 leaves the odometry as it is.
   double odometry_translation_scale = 1.0;
+  /// disparity_offset_sigma: prior standard deviation (image units) of a constant offset of the
+  /// right image's horizontal coordinate, the stereo calibration's error (rectification, a
+  /// principal point or baseline slightly off). Positive: the offset is a state of the filter,
+  /// starting at 0 with this uncertainty and estimated online from every stereo observation
+  /// (as OpenVINS estimates its camera calibration); its uncertainty enters every update, so an
+  /// error shared by all tracks of a frame is not averaged away as if it were independent
+  /// noise. 0 (the default): the calibration is taken as exact.
+  double disparity_offset_sigma = 0.0;
 
   // --- Objects (persistent landmarks, §V-D and §V-E) ---
   /// use_objects: process object detections at all.

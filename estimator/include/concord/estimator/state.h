@@ -2,7 +2,11 @@
 /// \file
 /// The filter state of one robot (eq. 18): a sliding window of body poses and the positions of
 /// object landmarks, with one joint covariance over the error state
-///   [eps_0 .. eps_{c-1}, p~_0 .. p~_{m-1}],  T_world_body = exp(eps^) * T_hat,  p = p_hat + p~.
+///   [eps_0 .. eps_{c-1}, (d~), p~_0 .. p~_{m-1}],  T_world_body = exp(eps^) * T_hat,
+///   p = p_hat + p~,  d = d_hat + d~,
+/// where d, present when the options ask for it (disparity_offset_sigma > 0), is a constant
+/// offset of the right image's horizontal coordinate: the stereo calibration's error, estimated
+/// online (an error shared by every observation, which no per-observation noise can model).
 ///
 /// Pose errors are left (world-frame) perturbations, not the right perturbations of eq. (20):
 /// both describe the same Gaussian to first order (eps_left = Ad(T_hat) eps_right), but with the
@@ -58,17 +62,29 @@ class State {
   /// Last frame each archived object was observed (for bookkeeping and output).
   std::map<LandmarkId, int> archived_last_observed;
 
-  /// Joint covariance, (6 * poses + 3 * landmarks) square.
+  /// Calibration entries between the poses and the landmarks: 1 with a disparity offset, else 0.
+  int calibration_dim = 0;
+  /// Estimated offset of the right image's horizontal coordinate (image units): an observation
+  /// is u_right = u_right(true) + disparity_offset. Meaningful when calibration_dim is 1.
+  double disparity_offset = 0.0;
+
+  /// Joint covariance, (6 * poses + calibration_dim + 3 * landmarks) square.
   Eigen::MatrixXd covariance;
 
-  int dimension() const { return pose_block_size() + kLandmarkDim * num_landmarks(); }
+  int dimension() const {
+    return pose_block_size() + calibration_dim + kLandmarkDim * num_landmarks();
+  }
   int num_poses() const { return static_cast<int>(poses.size()); }
   int num_landmarks() const { return static_cast<int>(landmarks.size()); }
   int pose_block_size() const { return kPoseDim * num_poses(); }
   /// Covariance index of pose slot i (0 = oldest).
   int pose_index(int slot) const { return kPoseDim * slot; }
+  /// Covariance index of the disparity offset (when calibration_dim is 1).
+  int calibration_index() const { return pose_block_size(); }
   /// Covariance index of landmark slot i.
-  int landmark_index(int slot) const { return pose_block_size() + kLandmarkDim * slot; }
+  int landmark_index(int slot) const {
+    return pose_block_size() + calibration_dim + kLandmarkDim * slot;
+  }
 
   /// Slot of the pose of a frame in the window, or -1.
   int pose_slot(int frame) const;

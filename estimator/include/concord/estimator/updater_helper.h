@@ -74,12 +74,17 @@ class UpdaterHelper {
                                                    const Eigen::Vector3d& p_linearization);
 
   /// Linearizes the observations (frames must be in the window) of a point at p_world against
-  /// the state. landmark_slot >= 0 places H_point into H_state as well (in-state object) and
+  /// the state (with a disparity offset state, its column too: d x_r / d d = 1 / fx). landmark_slot >= 0 places H_point into H_state as well (in-state object) and
   /// evaluates the pose Jacobians at the landmark's p_linearization.
   static std::optional<LinearizedTrack> linearize(const State& state, const StereoCamera& camera,
                                                   const std::vector<TrackObservation>& track,
                                                   const Eigen::Vector3d& p_world,
                                                   int landmark_slot = -1);
+
+  /// An observation with the state's estimated disparity offset taken out of its right x (for
+  /// triangulation, which treats the calibration as exact); unchanged without that state.
+  static Eigen::Vector4d without_disparity_offset(const State& state, const StereoCamera& camera,
+                                                  const Eigen::Vector4d& xy);
 
   /// Covariance of one stereo observation (u_left, v_left, u_right, v_right) in normalized
   /// coordinates, from its noise in image units (see StereoNoise).
