@@ -123,6 +123,8 @@ struct LiveState {
   TrajectoryHistory trajectory;  ///< processed frames (snapshots are cheap; see its header)
   Eigen::Matrix<double, 6, 6> pose_covariance = Eigen::Matrix<double, 6, 6>::Zero();
   std::vector<ObjectEstimate> objects;
+  /// The estimated disparity offset and its sigma (image units), with a calibration state.
+  std::optional<std::pair<double, double>> disparity_offset;
   /// Team id of each object (parallel to objects): the object's id when ids are given, -1 while
   /// unshared when they are negotiated.
   std::vector<LandmarkId> team_ids;
@@ -772,6 +774,10 @@ bool Daemon::Impl::process(QueuedFrame& item) {
                            estimator_->current_pose_covariance()});
     live_.pose_covariance = estimator_->current_pose_covariance();
     live_.objects = estimator_->objects();
+    if (const State& state = estimator_->state(); state.calibration_dim == 1) {
+      const double variance = state.covariance(state.calibration_index(), state.calibration_index());
+      live_.disparity_offset = {state.disparity_offset, std::sqrt(std::max(variance, 0.0))};
+    }
     if (association_) {
       live_.team_ids = association_->team_ids(live_.objects);
       live_.alignment = association_->alignment();
@@ -1185,6 +1191,13 @@ void Daemon::Impl::register_routes() {
                    static_cast<double>(live_.marginals_fused));
       text.gauge("concord_objects", "Objects in the map", robot,
                  static_cast<double>(live_.objects.size()));
+      if (live_.disparity_offset) {
+        text.gauge("concord_disparity_offset", "Estimated stereo disparity offset (image units)",
+                   robot, live_.disparity_offset->first);
+        text.gauge("concord_disparity_offset_sigma",
+                   "Standard deviation of the disparity offset estimate", robot,
+                   live_.disparity_offset->second);
+      }
       text.counter("concord_object_observations_rejected_total",
                    "Object observations rejected by the chi-square gate", robot,
                    static_cast<double>(live_.object_observations_rejected));
