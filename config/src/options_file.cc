@@ -56,6 +56,8 @@ template <typename Consensus, typename Visitor>
 void for_each_consensus_field(Consensus& consensus, Visitor&& visit) {
   visit("max_condition_number", consensus.max_condition_number);
   visit("neighbour_chi2_probability", consensus.neighbour_chi2_probability);
+  visit("share_kl_threshold", consensus.share_kl_threshold);
+  visit("share_float32", consensus.share_float32);
 }
 
 /// Calls visit(key, field) for every component of a StereoNoise.

@@ -68,6 +68,10 @@ struct ConsensusExchange::Peer {
   std::map<std::uint64_t, association::NegotiationMessage> negotiations;
   /// A new connection: the owner records sent to its previous life are sent again.
   bool fresh = true;
+  /// Event-triggered sharing: what this connection delivered of the peer's landmarks, and
+  /// whether the sending end (estimator thread) must start afresh on it.
+  MarginalReceiver receiver;
+  bool sender_reset = true;
   /// Async: the newest marginal received, and the robot's own round when it arrived (rounds of
   /// different robots need not be aligned: a restarted robot, or live sensors numbering frames
   /// independently).
@@ -238,6 +242,8 @@ void ConsensusExchange::on_message(int robot, const v1::Envelope& envelope) {
         }
         return;
       }
+      // Every marginal that arrives is what the sender counts as delivered, fused or not.
+      if (sharing()) peer.receiver.ingest(*marginal);
       if (config_.mode == ConsensusMode::kAsync) {
         peer.latest = Peer::Received{std::move(*marginal), static_cast<int>(message.degree()), false, false, std::nullopt};
         peer.latest_received_at = current_round_;
@@ -379,14 +385,14 @@ void ConsensusExchange::send_landmark_set(int robot, std::uint64_t round,
   send_counted(robot, envelope);
 }
 
-void ConsensusExchange::send_counted(int robot, const v1::Envelope& envelope) {
+bool ConsensusExchange::send_counted(int robot, const v1::Envelope& envelope) {
   // Encryption (secretstream) and the length prefix come on top of the envelope.
   const std::size_t bytes = envelope.ByteSizeLong() + 21;
-  if (send_(robot, envelope)) {
-    budget_->spend(bytes);
-    std::lock_guard lock(mutex_);
-    counters_.bytes_sent += bytes;
-  }
+  if (!send_(robot, envelope)) return false;
+  budget_->spend(bytes);
+  std::lock_guard lock(mutex_);
+  counters_.bytes_sent += bytes;
+  return true;
 }
 
 void ConsensusExchange::send_marginal(int robot, std::uint64_t round, const Estimator& estimator,
@@ -432,13 +438,38 @@ void ConsensusExchange::send_marginal(int robot, std::uint64_t round, const Esti
       }
       for (const LandmarkId id : common) last_sent_[robot][id] = round;
     }
-    if (!common.empty()) to_wire(estimator.marginal(common), *message);
+    if (!sharing()) {
+      if (!common.empty()) to_wire(estimator.marginal(common), *message);
+    } else {
+      // Event-triggered and compact: the landmarks that moved since this connection last
+      // carried them; recorded as delivered once the message is handed to the connection.
+      MarginalSender& sender = senders_[robot];
+      {
+        std::lock_guard lock(mutex_);
+        const auto found = peers_.find(robot);
+        if (found != peers_.end() && found->second->sender_reset) {
+          sender.reset();
+          found->second->sender_reset = false;
+        }
+      }
+      Marginal sent = sender.select(common.empty() ? Marginal() : estimator.marginal(common),
+                                    config_.share_kl_threshold);
+      if (config_.share_float32) {
+        const CompactMarginal wire = compact(sent);
+        if (!sent.ids.empty()) to_wire(wire, *message);
+        sent = expand(wire);
+      } else if (!sent.ids.empty()) {
+        to_wire(sent, *message);
+      }
+      if (!failpoints_.marginal_garbage && send_counted(robot, envelope)) sender.delivered(sent);
+      if (!failpoints_.marginal_garbage) return;
+    }
   }
   if (failpoints_.marginal_garbage) {  // failpoint: one mean value too many
     message->add_landmark_ids(1);
     message->add_mean(0.0);
   }
-  send_counted(robot, envelope);
+  (void)send_counted(robot, envelope);
 }
 
 RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& estimator) {
@@ -547,6 +578,11 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
         ++report.bad_messages;
         continue;
       }
+      if (sharing()) {
+        // The landmarks that came this round, and the last ones received of the others.
+        it->second.marginal =
+            peer.receiver.build(it->second.marginal, intersection(ids, neighbour_ids[robot]));
+      }
       if (it->second.marginal.ids.empty() || quarantined(robot, peer, round)) continue;
       if (association_) {
         // Negotiated: the pairs both robots' views agree on, in this robot's ids, one frame.
@@ -624,6 +660,12 @@ RoundReport ConsensusExchange::async_round(std::uint64_t round, Estimator& estim
         continue;
       }
       peer.latest->used = true;
+      if (sharing()) {
+        const auto known = known_ids.find(robot);
+        peer.latest->marginal = peer.receiver.build(
+            peer.latest->marginal,
+            known != known_ids.end() ? intersection(ids, known->second) : std::vector<LandmarkId>{});
+      }
       if (!peer.latest->marginal.ids.empty() && !quarantined(robot, peer, round)) {
         inbox.push_back({Consensus::metropolis_weight(degree, peer.latest->degree),
                          std::move(peer.latest->marginal)});

@@ -375,8 +375,11 @@ bool Daemon::Impl::start_services() {
       options.discovery.address = config_.network.discovery_address;
       options.discovery.port = config_.network.discovery_port;
       network_ = std::make_unique<net::PeerNetwork>(io_, options);
+      ConsensusConfig exchange_config = config_.consensus;
+      exchange_config.share_kl_threshold = config_.estimator.consensus.share_kl_threshold;
+      exchange_config.share_float32 = config_.estimator.consensus.share_float32;
       exchange_ = std::make_unique<ConsensusExchange>(
-          config_.consensus,
+          std::move(exchange_config),
           [this](int robot, const v1::Envelope& envelope) {
             return network_->send(robot, envelope);
           },

@@ -52,7 +52,79 @@ void to_wire(const Marginal& marginal, v1::Marginal& out) {
   }
 }
 
+void to_wire(const CompactMarginal& marginal, v1::Marginal& out) {
+  out.mutable_landmark_ids()->Assign(marginal.ids.begin(), marginal.ids.end());
+  out.mutable_origin()->Assign(marginal.origin.data(), marginal.origin.data() + 3);
+  out.mutable_mean_offsets()->Assign(marginal.mean_offsets.begin(), marginal.mean_offsets.end());
+  for (const CompactMarginal::Block& block : marginal.blocks) {
+    v1::CovarianceBlock* message = out.add_blocks();
+    message->set_landmarks(static_cast<std::uint32_t>(block.landmarks));
+    message->mutable_cholesky_lower()->Assign(block.cholesky_lower.begin(),
+                                              block.cholesky_lower.end());
+    message->mutable_packed_upper()->Assign(block.packed_upper.begin(), block.packed_upper.end());
+  }
+}
+
+namespace {
+
+/// The float32 form (origin and mean_offsets present): every size checked before anything is
+/// read, then expanded; the reconstructed marginal must be finite and well formed.
+std::optional<Marginal> compact_from_wire(const v1::Marginal& message, std::string& error) {
+  const auto k = static_cast<std::size_t>(message.landmark_ids_size());
+  if (message.origin_size() != 3 || static_cast<std::size_t>(message.mean_offsets_size()) != 3 * k ||
+      message.mean_size() != 0) {
+    error = "marginal (float32): " + std::to_string(message.origin_size()) + " origin and " +
+            std::to_string(message.mean_offsets_size()) + " offset values for " +
+            std::to_string(k) + " landmarks";
+    return std::nullopt;
+  }
+  CompactMarginal compact;
+  compact.ids.assign(message.landmark_ids().begin(), message.landmark_ids().end());
+  compact.origin = Eigen::Vector3d(message.origin(0), message.origin(1), message.origin(2));
+  compact.mean_offsets.assign(message.mean_offsets().begin(), message.mean_offsets().end());
+  std::size_t covered = 0;
+  for (const v1::CovarianceBlock& block : message.blocks()) {
+    const std::size_t landmarks = block.landmarks();
+    if (landmarks == 0 || covered + landmarks > k) {
+      error = "marginal: covariance blocks do not match the " + std::to_string(k) + " landmarks";
+      return std::nullopt;
+    }
+    const std::size_t d = 3 * landmarks;
+    const std::size_t triangle = d * (d + 1) / 2;
+    const auto floats = static_cast<std::size_t>(block.cholesky_lower_size());
+    const auto doubles = static_cast<std::size_t>(block.packed_upper_size());
+    if (!((floats == triangle && doubles == 0) || (floats == 0 && doubles == triangle))) {
+      error = "marginal: a block of " + std::to_string(landmarks) + " landmarks needs " +
+              std::to_string(triangle) + " values, got " + std::to_string(floats) +
+              " float and " + std::to_string(doubles) + " double";
+      return std::nullopt;
+    }
+    CompactMarginal::Block out;
+    out.landmarks = static_cast<int>(landmarks);
+    out.cholesky_lower.assign(block.cholesky_lower().begin(), block.cholesky_lower().end());
+    out.packed_upper.assign(block.packed_upper().begin(), block.packed_upper().end());
+    compact.blocks.push_back(std::move(out));
+    covered += landmarks;
+  }
+  if (covered != k) {
+    error = "marginal: covariance blocks cover " + std::to_string(covered) + " of " +
+            std::to_string(k) + " landmarks";
+    return std::nullopt;
+  }
+  Marginal marginal = expand(compact);
+  if (marginal.ids.size() != k || !marginal.well_formed()) {
+    error = "marginal (float32): non-finite mean or covariance";
+    return std::nullopt;
+  }
+  return marginal;
+}
+
+}  // namespace
+
 std::optional<Marginal> from_wire(const v1::Marginal& message, std::string& error) {
+  if (message.origin_size() > 0 || message.mean_offsets_size() > 0) {
+    return compact_from_wire(message, error);
+  }
   Marginal marginal;
   const auto k = static_cast<std::size_t>(message.landmark_ids_size());
   if (static_cast<std::size_t>(message.mean_size()) != 3 * k) {

@@ -125,6 +125,10 @@ std::vector<std::string> EstimatorOptions::validate() const {
     problems.add("consensus.max_condition_number", consensus.max_condition_number,
                  "finite and > 1");
   }
+  if (!(std::isfinite(consensus.share_kl_threshold) && consensus.share_kl_threshold >= 0.0)) {
+    problems.add("consensus.share_kl_threshold", consensus.share_kl_threshold,
+                 "finite and >= 0 (0 sends everything)");
+  }
   problems.check_probability("consensus.neighbour_chi2_probability",
                              consensus.neighbour_chi2_probability);
   return problems.take();

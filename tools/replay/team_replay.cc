@@ -10,6 +10,7 @@
 
 #include "concord/association/relabelling.h"
 #include "concord/estimator/estimator.h"
+#include "concord/estimator/marginal_sharing.h"
 
 namespace concord::replay {
 
@@ -219,6 +220,12 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
     if (negotiated) negotiators.emplace_back(robot.index, start_frame, options.negotiation);
     steps = std::max(steps, robot.num_frames());
   }
+  // Event-triggered, compact sharing (consensus.share_*): one sender and one receiver state per
+  // directed link (from, to), as the daemons keep them per peer connection.
+  const ConsensusOptions& sharing = estimator_options.consensus;
+  const bool compact_sharing = sharing.share_kl_threshold > 0.0 || sharing.share_float32;
+  std::map<std::pair<int, int>, MarginalSender> senders;
+  std::map<std::pair<int, int>, MarginalReceiver> receivers;
   const auto graph = make_graph(options.graph, robots, options.seed);
   if (options.radio.any()) {
     const auto& positions = options.radio.true_positions;
@@ -347,8 +354,24 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
             const double weight =
                 Consensus::metropolis_weight(static_cast<int>(round_neighbours[i].size()),
                                              static_cast<int>(round_neighbours[j].size()));
-            inbox[i].push_back({weight, estimators[j].marginal(common)});
-            statistics.marginal_bytes += marginal_bytes(inbox[i].back().marginal);
+            if (!compact_sharing) {
+              inbox[i].push_back({weight, estimators[j].marginal(common)});
+              statistics.marginal_bytes += marginal_bytes(inbox[i].back().marginal);
+              continue;
+            }
+            // What j sends i (the changed landmarks, in float32 if asked), then what i fuses.
+            MarginalSender& sender = senders[{j, i}];
+            Marginal sent = sender.select(estimators[j].marginal(common), sharing.share_kl_threshold);
+            if (sharing.share_float32) {
+              const CompactMarginal wire = compact(sent);
+              statistics.marginal_bytes += wire.bytes();
+              sent = expand(wire);
+            } else {
+              statistics.marginal_bytes += marginal_bytes(sent);
+            }
+            sender.delivered(sent);
+            Marginal fused = receivers[{i, j}].complete(sent, common);
+            if (!fused.ids.empty()) inbox[i].push_back({weight, std::move(fused)});
           }
         }
       }

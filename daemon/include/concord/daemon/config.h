@@ -166,6 +166,11 @@ struct ConsensusConfig {
   /// consensus.association: auto, given or negotiated (AssociationMode).
   AssociationMode association = AssociationMode::kAuto;
   NegotiationLimits negotiation_limits;
+  /// Compact, event-triggered sharing (given association): copied from the estimator config's
+  /// consensus.share_kl_threshold and consensus.share_float32 (marginal_sharing.h), so that the
+  /// daemons send what `concord replay` models. Negotiated marginals are sent whole.
+  double share_kl_threshold = 0.0;
+  bool share_float32 = false;
 };
 
 struct HttpConfig {

@@ -33,6 +33,7 @@
 
 #include "concord/daemon/config.h"
 #include "concord/estimator/consensus.h"
+#include "concord/estimator/marginal_sharing.h"
 #include "concord/estimator/types.h"
 
 namespace concord {
@@ -170,7 +171,11 @@ class ConsensusExchange {
                      const std::vector<LandmarkId>& own_ids,
                      const std::vector<LandmarkId>& peer_ids, int degree, int links_left);
   /// Sends and charges the link budget (estimator thread).
-  void send_counted(int robot, const v1::Envelope& envelope);
+  bool send_counted(int robot, const v1::Envelope& envelope);
+  /// Whether marginals go compact and event-triggered (marginal_sharing.h; given association).
+  bool sharing() const {
+    return association_ == nullptr && (config_.share_kl_threshold > 0.0 || config_.share_float32);
+  }
   void forget_rounds_up_to(std::uint64_t round);
   /// Whether a message of `round` is beyond the future-round window (lockstep; mutex held).
   bool beyond_window(std::uint64_t round) const;
@@ -207,6 +212,8 @@ class ConsensusExchange {
   /// sent in (what it received most recently is the least valuable to send again).
   std::unique_ptr<LinkBudget> budget_;
   std::map<int, std::map<LandmarkId, std::uint64_t>> last_sent_;
+  /// Estimator thread only: per neighbour, what it holds of this robot's landmarks (sharing()).
+  std::map<int, MarginalSender> senders_;
 };
 
 }  // namespace concord::daemon

@@ -7,6 +7,7 @@
 #include <optional>
 #include <string>
 
+#include "concord/estimator/marginal_sharing.h"
 #include "concord/estimator/types.h"
 
 namespace concord::v1 {
@@ -19,6 +20,8 @@ namespace concord::daemon {
 
 /// Writes `marginal` into `out` (ids, mean, each covariance block as its packed upper triangle).
 void to_wire(const Marginal& marginal, v1::Marginal& out);
+/// The float32 form (consensus.share_float32); from_wire reads either.
+void to_wire(const CompactMarginal& marginal, v1::Marginal& out);
 /// The Marginal a message carries, or std::nullopt with `error` saying what is malformed.
 [[nodiscard]] std::optional<Marginal> from_wire(const v1::Marginal& message, std::string& error);
 

@@ -24,6 +24,14 @@ struct ConsensusOptions {
   /// pass it with at least this probability (more when their errors are correlated, as
   /// neighbours' are after consensus). 0 disables the test.
   double neighbour_chi2_probability = 0.999;
+  /// consensus.share_kl_threshold: event-triggered sharing (marginal_sharing.h). A robot sends a
+  /// neighbour only the landmarks whose marginal moved by more than this Kullback-Leibler
+  /// divergence (nats) since it last sent them to it; the neighbour fuses the last one it got
+  /// of the others. 0 (the default) sends every landmark every round.
+  double share_kl_threshold = 0.0;
+  /// consensus.share_float32: marginals travel in float32 (means as offsets from an origin,
+  /// covariances as Cholesky factors), half the bytes; the receiver fuses exactly what arrived.
+  bool share_float32 = false;
 };
 
 /// Noise of a stereo observation (u_left, v_left, u_right, v_right), in image units, as four

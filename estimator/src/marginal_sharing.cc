@@ -1,0 +1,221 @@
+#include "concord/estimator/marginal_sharing.h"
+
+#include <Eigen/Cholesky>
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+namespace concord {
+
+namespace {
+
+/// (block, row offset in it) of every landmark of a marginal, in ids order.
+std::vector<std::pair<std::size_t, Eigen::Index>> landmark_positions(const Marginal& marginal) {
+  std::vector<std::pair<std::size_t, Eigen::Index>> positions;
+  positions.reserve(marginal.ids.size());
+  for (std::size_t b = 0; b < marginal.blocks.size(); ++b) {
+    for (Eigen::Index offset = 0; offset < marginal.blocks[b].rows(); offset += 3) {
+      positions.emplace_back(b, offset);
+    }
+  }
+  return positions;
+}
+
+ObjectEstimate estimate_at(const Marginal& marginal,
+                           const std::vector<std::pair<std::size_t, Eigen::Index>>& positions,
+                           std::size_t k) {
+  const auto [block, offset] = positions.at(k);
+  return {marginal.ids[k], marginal.mean.segment<3>(3 * static_cast<Eigen::Index>(k)),
+          marginal.blocks[block].block<3, 3>(offset, offset)};
+}
+
+}  // namespace
+
+double kl_divergence(const ObjectEstimate& p, const ObjectEstimate& q) {
+  const Eigen::LLT<Eigen::Matrix3d> q_llt(q.covariance);
+  const Eigen::LLT<Eigen::Matrix3d> p_llt(p.covariance);
+  if (q_llt.info() != Eigen::Success || p_llt.info() != Eigen::Success) {
+    return std::numeric_limits<double>::infinity();
+  }
+  const Eigen::Vector3d difference = q.p_world - p.p_world;
+  const double trace = q_llt.solve(p.covariance).trace();
+  const double mahalanobis = difference.dot(q_llt.solve(difference));
+  // ln det = 2 sum ln diag(L).
+  const double log_det_q = 2.0 * q_llt.matrixL().toDenseMatrix().diagonal().array().log().sum();
+  const double log_det_p = 2.0 * p_llt.matrixL().toDenseMatrix().diagonal().array().log().sum();
+  return 0.5 * (trace + mahalanobis - 3.0 + log_det_q - log_det_p);
+}
+
+ObjectEstimate landmark_estimate(const Marginal& marginal, std::size_t k) {
+  return estimate_at(marginal, landmark_positions(marginal), k);
+}
+
+Marginal sub_marginal(const Marginal& marginal, const std::vector<bool>& keep) {
+  Marginal out;
+  std::vector<double> mean;
+  std::size_t k = 0;
+  for (const Eigen::MatrixXd& block : marginal.blocks) {
+    std::vector<Eigen::Index> rows;
+    for (Eigen::Index offset = 0; offset < block.rows(); offset += 3, ++k) {
+      if (!keep[k]) continue;
+      out.ids.push_back(marginal.ids[k]);
+      for (int i = 0; i < 3; ++i) {
+        rows.push_back(offset + i);
+        mean.push_back(marginal.mean(3 * static_cast<Eigen::Index>(k) + i));
+      }
+    }
+    if (!rows.empty()) out.blocks.push_back(block(rows, rows));
+  }
+  out.mean = Eigen::Map<const Eigen::VectorXd>(mean.data(), static_cast<Eigen::Index>(mean.size()));
+  return out;
+}
+
+long long CompactMarginal::bytes() const {
+  long long total = 8 * static_cast<long long>(ids.size()) + 24 +
+                    4 * static_cast<long long>(mean_offsets.size());
+  for (const Block& block : blocks) {
+    total += 4 * static_cast<long long>(block.cholesky_lower.size()) +
+             8 * static_cast<long long>(block.packed_upper.size());
+  }
+  return total;
+}
+
+CompactMarginal compact(const Marginal& marginal) {
+  CompactMarginal out;
+  out.ids = marginal.ids;
+  if (marginal.mean.size() >= 3) out.origin = marginal.mean.head<3>();
+  out.mean_offsets.reserve(static_cast<std::size_t>(marginal.mean.size()));
+  for (Eigen::Index i = 0; i < marginal.mean.size(); ++i) {
+    out.mean_offsets.push_back(static_cast<float>(marginal.mean(i) - out.origin(i % 3)));
+  }
+  for (const Eigen::MatrixXd& covariance : marginal.blocks) {
+    CompactMarginal::Block block;
+    block.landmarks = static_cast<int>(covariance.rows() / 3);
+    const Eigen::Index n = covariance.rows();
+    const Eigen::LLT<Eigen::MatrixXd> llt(covariance);
+    bool factored = llt.info() == Eigen::Success;
+    if (factored) {
+      const Eigen::MatrixXd L = llt.matrixL();
+      block.cholesky_lower.reserve(static_cast<std::size_t>(n * (n + 1) / 2));
+      for (Eigen::Index r = 0; r < n && factored; ++r) {
+        for (Eigen::Index c = 0; c <= r; ++c) {
+          const auto value = static_cast<float>(L(r, c));
+          // The factor's diagonal must stay positive (and everything finite) in float.
+          if (!std::isfinite(value) || (r == c && !(value > 0.0F))) {
+            factored = false;
+            break;
+          }
+          block.cholesky_lower.push_back(value);
+        }
+      }
+    }
+    if (!factored) {
+      block.cholesky_lower.clear();
+      block.packed_upper.reserve(static_cast<std::size_t>(n * (n + 1) / 2));
+      for (Eigen::Index r = 0; r < n; ++r) {
+        for (Eigen::Index c = r; c < n; ++c) block.packed_upper.push_back(covariance(r, c));
+      }
+    }
+    out.blocks.push_back(std::move(block));
+  }
+  return out;
+}
+
+Marginal expand(const CompactMarginal& compact) {
+  const auto size = static_cast<Eigen::Index>(3 * compact.ids.size());
+  if (static_cast<Eigen::Index>(compact.mean_offsets.size()) != size) return {};
+  Marginal out;
+  out.ids = compact.ids;
+  out.mean.resize(size);
+  for (Eigen::Index i = 0; i < size; ++i) {
+    out.mean(i) = compact.origin(i % 3) + static_cast<double>(compact.mean_offsets[i]);
+  }
+  Eigen::Index covered = 0;
+  for (const CompactMarginal::Block& block : compact.blocks) {
+    if (block.landmarks <= 0 || covered + 3 * block.landmarks > size) return {};
+    const Eigen::Index n = 3 * block.landmarks;
+    const auto triangle = static_cast<std::size_t>(n * (n + 1) / 2);
+    Eigen::MatrixXd covariance(n, n);
+    if (block.cholesky_lower.size() == triangle && block.packed_upper.empty()) {
+      Eigen::MatrixXd L = Eigen::MatrixXd::Zero(n, n);
+      std::size_t next = 0;
+      for (Eigen::Index r = 0; r < n; ++r) {
+        for (Eigen::Index c = 0; c <= r; ++c) L(r, c) = static_cast<double>(block.cholesky_lower[next++]);
+      }
+      covariance = L * L.transpose();
+    } else if (block.packed_upper.size() == triangle && block.cholesky_lower.empty()) {
+      std::size_t next = 0;
+      for (Eigen::Index r = 0; r < n; ++r) {
+        for (Eigen::Index c = r; c < n; ++c) {
+          covariance(r, c) = covariance(c, r) = block.packed_upper[next++];
+        }
+      }
+    } else {
+      return {};
+    }
+    out.blocks.push_back(std::move(covariance));
+    covered += n;
+  }
+  if (covered != size || !out.well_formed()) return {};
+  return out;
+}
+
+Marginal quantized(const Marginal& marginal) { return expand(compact(marginal)); }
+
+Marginal MarginalSender::select(const Marginal& full, double kl_threshold) const {
+  if (kl_threshold <= 0.0) return full;
+  std::vector<bool> keep(full.ids.size(), true);
+  const auto positions = landmark_positions(full);
+  for (std::size_t k = 0; k < full.ids.size(); ++k) {
+    const auto it = last_sent_.find(full.ids[k]);
+    if (it == last_sent_.end()) continue;
+    keep[k] = kl_divergence(estimate_at(full, positions, k), it->second) > kl_threshold;
+  }
+  return sub_marginal(full, keep);
+}
+
+void MarginalSender::delivered(const Marginal& sent) {
+  const auto positions = landmark_positions(sent);
+  for (std::size_t k = 0; k < sent.ids.size(); ++k) {
+    last_sent_[sent.ids[k]] = estimate_at(sent, positions, k);
+  }
+}
+
+void MarginalReceiver::ingest(const Marginal& received) {
+  const auto positions = landmark_positions(received);
+  for (std::size_t k = 0; k < received.ids.size() && k < positions.size(); ++k) {
+    const auto it = last_received_.find(received.ids[k]);
+    if (it != last_received_.end()) {
+      it->second = estimate_at(received, positions, k);
+    } else if (last_received_.size() < max_landmarks_) {
+      last_received_.emplace(received.ids[k], estimate_at(received, positions, k));
+    }
+  }
+}
+
+Marginal MarginalReceiver::build(const Marginal& received, const std::vector<LandmarkId>& common) {
+  for (auto it = last_received_.begin(); it != last_received_.end();) {
+    it = std::binary_search(common.begin(), common.end(), it->first) ? std::next(it)
+                                                                      : last_received_.erase(it);
+  }
+  Marginal out = received;
+  std::vector<LandmarkId> sorted_received = received.ids;
+  std::sort(sorted_received.begin(), sorted_received.end());
+  std::vector<double> extra_mean;
+  for (const auto& [id, estimate] : last_received_) {
+    if (std::binary_search(sorted_received.begin(), sorted_received.end(), id)) continue;
+    out.ids.push_back(id);
+    for (int i = 0; i < 3; ++i) extra_mean.push_back(estimate.p_world(i));
+    out.blocks.emplace_back(estimate.covariance);
+  }
+  if (!extra_mean.empty()) {
+    const Eigen::Index before = out.mean.size();
+    out.mean.conservativeResize(before + static_cast<Eigen::Index>(extra_mean.size()));
+    for (std::size_t i = 0; i < extra_mean.size(); ++i) {
+      out.mean(before + static_cast<Eigen::Index>(i)) = extra_mean[i];
+    }
+  }
+  return out;
+}
+
+}  // namespace concord

@@ -1,0 +1,194 @@
+// Compact, event-triggered sharing of marginals (issue 13): the KL divergence against a hand
+// computation, the float32 wire form (positive definite whatever the rounding, about half the
+// bytes), what a link's sender sends and what its receiver fuses, and a simulated team that
+// sends far fewer bytes for the same accuracy.
+#include <gtest/gtest.h>
+
+#include <Eigen/Cholesky>
+#include <cmath>
+#include <random>
+
+#include "concord/config/options_file.h"
+#include "concord/estimator/marginal_sharing.h"
+#include "replay/team_replay.h"
+#include "sim/simulator.h"
+#include "test_paths.h"
+#include "test_support.h"
+
+namespace concord {
+namespace {
+
+TEST(MarginalSharing, KlDivergenceMatchesTheClosedForm) {
+  const ObjectEstimate q{1, Eigen::Vector3d::Zero(), Eigen::Matrix3d::Identity()};
+  ObjectEstimate p{1, Eigen::Vector3d(1.0, 0.0, 0.0), Eigen::Matrix3d::Zero()};
+  p.covariance.diagonal() << 1.0, 2.0, 3.0;
+  // 0.5 (tr(Sq^-1 Sp) + d^T Sq^-1 d - 3 + ln(det Sq / det Sp)) = 0.5 (6 + 1 - 3 - ln 6).
+  EXPECT_NEAR(kl_divergence(p, q), 0.5 * (4.0 - std::log(6.0)), 1e-12);
+  EXPECT_NEAR(kl_divergence(p, p), 0.0, 1e-12);
+  EXPECT_GT(kl_divergence(q, p), 0.0);
+  ObjectEstimate singular = q;
+  singular.covariance(2, 2) = 0.0;
+  EXPECT_TRUE(std::isinf(kl_divergence(p, singular)));
+}
+
+/// A marginal of `landmarks` objects in one dense block, far from the origin, with correlations
+/// close to 1 (a shared pose error) and eigenvalues spread over nine orders of magnitude.
+Marginal correlated_marginal(int landmarks, std::mt19937& random) {
+  const int n = 3 * landmarks;
+  Eigen::MatrixXd covariance = testing::random_spd(n, random, 1e-6, 1e-3);
+  const Eigen::MatrixXd shared = testing::random_vector(n, random, 1.0);
+  covariance += 1e3 * shared * shared.transpose();  // nearly rank one on top
+  Eigen::VectorXd mean = testing::random_vector(n, random, 5.0);
+  mean.array() += 1234.5;
+  std::vector<LandmarkId> ids;
+  for (int k = 0; k < landmarks; ++k) ids.push_back(10 + 7 * k);
+  return Marginal(ids, mean, covariance);
+}
+
+TEST(MarginalSharing, Float32FormStaysPositiveDefiniteAndClose) {
+  std::mt19937 random(3);
+  const Marginal marginal = correlated_marginal(12, random);
+  const CompactMarginal wire = compact(marginal);
+  ASSERT_EQ(wire.blocks.size(), 1u);
+  EXPECT_FALSE(wire.blocks[0].cholesky_lower.empty());  // went in float
+  const Marginal back = expand(wire);
+  ASSERT_TRUE(back.well_formed());
+  EXPECT_EQ(back.ids, marginal.ids);
+  const Eigen::MatrixXd& covariance = back.blocks[0];
+  EXPECT_EQ(Eigen::LLT<Eigen::MatrixXd>(covariance).info(), Eigen::Success);
+  EXPECT_LT((covariance - marginal.blocks[0]).norm(), 1e-5 * marginal.blocks[0].norm());
+  // Means relative to the origin: float resolution of the offsets, not of 1234 m.
+  EXPECT_LT((back.mean - marginal.mean).cwiseAbs().maxCoeff(), 1e-5);
+  // Every landmark's own 3x3 marginal is close in information terms too.
+  for (std::size_t k = 0; k < marginal.ids.size(); ++k) {
+    EXPECT_LT(kl_divergence(landmark_estimate(back, k), landmark_estimate(marginal, k)), 1e-3);
+  }
+  // About half the bytes of doubles (8 per id, mean and upper triangle).
+  const long long doubles = 8 * (12 + 36 + 36 * 37 / 2);
+  EXPECT_LT(wire.bytes(), doubles * 6 / 10);
+}
+
+TEST(MarginalSharing, ABlockThatIsNotPositiveDefiniteTravelsInDoubleAndBadShapesAreRefused) {
+  Eigen::Matrix3d indefinite = Eigen::Matrix3d::Identity();
+  indefinite(2, 2) = -1.0;
+  const Marginal marginal({5}, Eigen::Vector3d(1.0, 2.0, 3.0), indefinite);
+  const CompactMarginal wire = compact(marginal);
+  ASSERT_EQ(wire.blocks.size(), 1u);
+  EXPECT_TRUE(wire.blocks[0].cholesky_lower.empty());
+  EXPECT_EQ(wire.blocks[0].packed_upper.size(), 6u);
+  EXPECT_TRUE(expand(wire).blocks.at(0).isApprox(indefinite, 0.0));
+
+  CompactMarginal bad = compact(Marginal({5}, Eigen::Vector3d::Zero(), Eigen::Matrix3d::Identity()));
+  bad.mean_offsets.pop_back();
+  EXPECT_TRUE(expand(bad).ids.empty());
+  bad = compact(Marginal({5}, Eigen::Vector3d::Zero(), Eigen::Matrix3d::Identity()));
+  bad.blocks[0].landmarks = 2;
+  EXPECT_TRUE(expand(bad).ids.empty());
+  bad = compact(Marginal({5}, Eigen::Vector3d::Zero(), Eigen::Matrix3d::Identity()));
+  bad.blocks[0].cholesky_lower.push_back(1.0F);
+  EXPECT_TRUE(expand(bad).ids.empty());
+}
+
+/// Three independent landmarks 1, 2, 3 at x = id, unit covariance; landmark 4 in a joint block
+/// with landmark 5.
+Marginal three_and_a_pair() {
+  Marginal marginal;
+  marginal.ids = {1, 2, 3, 4, 5};
+  marginal.mean = Eigen::VectorXd::Zero(15);
+  for (int k = 0; k < 5; ++k) marginal.mean(3 * k) = k + 1;
+  for (int k = 0; k < 3; ++k) marginal.blocks.emplace_back(Eigen::Matrix3d::Identity());
+  Eigen::MatrixXd pair = Eigen::MatrixXd::Identity(6, 6);
+  pair.block<3, 3>(0, 3) = pair.block<3, 3>(3, 0) = 0.5 * Eigen::Matrix3d::Identity();
+  marginal.blocks.push_back(pair);
+  return marginal;
+}
+
+TEST(MarginalSharing, OnlyChangedLandmarksAreSentAndTheReceiverFusesTheLastOfTheOthers) {
+  MarginalSender sender;
+  MarginalReceiver receiver;
+  const std::vector<LandmarkId> common = {1, 2, 3, 4, 5};
+  Marginal now = three_and_a_pair();
+
+  // Round 1: nothing sent before, so everything goes.
+  Marginal sent = sender.select(now, 0.1);
+  EXPECT_EQ(sent.ids, common);
+  sender.delivered(sent);
+  EXPECT_EQ(receiver.complete(sent, common).ids.size(), 5u);
+
+  // Round 2: landmark 2 moved by 2 sigma (KL 2), landmark 5 by 0.1 sigma (KL 0.005).
+  now.mean(3 * 1) += 2.0;
+  now.mean(3 * 4 + 1) += 0.1;
+  sent = sender.select(now, 0.1);
+  EXPECT_EQ(sent.ids, std::vector<LandmarkId>{2});
+  sender.delivered(sent);
+  const Marginal fused = receiver.complete(sent, common);
+  ASSERT_TRUE(fused.well_formed());
+  ASSERT_EQ(fused.ids.size(), 5u);
+  EXPECT_EQ(fused.ids.front(), 2);
+  EXPECT_DOUBLE_EQ(fused.mean(0), 4.0);  // landmark 2, new
+  // The others as last received, each its own block (their joint claim is not repeated).
+  EXPECT_EQ(fused.blocks.size(), 5u);
+  for (std::size_t k = 1; k < fused.ids.size(); ++k) {
+    const LandmarkId id = fused.ids[k];
+    EXPECT_DOUBLE_EQ(fused.mean(3 * static_cast<Eigen::Index>(k)), static_cast<double>(id));
+  }
+
+  // The small moves add up: against what was last sent, not last round.
+  for (int round = 0; round < 3; ++round) now.mean(3 * 4 + 1) += 0.2;
+  sent = sender.select(now, 0.1);
+  EXPECT_EQ(sent.ids, std::vector<LandmarkId>{5});
+  sender.delivered(sent);
+
+  // A landmark no longer common is forgotten by the receiver.
+  const Marginal fewer = receiver.complete(Marginal(), {1, 2});
+  EXPECT_EQ(fewer.ids.size(), 2u);
+  EXPECT_EQ(receiver.complete(Marginal(), {1, 2, 3}).ids.size(), 2u);
+
+  // Threshold 0 sends everything; after a reset everything goes again.
+  EXPECT_EQ(sender.select(now, 0.0).ids.size(), 5u);
+  EXPECT_TRUE(sender.select(now, 0.1).ids.empty());
+  sender.reset();
+  EXPECT_EQ(sender.select(now, 0.1).ids.size(), 5u);
+}
+
+double translation_rmse(const replay::ReplayResult& result, const dataset::Dataset& data) {
+  double sum = 0.0;
+  int count = 0;
+  for (std::size_t r = 0; r < result.robots.size(); ++r) {
+    const auto& trajectory = result.robots[r].trajectory;
+    for (std::size_t k = 0; k < trajectory.size(); ++k, ++count) {
+      sum += (trajectory[k].translation() - data.robots[r].groundtruth[k].translation())
+                 .squaredNorm();
+    }
+  }
+  return std::sqrt(sum / count);
+}
+
+TEST(MarginalSharing, ASimulatedTeamSendsFarFewerBytesForTheSameAccuracy) {
+  sim::SimulationOptions simulation;
+  simulation.robots = 4;
+  simulation.frames = testing::kSanitized ? 60 : 120;
+  simulation.objects = simulation.objects * simulation.frames / 150;
+  simulation.seed = 21;
+  simulation.points_per_frame = 0;
+  const dataset::Dataset data = sim::simulate(simulation);
+  EstimatorOptions options = config::load_estimator_options(std::string(CONCORD_SOURCE_DIR) +
+                                                             "/configs/sensors/sim.yaml");
+  replay::ReplayOptions replay_options;
+  const replay::ReplayResult every_round = replay::run_team(data, options, replay_options);
+  options.consensus.share_kl_threshold = 0.01;
+  options.consensus.share_float32 = true;
+  const replay::ReplayResult triggered = replay::run_team(data, options, replay_options);
+  replay_options.consensus = false;
+  const replay::ReplayResult separate = replay::run_team(data, options, replay_options);
+
+  // Measured (Release): 2.8x fewer bytes, trajectory RMSE +1.4 %.
+  EXPECT_LT(triggered.statistics.marginal_bytes, every_round.statistics.marginal_bytes / 2);
+  const double rmse_every_round = translation_rmse(every_round, data);
+  const double rmse_triggered = translation_rmse(triggered, data);
+  EXPECT_LT(rmse_triggered, 1.05 * rmse_every_round);
+  EXPECT_LT(rmse_triggered, translation_rmse(separate, data));
+}
+
+}  // namespace
+}  // namespace concord
