@@ -331,6 +331,13 @@ int run_replay(const fs::path& dataset_dir, const fs::path& out, bool separate,
       {"negotiation_bytes", s.negotiation_bytes},
       {"description_bytes", s.description_bytes},
       {"marginal_bytes", s.marginal_bytes},
+      {"marginal_bytes_per_robot_round",
+       [&] {
+         std::vector<long long> bytes = s.marginal_bytes_per_robot_round;
+         if (bytes.empty()) return nlohmann::json{{"median", 0}, {"max", 0}};
+         std::sort(bytes.begin(), bytes.end());
+         return nlohmann::json{{"median", bytes[bytes.size() / 2]}, {"max", bytes.back()}};
+       }()},
       {"negotiation_bytes_per_robot_round",
        s.negotiation_robot_rounds > 0
            ? static_cast<double>(s.negotiation_bytes) / s.negotiation_robot_rounds

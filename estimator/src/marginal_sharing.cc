@@ -71,6 +71,7 @@ Marginal sub_marginal(const Marginal& marginal, const std::vector<bool>& keep) {
 }
 
 long long CompactMarginal::bytes() const {
+  if (ids.empty()) return 0;  // nothing goes in the message (the daemons write no fields)
   long long total = 8 * static_cast<long long>(ids.size()) + 24 +
                     4 * static_cast<long long>(mean_offsets.size());
   for (const Block& block : blocks) {

@@ -330,13 +330,18 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
       phase_start = Clock::now();
       // 3. All marginals are taken before anyone fuses.
       std::vector<std::vector<WeightedMarginal>> inbox(robots);
+      std::vector<long long> sent_bytes(robots, 0);  // by sender, this round
+      const auto count_bytes = [&](int sender, long long bytes) {
+        statistics.marginal_bytes += bytes;
+        sent_bytes[sender] += bytes;
+      };
       if (negotiated) {
         for (int i = 0; i < robots; ++i) {
           for (int j : round_neighbours[i]) {
             if (frame_of[i] != frame_of[j]) continue;  // not aligned yet: separate
             Marginal marginal = relabelled_marginal(estimators[j], negotiators[j], negotiators[i]);
             if (marginal.ids.empty()) continue;
-            statistics.marginal_bytes += marginal_bytes(marginal);
+            count_bytes(j, marginal_bytes(marginal));
             const double weight =
                 Consensus::metropolis_weight(static_cast<int>(round_neighbours[i].size()),
                                              static_cast<int>(round_neighbours[j].size()));
@@ -356,7 +361,7 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
                                              static_cast<int>(round_neighbours[j].size()));
             if (!compact_sharing) {
               inbox[i].push_back({weight, estimators[j].marginal(common)});
-              statistics.marginal_bytes += marginal_bytes(inbox[i].back().marginal);
+              count_bytes(j, marginal_bytes(inbox[i].back().marginal));
               continue;
             }
             // What j sends i (the changed landmarks, in float32 if asked), then what i fuses.
@@ -364,16 +369,20 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
             Marginal sent = sender.select(estimators[j].marginal(common), sharing.share_kl_threshold);
             if (sharing.share_float32) {
               const CompactMarginal wire = compact(sent);
-              statistics.marginal_bytes += wire.bytes();
+              count_bytes(j, wire.bytes());
               sent = expand(wire);
             } else {
-              statistics.marginal_bytes += marginal_bytes(sent);
+              count_bytes(j, marginal_bytes(sent));
             }
             sender.delivered(sent);
             Marginal fused = receivers[{i, j}].complete(sent, common);
             if (!fused.ids.empty()) inbox[i].push_back({weight, std::move(fused)});
           }
         }
+      }
+      for (int i = 0; i < robots; ++i) {
+        if (active[i] && !round_neighbours[i].empty())
+          statistics.marginal_bytes_per_robot_round.push_back(sent_bytes[i]);
       }
       // 4. Every robot fuses.
       for (int i = 0; i < robots; ++i) {

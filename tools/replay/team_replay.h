@@ -137,8 +137,11 @@ struct ReplayStatistics {
   long long negotiation_bytes = 0;
   long long description_bytes = 0;
   /// Bytes of the marginals sent (8 per id, 8 per number of the mean and of each block's upper
-  /// triangle), all runs.
+  /// triangle; with consensus.share_float32, 4 per number and a 24-byte origin), all runs.
   long long marginal_bytes = 0;
+  /// Bytes of the marginals each robot sent in each round it took part in consensus (robot-major
+  /// within a round), for the median and largest a robot sends a round.
+  std::vector<long long> marginal_bytes_per_robot_round;
   /// Sum over rounds of the number of edges of that round's graph.
   long long edge_rounds = 0;
   /// Sums of the negotiators' counters (association::NegotiationCounters).

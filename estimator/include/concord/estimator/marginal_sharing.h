@@ -51,7 +51,7 @@ struct CompactMarginal {
   std::vector<Block> blocks;
 
   /// Bytes on the wire, counted as marginal_bytes counts the double form: 8 per id, 24 for the
-  /// origin, 4 per float, 8 per double.
+  /// origin, 4 per float, 8 per double; 0 for an empty marginal (no fields are written).
   long long bytes() const;
 };
 
