@@ -151,6 +151,23 @@ TEST(MarginalSharing, OnlyChangedLandmarksAreSentAndTheReceiverFusesTheLastOfThe
   EXPECT_EQ(sender.select(now, 0.1).ids.size(), 5u);
 }
 
+TEST(MarginalSharing, AReceiverKeepsAtMostItsLimitOfLandmarks) {
+  // A peer cannot grow the store without bound: new ids beyond the limit are not kept, known
+  // ones still update.
+  MarginalReceiver receiver(2);
+  receiver.ingest(three_and_a_pair());
+  EXPECT_EQ(receiver.size(), 2u);
+  Marginal moved = three_and_a_pair();
+  moved.mean(0) = 42.0;  // landmark 1, kept
+  const Marginal fused = receiver.complete(moved, {1, 2, 3, 4, 5});
+  EXPECT_EQ(receiver.size(), 2u);
+  EXPECT_EQ(fused.ids.size(), 5u);  // this round's message itself is fused whole
+  const Marginal later = receiver.build(Marginal(), {1, 2, 3, 4, 5});
+  ASSERT_EQ(later.ids.size(), 2u);
+  EXPECT_EQ(later.ids.front(), 1);
+  EXPECT_DOUBLE_EQ(later.mean(0), 42.0);
+}
+
 double translation_rmse(const replay::ReplayResult& result, const dataset::Dataset& data) {
   double sum = 0.0;
   int count = 0;

@@ -116,12 +116,17 @@ void ConsensusExchange::set_association(AssociationSession* session) {
 void ConsensusExchange::on_peer(int robot, bool up) {
   std::lock_guard lock(mutex_);
   auto& slot = peers_[robot];
-  if (!slot) slot = std::make_unique<Peer>();
+  if (!slot) {
+    slot = std::make_unique<Peer>();
+    // A peer cannot grow what is kept of its marginals beyond one marginal's limit.
+    slot->receiver = MarginalReceiver(static_cast<std::size_t>(config_.max_marginal_landmarks));
+  }
   Peer& peer = *slot;
   if (up) {
     // A new connection: whatever the peer announced before is from its previous life.
     if (peer.excluded && counters_.excluded_peers > 0) --counters_.excluded_peers;
     peer = Peer{};
+    peer.receiver = MarginalReceiver(static_cast<std::size_t>(config_.max_marginal_landmarks));
     peer.up = true;
   } else {
     peer.up = false;
@@ -132,7 +137,11 @@ void ConsensusExchange::on_peer(int robot, bool up) {
 void ConsensusExchange::on_message(int robot, const v1::Envelope& envelope) {
   std::lock_guard lock(mutex_);
   auto& slot = peers_[robot];
-  if (!slot) slot = std::make_unique<Peer>();
+  if (!slot) {
+    slot = std::make_unique<Peer>();
+    // A peer cannot grow what is kept of its marginals beyond one marginal's limit.
+    slot->receiver = MarginalReceiver(static_cast<std::size_t>(config_.max_marginal_landmarks));
+  }
   Peer& peer = *slot;
   switch (envelope.body_case()) {
     case v1::Envelope::kLandmarkSet: {
