@@ -270,6 +270,11 @@ TEST(DaemonProcess, RejectsGarbageAndMalformedHttpAndStillAnswers) {
   const auto pose = get_json(http, "/pose");
   ASSERT_TRUE(pose);
   EXPECT_EQ((*pose)["covariance"].size(), 6u);
+  // kitti-stereo.yaml makes the stereo disparity offset a state: its estimate is published.
+  const auto later_metrics = launch::http_get("127.0.0.1", http, "/metrics", 1s);
+  ASSERT_TRUE(later_metrics);
+  EXPECT_NE(later_metrics->find("concord_disparity_offset{robot=\"0\"}"), std::string::npos);
+  EXPECT_NE(later_metrics->find("concord_disparity_offset_sigma{robot=\"0\"}"), std::string::npos);
   const auto trajectory = launch::http_get("127.0.0.1", http, "/trajectory?format=tum", 1s);
   ASSERT_TRUE(trajectory);
   EXPECT_EQ(std::count(trajectory->begin(), trajectory->end(), '\n') > 0, true);
