@@ -133,26 +133,27 @@ Marginal expand(const CompactMarginal& compact) {
   }
   Eigen::Index covered = 0;
   for (const CompactMarginal::Block& block : compact.blocks) {
-    if (block.landmarks <= 0 || covered + 3 * block.landmarks > size) return {};
-    const Eigen::Index n = 3 * block.landmarks;
+    const Eigen::Index n = 3 * static_cast<Eigen::Index>(block.landmarks);
+    if (block.landmarks <= 0 || covered + n > size) return {};
     const auto triangle = static_cast<std::size_t>(n * (n + 1) / 2);
+    const bool in_float = block.cholesky_lower.size() == triangle && block.packed_upper.empty();
+    const bool in_double = block.packed_upper.size() == triangle && block.cholesky_lower.empty();
+    if (!in_float && !in_double) return {};  // checked before anything is allocated
     Eigen::MatrixXd covariance(n, n);
-    if (block.cholesky_lower.size() == triangle && block.packed_upper.empty()) {
+    if (in_float) {
       Eigen::MatrixXd L = Eigen::MatrixXd::Zero(n, n);
       std::size_t next = 0;
       for (Eigen::Index r = 0; r < n; ++r) {
         for (Eigen::Index c = 0; c <= r; ++c) L(r, c) = static_cast<double>(block.cholesky_lower[next++]);
       }
       covariance = L * L.transpose();
-    } else if (block.packed_upper.size() == triangle && block.cholesky_lower.empty()) {
+    } else {
       std::size_t next = 0;
       for (Eigen::Index r = 0; r < n; ++r) {
         for (Eigen::Index c = r; c < n; ++c) {
           covariance(r, c) = covariance(c, r) = block.packed_upper[next++];
         }
       }
-    } else {
-      return {};
     }
     out.blocks.push_back(std::move(covariance));
     covered += n;
