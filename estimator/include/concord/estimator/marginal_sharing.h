@@ -79,8 +79,9 @@ class MarginalSender {
 /// One link's receiving end.
 class MarginalReceiver {
  public:
+  MarginalReceiver() = default;
   /// At most `max_landmarks` are kept (a peer cannot grow the store without bound).
-  explicit MarginalReceiver(std::size_t max_landmarks = 100000) : max_landmarks_(max_landmarks) {}
+  explicit MarginalReceiver(std::size_t max_landmarks) : max_landmarks_(max_landmarks) {}
   /// Keeps the received landmarks' marginals (every message that arrives, in order, fused or
   /// not: the sender counts it as delivered). New ids beyond max_landmarks are not kept.
   void ingest(const Marginal& received);
@@ -97,7 +98,7 @@ class MarginalReceiver {
   std::size_t size() const { return last_received_.size(); }
 
  private:
-  std::size_t max_landmarks_;
+  std::size_t max_landmarks_ = 100000;
   std::map<LandmarkId, ObjectEstimate> last_received_;
 };
 
