@@ -67,6 +67,21 @@ void to_wire(const CompactMarginal& marginal, v1::Marginal& out) {
 
 namespace {
 
+/// A block of `landmarks` fits after `covered` of a marginal's k landmarks.
+bool block_fits(std::size_t landmarks, std::size_t covered, std::size_t k, std::string& error) {
+  if (landmarks != 0 && covered + landmarks <= k) return true;
+  error = "marginal: covariance blocks do not match the " + std::to_string(k) + " landmarks";
+  return false;
+}
+
+/// The blocks covered every one of the k landmarks.
+bool blocks_cover(std::size_t covered, std::size_t k, std::string& error) {
+  if (covered == k) return true;
+  error = "marginal: covariance blocks cover " + std::to_string(covered) + " of " +
+          std::to_string(k) + " landmarks";
+  return false;
+}
+
 /// The float32 form (origin and mean_offsets present): every size checked before anything is
 /// read, then expanded; the reconstructed marginal must be finite and well formed.
 std::optional<Marginal> compact_from_wire(const v1::Marginal& message, std::string& error) {
@@ -85,10 +100,7 @@ std::optional<Marginal> compact_from_wire(const v1::Marginal& message, std::stri
   std::size_t covered = 0;
   for (const v1::CovarianceBlock& block : message.blocks()) {
     const std::size_t landmarks = block.landmarks();
-    if (landmarks == 0 || covered + landmarks > k) {
-      error = "marginal: covariance blocks do not match the " + std::to_string(k) + " landmarks";
-      return std::nullopt;
-    }
+    if (!block_fits(landmarks, covered, k, error)) return std::nullopt;
     const std::size_t d = 3 * landmarks;
     const std::size_t triangle = d * (d + 1) / 2;
     const auto floats = static_cast<std::size_t>(block.cholesky_lower_size());
@@ -106,11 +118,7 @@ std::optional<Marginal> compact_from_wire(const v1::Marginal& message, std::stri
     compact.blocks.push_back(std::move(out));
     covered += landmarks;
   }
-  if (covered != k) {
-    error = "marginal: covariance blocks cover " + std::to_string(covered) + " of " +
-            std::to_string(k) + " landmarks";
-    return std::nullopt;
-  }
+  if (!blocks_cover(covered, k, error)) return std::nullopt;
   Marginal marginal = expand(compact);
   if (marginal.ids.size() != k || !marginal.well_formed()) {
     error = "marginal (float32): non-finite mean or covariance";
@@ -137,10 +145,7 @@ std::optional<Marginal> from_wire(const v1::Marginal& message, std::string& erro
   std::size_t covered = 0;
   for (const v1::CovarianceBlock& block : message.blocks()) {
     const std::size_t landmarks = block.landmarks();
-    if (landmarks == 0 || covered + landmarks > k) {
-      error = "marginal: covariance blocks do not match the " + std::to_string(k) + " landmarks";
-      return std::nullopt;
-    }
+    if (!block_fits(landmarks, covered, k, error)) return std::nullopt;
     const auto d = static_cast<Eigen::Index>(3 * landmarks);
     if (static_cast<std::size_t>(block.packed_upper_size()) !=
         static_cast<std::size_t>(d * (d + 1) / 2)) {
@@ -159,11 +164,7 @@ std::optional<Marginal> from_wire(const v1::Marginal& message, std::string& erro
     marginal.blocks.push_back(std::move(covariance));
     covered += landmarks;
   }
-  if (covered != k) {
-    error = "marginal: covariance blocks cover " + std::to_string(covered) + " of " +
-            std::to_string(k) + " landmarks";
-    return std::nullopt;
-  }
+  if (!blocks_cover(covered, k, error)) return std::nullopt;
   if (!marginal.well_formed()) {
     error = "marginal: non-finite mean or covariance";
     return std::nullopt;
