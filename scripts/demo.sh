@@ -2,9 +2,10 @@
 # Installs what is missing, builds, and runs the demo: a team of concordd daemons (one process
 # per robot, consensus over TCP on loopback, state on http://127.0.0.1:8100+i) on the embedded
 # default scenario, a 3-robot team from the simulator (`concord sim`, seed 1), or on the dataset
-# folder given as the first argument, at the camera rate (RATE, default 10 Hz). Prints the curl
-# lines to ask the robots for their state, shows a live status line, then the metrics table
-# and where the trajectories, object maps, metrics.json and the plot went (default out/demo).
+# folder given as the first argument, at the camera rate (RATE, default 10 Hz). Prints the live
+# map's address and the curl lines to ask the robots for their state, shows a live status line,
+# then the metrics table and where the trajectories, object maps, metrics.json and the plot went
+# (default out/demo).
 # Usage: scripts/demo.sh [DATASET_DIR [OUT_DIR]]
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -21,7 +22,9 @@ fi
 # robots can be asked for their state while they run. RATE=0 runs as fast as possible.
 rate="${RATE:-10}"
 robots=$(ls -d "$dataset"/robot_* | wc -l)
-echo "demo: $robots robots at ${rate} Hz; while they run, ask them for their state:"
+echo "demo: $robots robots at ${rate} Hz; while they run, open the live map of robot 0 (it draws"
+echo "  its neighbours too) in a browser:  http://127.0.0.1:8100/"
+echo "  or ask them for their state:"
 for ((robot = 0; robot < robots && robot < 3; ++robot)); do
   port=$((8100 + robot))
   echo "  curl -s http://127.0.0.1:$port/status   curl -s http://127.0.0.1:$port/pose   curl -s http://127.0.0.1:$port/objects"

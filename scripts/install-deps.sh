@@ -19,6 +19,7 @@ packages=(
   libgtest-dev libgmock-dev  # tests
   iproute2                 # ip, tc: the network-namespace team tests (skipped without root)
   clang libclang-rt-14-dev   # sanitizer builds and the libFuzzer targets (scripts/test.sh)
+  chromium                 # headless: the live map page's screenshot test
 )
 
 missing=()

@@ -37,6 +37,7 @@
 #include "concord/v1/concord.pb.h"
 #include "concord/web/http_server.h"
 #include "concord/web/json_response.h"
+#include "concord/web/live_map.h"
 #include "metrics_text.h"
 #include "output_files.h"
 #include "service_notifier.h"
@@ -347,6 +348,19 @@ bool Daemon::Impl::load_source() {
 
 bool Daemon::Impl::start_services() {
   try {
+    // HTTP first: its port is announced in Hello. Nothing is served before run() starts the
+    // HTTP thread, when every service below exists.
+    if (config_.http.enabled) {
+      web::ServerOptions options;
+      options.address = config_.http.address;
+      options.port = config_.http.port;
+      options.max_connections = config_.http.max_connections;
+      options.max_connections_per_client = config_.http.max_connections_per_client;
+      http_ = std::make_unique<web::HttpServer>(http_io_, options);
+      register_routes();
+      http_->start();
+      spdlog::info("http: serving on {}:{}", config_.http.address, http_->port());
+    }
     const bool needs_key =
         config_.consensus.mode != ConsensusMode::kOff ||
         (config_.source.kind == SourceKind::kIngest && config_.source.ingest_authenticated);
@@ -371,6 +385,10 @@ bool Daemon::Impl::start_services() {
       options.heartbeat_interval = config_.network.heartbeat_interval;
       options.heartbeat_timeout = config_.network.heartbeat_timeout;
       options.capabilities = {"consensus." + to_string(config_.consensus.mode)};
+      if (http_) {
+        options.http_address = config_.http.address;
+        options.http_port = http_->port();
+      }
       options.discovery.enabled = config_.network.discovery;
       options.discovery.address = config_.network.discovery_address;
       options.discovery.port = config_.network.discovery_port;
@@ -416,17 +434,6 @@ bool Daemon::Impl::start_services() {
                    config_.source.ingest_address, ingest_->port(),
                    config_.source.ingest_authenticated ? "authenticated with the team key"
                                                        : "plaintext, loopback only");
-    }
-    if (config_.http.enabled) {
-      web::ServerOptions options;
-      options.address = config_.http.address;
-      options.port = config_.http.port;
-      options.max_connections = config_.http.max_connections;
-      options.max_connections_per_client = config_.http.max_connections_per_client;
-      http_ = std::make_unique<web::HttpServer>(http_io_, options);
-      register_routes();
-      http_->start();
-      spdlog::info("http: serving on {}:{}", config_.http.address, http_->port());
     }
   } catch (const std::exception& error) {
     spdlog::error("start: {}", error.what());
@@ -1058,6 +1065,17 @@ json Daemon::Impl::stats_json() const {
 }
 
 void Daemon::Impl::register_routes() {
+  http_->get("/", [](const web::Request&) {
+    // The live map: inline script and style only, data from this robot and its neighbours.
+    return web::Response{200,
+                         "text/html; charset=utf-8",
+                         std::string(web::live_map_page()),
+                         {{"Cache-Control", "no-cache"},
+                          {"Content-Security-Policy",
+                           "default-src 'none'; script-src 'unsafe-inline'; style-src "
+                           "'unsafe-inline'; connect-src *; img-src 'self'"},
+                          {"X-Content-Type-Options", "nosniff"}}};
+  });
   http_->get("/healthz", [](const web::Request&) {
     return web::json_response(200, {{"status", "ok"}});
   });
@@ -1157,7 +1175,9 @@ void Daemon::Impl::register_routes() {
                          {"landmarks_tested", peer_trust.landmarks_tested},
                          {"quarantines", peer_trust.quarantines},
                          {"quarantined", peer_trust.quarantined},
-                         {"degree", peer.degree}});
+                         {"degree", peer.degree},
+                         {"http", peer.http_endpoint.empty() ? json(nullptr)
+                                                             : json(peer.http_endpoint)}});
       }
     }
     return web::json_response(200, {{"robot_id", config_.robot_id}, {"peers", peers}});

@@ -160,6 +160,10 @@ v1::Envelope PeerNetwork::Impl::make_hello() const {
   for (const std::string& capability : options_.capabilities) hello.add_capabilities(capability);
   hello.set_degree(degree());
   hello.set_instance(instance_);
+  if (options_.http_port != 0) {
+    hello.set_http_address(options_.http_address);
+    hello.set_http_port(options_.http_port);
+  }
   return envelope;
 }
 
@@ -301,6 +305,7 @@ void PeerNetwork::Impl::handle_hello(const std::shared_ptr<Session>& session,
     peer.dial_key = address.to_string();
   }
   if (!peer.dial_key.empty()) dial_address = peer.dial_key;
+  const std::string http_endpoint = announced_http_endpoint(hello, session->remote_address);
 
   update_counters([](NetworkCounters& counters) { ++counters.handshakes_completed; });
   update_record(robot, [&](PeerRecord& record) {
@@ -308,6 +313,7 @@ void PeerNetwork::Impl::handle_hello(const std::shared_ptr<Session>& session,
     record.stats.dial_address = dial_address;
     record.stats.degree = hello.degree();
     record.stats.capabilities.assign(hello.capabilities().begin(), hello.capabilities().end());
+    record.stats.http_endpoint = http_endpoint;
     record.stats.last_seen = session->last_received;
   });
 

@@ -61,6 +61,20 @@ inline HostPort announced_address(const v1::Hello& hello, const asio::ip::addres
           static_cast<std::uint16_t>(hello.listen_port())};
 }
 
+/// The HTTP endpoint "host:port" a Hello announces ("" for none, a port out of range or an
+/// address that is not an IP literal: a peer's word is never a host name to resolve).
+inline std::string announced_http_endpoint(const v1::Hello& hello,
+                                           const asio::ip::address& source) {
+  if (hello.http_port() == 0 || hello.http_port() > 65535) return {};
+  ErrorCode error;
+  const auto announced = asio::ip::make_address(hello.http_address(), error);
+  if (!hello.http_address().empty() && error) return {};
+  const bool use_source = hello.http_address().empty() || announced.is_unspecified();
+  return HostPort{use_source ? source.to_string() : announced.to_string(),
+                  static_cast<std::uint16_t>(hello.http_port())}
+      .to_string();
+}
+
 inline std::int64_t milliseconds(std::chrono::nanoseconds duration) {
   return std::chrono::duration_cast<std::chrono::milliseconds>(duration).count();
 }

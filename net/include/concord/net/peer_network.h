@@ -69,6 +69,10 @@ struct PeerNetworkOptions {
   /// How long stop() waits for peers to read the Goodbye and close before closing anyway.
   std::chrono::milliseconds stop_linger{500};
   std::vector<std::string> capabilities;  ///< announced in Hello, e.g. "consensus.lockstep"
+  /// This daemon's HTTP endpoint, announced in Hello (http_port 0: none). An unspecified
+  /// http_address (0.0.0.0, "") is replaced by the peer with the connection's source address.
+  std::string http_address;
+  std::uint16_t http_port = 0;
   DiscoveryOptions discovery;
   /// The membership list: robot ids allowed in the team. A Hello with another id is refused
   /// (counted in rejected_handshake). Empty = any id (tests; a daemon always sets it).
@@ -109,6 +113,9 @@ struct PeerStats {
   std::uint32_t degree = 0;           ///< its live neighbours, from its last Hello/Heartbeat
   std::uint64_t instance = 0;         ///< its per-process nonce, from Hello
   std::vector<std::string> capabilities;
+  /// Its HTTP endpoint "host:port" from Hello ("" if it serves none or announced an unusable
+  /// address): what the live map page follows to draw the neighbours.
+  std::string http_endpoint;
   std::string last_goodbye;  ///< reason of its last Goodbye ("" if none)
 };
 
