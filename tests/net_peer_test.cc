@@ -711,6 +711,44 @@ TEST(PeerNetwork, GarbageAndOversizedFramesCloseOnlyThatConnection) {
   EXPECT_EQ(pair.a->totals().open_connections, 1u);
 }
 
+TEST(PeerNetwork, HelloAnnouncesTheHttpEndpointAndUnusableOnesAreIgnored) {
+  Waiter waiter;
+  PeerNetworkOptions options_a = test_options(1);
+  options_a.http_address = "0.0.0.0";  // unspecified: the peer uses the connection's source
+  options_a.http_port = 8123;
+  Node a(options_a, waiter);
+  a.start();
+  PeerNetworkOptions options_b = test_options(2);
+  options_b.peers = {loopback(a.port())};
+  options_b.http_address = "127.0.0.5";
+  options_b.http_port = 9000;
+  Node b(options_b, waiter);
+  b.start();
+  ASSERT_TRUE(waiter.until([&] { return a.is_up(2) && b.is_up(1); }));
+  EXPECT_EQ(b.stats(1)->http_endpoint, "127.0.0.1:8123");
+  EXPECT_EQ(a.stats(2)->http_endpoint, "127.0.0.5:9000");
+
+  // A peer's word is never a host name to resolve, nor a port out of range: no endpoint.
+  struct Case {
+    int robot;
+    const char* address;
+    std::uint32_t port;
+    const char* expected;
+  };
+  for (const Case& c : {Case{7, "robot7.example.com", 80, ""}, Case{8, "127.0.0.8", 70000, ""},
+                        Case{9, "", 8080, "127.0.0.1:8080"}, Case{10, "127.0.0.9", 0, ""}}) {
+    SCOPED_TRACE(c.robot);
+    RawClient raw(a.port());
+    ASSERT_TRUE(raw.secure(*test_key()));
+    v1::Envelope hello = raw_hello(c.robot);
+    hello.mutable_hello()->set_http_address(c.address);
+    hello.mutable_hello()->set_http_port(c.port);
+    raw.send(hello);
+    ASSERT_TRUE(waiter.until([&] { return a.is_up(c.robot); }));  // still a peer
+    EXPECT_EQ(a.stats(c.robot)->http_endpoint, c.expected);
+  }
+}
+
 TEST(PeerNetwork, HandshakeViolationsAreRejectedAndCounted) {
   Waiter waiter;
   Node a(test_options(1), waiter);
