@@ -75,16 +75,34 @@ std::optional<Member> check(const Marginal& marginal, int index, double weight) 
   return Member{index, weight, &marginal, std::move(*locations)};
 }
 
-/// Cholesky factor of a covariance if it is positive definite and its (1-norm) condition
-/// number, estimated from the factor, is below max_condition_number.
+/// The inverse (symmetrised) of a covariance if it is positive definite and its 1-norm condition
+/// number ||P||_1 ||P^-1||_1, exact from the inverse, is at most max_condition_number.
 template <typename Matrix>
-std::optional<Eigen::LLT<Matrix>> checked_cholesky(const Matrix& covariance,
-                                                   double max_condition_number) {
-  Eigen::LLT<Matrix> llt(covariance);
+std::optional<Matrix> checked_inverse(const Matrix& covariance, double max_condition_number) {
+  const Eigen::LLT<Matrix> llt(covariance);
   if (llt.info() != Eigen::Success) return std::nullopt;
-  const double reciprocal_condition = llt.rcond();
-  if (!(reciprocal_condition * max_condition_number >= 1.0)) return std::nullopt;
-  return llt;
+  Matrix inverse = llt.solve(Matrix::Identity(covariance.rows(), covariance.cols()));
+  inverse = 0.5 * (inverse + inverse.transpose()).eval();
+  const double condition = covariance.cwiseAbs().colwise().sum().maxCoeff() *
+                           inverse.cwiseAbs().colwise().sum().maxCoeff();
+  if (!(condition <= max_condition_number)) return std::nullopt;
+  return inverse;
+}
+
+/// checked_inverse for one landmark's 3x3 covariance, in closed form: positive definite when its
+/// leading principal minors are positive (Sylvester), the inverse from the cofactors.
+std::optional<Eigen::Matrix3d> checked_inverse3(const Eigen::Matrix3d& covariance,
+                                                double max_condition_number) {
+  const Eigen::Matrix3d& P = covariance;
+  const double minor2 = P(0, 0) * P(1, 1) - P(0, 1) * P(1, 0);
+  const double determinant = P.determinant();
+  if (!(P(0, 0) > 0.0 && minor2 > 0.0 && determinant > 0.0)) return std::nullopt;
+  Eigen::Matrix3d inverse = P.inverse();
+  inverse = 0.5 * (inverse + inverse.transpose()).eval();
+  const double condition = P.cwiseAbs().colwise().sum().maxCoeff() *
+                           inverse.cwiseAbs().colwise().sum().maxCoeff();
+  if (!(condition <= max_condition_number)) return std::nullopt;
+  return inverse;
 }
 
 /// Mean and covariance of the landmarks at `at` (all in one block) of a block-diagonal Gaussian.
@@ -141,6 +159,26 @@ bool replace_gaussian_marginal(Eigen::VectorXd& mean, Eigen::MatrixXd& covarianc
   return true;
 }
 
+/// Proposition 2 (see proposition_two) for one landmark, coordinates [c, c + 3) of P, with
+/// fixed-size algebra.
+std::optional<Eigen::VectorXd> proposition_two_single(Eigen::MatrixXd& P, Eigen::Index c,
+                                                      const Eigen::Vector3d& own_mean,
+                                                      const Eigen::Vector3d& target_mean,
+                                                      const Eigen::Matrix3d& target_covariance) {
+  const Eigen::Matrix3d own_covariance = P.block<3, 3>(c, c);
+  const Eigen::LLT<Eigen::Matrix3d> llt(own_covariance);
+  if (llt.info() != Eigen::Success) return std::nullopt;
+  const Eigen::Matrix<double, Eigen::Dynamic, 3> B = P.middleCols<3>(c);
+  Eigen::VectorXd correction = B * llt.solve(target_mean - own_mean);
+  const Eigen::Matrix3d half = llt.solve(target_covariance - own_covariance);
+  Eigen::Matrix3d M = llt.solve(half.transpose());
+  M = 0.5 * (M + M.transpose()).eval();
+  const Eigen::Matrix<double, Eigen::Dynamic, 3> BM = B * M;
+  P.triangularView<Eigen::Lower>() += BM * B.transpose();
+  P.triangularView<Eigen::StrictlyUpper>() = P.transpose();
+  return correction;
+}
+
 /// A Gaussian over a group of landmarks in information form (matrix, vector = matrix * mean).
 struct Information {
   Eigen::MatrixXd matrix;
@@ -151,19 +189,23 @@ struct Information {
 /// covariance is not positive definite or ill-conditioned.
 std::optional<Information> information_of(const Member& member, const std::vector<LandmarkId>& ids,
                                           double max_condition_number) {
+  if (ids.size() == 1) {  // most groups: one landmark, with fixed-size (allocation-free) algebra
+    const Location& at = *member.find(ids.front());
+    const auto matrix = checked_inverse3(member.covariance(at), max_condition_number);
+    if (!matrix) return std::nullopt;
+    return Information{*matrix, *matrix * member.mean(at)};
+  }
   std::vector<Location> at;
   at.reserve(ids.size());
   for (LandmarkId id : ids) at.push_back(*member.find(id));
   Eigen::VectorXd mean;
   Eigen::MatrixXd covariance;
   sub_gaussian(member.marginal->mean, member.marginal->blocks, at, mean, covariance);
-  const auto llt = checked_cholesky(covariance, max_condition_number);
-  if (!llt) return std::nullopt;
-  const Eigen::Index d = covariance.rows();
+  auto matrix = checked_inverse(covariance, max_condition_number);
+  if (!matrix) return std::nullopt;
   Information out;
-  out.matrix = llt->solve(Eigen::MatrixXd::Identity(d, d));
-  out.matrix = 0.5 * (out.matrix + out.matrix.transpose()).eval();
-  out.vector = out.matrix * mean;
+  out.vector = *matrix * mean;
+  out.matrix = std::move(*matrix);
   return out;
 }
 
@@ -195,7 +237,7 @@ bool information_average(const std::vector<std::pair<double, Information>>& memb
 }
 
 /// Records the longest landmark step of an average.
-void note_mean_shift(const Eigen::VectorXd& own_mean, const Eigen::VectorXd& mean,
+void note_mean_shift(const Eigen::Ref<const Eigen::VectorXd>& own_mean, const Eigen::Ref<const Eigen::VectorXd>& mean,
                      ConsensusReport& report) {
   for (Eigen::Index i = 0; i < own_mean.size(); i += 3) {
     report.largest_mean_shift = std::max(report.largest_mean_shift,
@@ -281,9 +323,11 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
   // 2. For every landmark the robot holds, the neighbours that hold it and agree with the robot
   //    (a neighbour's mean beyond the chi-square bound under the sum of both covariances is
   //    refused: an outlier, a wrong association or a lie; not averaged in, counted).
-  std::map<LandmarkId, std::vector<int>> accepted;  // id -> neighbours (positions)
-  for (LandmarkId id : own_marginal.ids) {
-    const Location& own_at = *own->find(id);
+  std::vector<std::pair<LandmarkId, std::vector<int>>> accepted;  // (id, neighbours), by id
+  accepted.reserve(own->locations.size());
+  std::vector<int> holders;
+  for (const auto& [id, own_at] : own->locations) {  // sorted by id
+    holders.clear();
     for (std::size_t j = 0; j < neighbour_members.size(); ++j) {
       const Member& neighbour = neighbour_members[j];
       const Location* found = neighbour.find(id);
@@ -300,8 +344,9 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
           continue;
         }
       }
-      accepted[id].push_back(static_cast<int>(j));
+      holders.push_back(static_cast<int>(j));
     }
+    if (!holders.empty()) accepted.emplace_back(id, holders);
   }
 
   // 3. The weighted average (eq. 19) of landmarks grouped by (in joint state?, and for the
@@ -342,6 +387,66 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
   int union_groups = 0;
   for (const auto& [key, ids] : groups) {
     const auto& [in_joint_state, members] = key;
+    if (ids.size() == 1) {
+      // Most groups: one landmark. The same average and replacement as below, with fixed-size
+      // algebra and no allocation.
+      const LandmarkId id = ids.front();
+      Eigen::Matrix3d matrix = Eigen::Matrix3d::Zero();
+      Eigen::Vector3d vector = Eigen::Vector3d::Zero();
+      double own_weight = 1.0;
+      bool any = false;
+      for (const auto& [j, block] : members) {
+        if (j < 0) continue;
+        const Member& neighbour = neighbour_members[j];
+        const Location& at = *neighbour.find(id);
+        const auto information =
+            checked_inverse3(neighbour.covariance(at), options.max_condition_number);
+        if (!information) {
+          ++report.neighbours_skipped;  // its weight stays with the robot
+          continue;
+        }
+        own_weight -= neighbour.weight;
+        matrix += neighbour.weight * *information;
+        vector += neighbour.weight * (*information * neighbour.mean(at));
+        any = true;
+      }
+      if (!any) continue;
+      const Eigen::Index c = in_joint_state ? 3 * union_position.at(id) : 0;
+      ObjectEstimate* archived = in_joint_state ? nullptr : &state.archived.at(id);
+      const Eigen::Vector3d own_mean =
+          in_joint_state ? Eigen::Vector3d(union_mean.segment<3>(c)) : archived->p_world;
+      const Eigen::Matrix3d own_covariance =
+          in_joint_state ? Eigen::Matrix3d(union_covariance.block<3, 3>(c, c))
+                         : archived->covariance;
+      const Eigen::LLT<Eigen::Matrix3d> own_llt(own_covariance);
+      if (own_llt.info() != Eigen::Success) continue;
+      Eigen::Matrix3d own_information = own_llt.solve(Eigen::Matrix3d::Identity());
+      own_information = 0.5 * (own_information + own_information.transpose()).eval();
+      matrix += own_weight * own_information;
+      vector += own_weight * (own_information * own_mean);
+      matrix = 0.5 * (matrix + matrix.transpose()).eval();
+      const Eigen::LLT<Eigen::Matrix3d> average(matrix);
+      if (average.info() != Eigen::Success) continue;
+      Eigen::Matrix3d covariance = average.solve(Eigen::Matrix3d::Identity());
+      covariance = 0.5 * (covariance + covariance.transpose()).eval();
+      const Eigen::Vector3d mean = covariance * vector;
+      if (!mean.allFinite() || !covariance.allFinite()) continue;
+      note_mean_shift(own_mean, mean, report);
+      if (!in_joint_state) {
+        archived->p_world = mean;
+        archived->covariance = covariance;
+        ++report.landmarks_fused;
+        ++report.groups;
+        continue;
+      }
+      const auto correction =
+          proposition_two_single(union_covariance, c, own_mean, mean, covariance);
+      if (!correction) continue;
+      union_mean += *correction;
+      ++union_fused;
+      ++union_groups;
+      continue;
+    }
     std::vector<std::pair<double, Information>> shares;
     double own_weight = 1.0;
     for (const auto& [j, block] : members) {
@@ -371,12 +476,20 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
       own_mean = estimate.p_world;
       own_covariance = estimate.covariance;
     }
-    const Eigen::LLT<Eigen::MatrixXd> own_llt(own_covariance);
-    if (own_llt.info() != Eigen::Success) continue;
     Information own_information;
-    own_information.matrix =
-        own_llt.solve(Eigen::MatrixXd::Identity(own_covariance.rows(), own_covariance.rows()));
-    own_information.matrix = 0.5 * (own_information.matrix + own_information.matrix.transpose()).eval();
+    if (own_covariance.rows() == 3) {  // one landmark: fixed-size algebra
+      const Eigen::LLT<Eigen::Matrix3d> own_llt(own_covariance);
+      if (own_llt.info() != Eigen::Success) continue;
+      Eigen::Matrix3d matrix = own_llt.solve(Eigen::Matrix3d::Identity());
+      own_information.matrix = 0.5 * (matrix + matrix.transpose());
+    } else {
+      const Eigen::LLT<Eigen::MatrixXd> own_llt(own_covariance);
+      if (own_llt.info() != Eigen::Success) continue;
+      own_information.matrix =
+          own_llt.solve(Eigen::MatrixXd::Identity(own_covariance.rows(), own_covariance.rows()));
+      own_information.matrix =
+          0.5 * (own_information.matrix + own_information.matrix.transpose()).eval();
+    }
     own_information.vector = own_information.matrix * own_mean;
     shares.emplace_back(own_weight, std::move(own_information));
     Eigen::VectorXd mean;
