@@ -323,9 +323,11 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
   // 2. For every landmark the robot holds, the neighbours that hold it and agree with the robot
   //    (a neighbour's mean beyond the chi-square bound under the sum of both covariances is
   //    refused: an outlier, a wrong association or a lie; not averaged in, counted).
-  std::vector<std::pair<LandmarkId, std::vector<int>>> accepted;  // (id, neighbours), by id
+  // (id, its holders: neighbour position and where the landmark sits in its marginal), by id.
+  using Holders = std::vector<std::pair<int, const Location*>>;
+  std::vector<std::pair<LandmarkId, Holders>> accepted;
   accepted.reserve(own->locations.size());
-  std::vector<int> holders;
+  Holders holders;
   for (const auto& [id, own_at] : own->locations) {  // sorted by id
     holders.clear();
     for (std::size_t j = 0; j < neighbour_members.size(); ++j) {
@@ -344,7 +346,7 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
           continue;
         }
       }
-      holders.push_back(static_cast<int>(j));
+      holders.emplace_back(static_cast<int>(j), found);
     }
     if (!holders.empty()) accepted.emplace_back(id, holders);
   }
@@ -360,20 +362,22 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
   //    so p(rest of the state | U) never changes and the sequence of replacements equals one
   //    replacement of U's marginal at the end (Proposition 2 once, not per group).
   using Key = std::pair<bool, std::vector<std::pair<int, int>>>;  // (member, block)
-  std::map<Key, std::vector<LandmarkId>> groups;
-  for (const auto& [id, holders] : accepted) {
+  std::map<Key, std::vector<int>> groups;  // -> positions in accepted
+  for (std::size_t a = 0; a < accepted.size(); ++a) {
+    const auto& [id, holders] = accepted[a];
     std::vector<std::pair<int, int>> members;
-    for (int j : holders) members.emplace_back(j, neighbour_members[j].find(id)->block);
+    members.reserve(holders.size() + 1);
+    for (const auto& [j, at] : holders) members.emplace_back(j, at->block);
     members.emplace_back(-1, own->find(id)->block);
-    groups[{state.landmark_slot(id) >= 0, std::move(members)}].push_back(id);
+    groups[{state.landmark_slot(id) >= 0, std::move(members)}].push_back(static_cast<int>(a));
   }
   std::vector<int> union_slots;
-  std::map<LandmarkId, int> union_position;
-  for (const auto& [key, ids] : groups) {
+  std::vector<int> union_position(accepted.size(), -1);  // by position in accepted
+  for (const auto& [key, positions] : groups) {
     if (!key.first) continue;
-    for (LandmarkId id : ids) {
-      union_position[id] = static_cast<int>(union_slots.size());
-      union_slots.push_back(state.landmark_slot(id));
+    for (int a : positions) {
+      union_position[a] = static_cast<int>(union_slots.size());
+      union_slots.push_back(state.landmark_slot(accepted[a].first));
     }
   }
   Eigen::VectorXd union_mean;
@@ -385,20 +389,19 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
   }
   int union_fused = 0;
   int union_groups = 0;
-  for (const auto& [key, ids] : groups) {
+  for (const auto& [key, positions] : groups) {
     const auto& [in_joint_state, members] = key;
-    if (ids.size() == 1) {
+    if (positions.size() == 1) {
       // Most groups: one landmark. The same average and replacement as below, with fixed-size
       // algebra and no allocation.
-      const LandmarkId id = ids.front();
+      const auto& [id, holders] = accepted[positions.front()];
       Eigen::Matrix3d matrix = Eigen::Matrix3d::Zero();
       Eigen::Vector3d vector = Eigen::Vector3d::Zero();
       double own_weight = 1.0;
       bool any = false;
-      for (const auto& [j, block] : members) {
-        if (j < 0) continue;
+      for (const auto& [j, location] : holders) {
         const Member& neighbour = neighbour_members[j];
-        const Location& at = *neighbour.find(id);
+        const Location& at = *location;
         const auto information =
             checked_inverse3(neighbour.covariance(at), options.max_condition_number);
         if (!information) {
@@ -411,7 +414,7 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
         any = true;
       }
       if (!any) continue;
-      const Eigen::Index c = in_joint_state ? 3 * union_position.at(id) : 0;
+      const Eigen::Index c = in_joint_state ? 3 * union_position[positions.front()] : 0;
       ObjectEstimate* archived = in_joint_state ? nullptr : &state.archived.at(id);
       const Eigen::Vector3d own_mean =
           in_joint_state ? Eigen::Vector3d(union_mean.segment<3>(c)) : archived->p_world;
@@ -447,6 +450,9 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
       ++union_groups;
       continue;
     }
+    std::vector<LandmarkId> ids;
+    ids.reserve(positions.size());
+    for (int a : positions) ids.push_back(accepted[a].first);
     std::vector<std::pair<double, Information>> shares;
     double own_weight = 1.0;
     for (const auto& [j, block] : members) {
@@ -466,8 +472,8 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
     Eigen::VectorXd own_mean;
     Eigen::MatrixXd own_covariance;
     if (in_joint_state) {
-      for (LandmarkId id : ids) {
-        for (int k = 0; k < 3; ++k) indices.push_back(3 * union_position.at(id) + k);
+      for (int a : positions) {
+        for (int k = 0; k < 3; ++k) indices.push_back(3 * union_position[a] + k);
       }
       own_mean = union_mean(indices);
       own_covariance = union_covariance(indices, indices);
@@ -476,20 +482,13 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
       own_mean = estimate.p_world;
       own_covariance = estimate.covariance;
     }
+    const Eigen::LLT<Eigen::MatrixXd> own_llt(own_covariance);
+    if (own_llt.info() != Eigen::Success) continue;
     Information own_information;
-    if (own_covariance.rows() == 3) {  // one landmark: fixed-size algebra
-      const Eigen::LLT<Eigen::Matrix3d> own_llt(own_covariance);
-      if (own_llt.info() != Eigen::Success) continue;
-      Eigen::Matrix3d matrix = own_llt.solve(Eigen::Matrix3d::Identity());
-      own_information.matrix = 0.5 * (matrix + matrix.transpose());
-    } else {
-      const Eigen::LLT<Eigen::MatrixXd> own_llt(own_covariance);
-      if (own_llt.info() != Eigen::Success) continue;
-      own_information.matrix =
-          own_llt.solve(Eigen::MatrixXd::Identity(own_covariance.rows(), own_covariance.rows()));
-      own_information.matrix =
-          0.5 * (own_information.matrix + own_information.matrix.transpose()).eval();
-    }
+    own_information.matrix =
+        own_llt.solve(Eigen::MatrixXd::Identity(own_covariance.rows(), own_covariance.rows()));
+    own_information.matrix =
+        0.5 * (own_information.matrix + own_information.matrix.transpose()).eval();
     own_information.vector = own_information.matrix * own_mean;
     shares.emplace_back(own_weight, std::move(own_information));
     Eigen::VectorXd mean;
