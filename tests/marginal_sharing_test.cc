@@ -151,6 +151,43 @@ TEST(MarginalSharing, OnlyChangedLandmarksAreSentAndTheReceiverFusesTheLastOfThe
   EXPECT_EQ(sender.select(now, 0.1).ids.size(), 5u);
 }
 
+TEST(MarginalSharing, ACapSendsTheNeverSentFirstThenTheLargestMovesAndTheRestLater) {
+  MarginalSender sender;
+  Marginal now = three_and_a_pair();  // landmarks 1, 2, 3 alone, 4 and 5 in one block, sigma 1
+
+  // Everything is new: two a round, in the marginal's order, until all were sent.
+  std::vector<LandmarkId> sent_ids;
+  for (int round = 0; round < 3; ++round) {
+    const Marginal sent = sender.select(now, 0.1, 2);
+    ASSERT_TRUE(sent.well_formed());
+    EXPECT_LE(sent.ids.size(), 2u);
+    sender.delivered(sent);
+    sent_ids.insert(sent_ids.end(), sent.ids.begin(), sent.ids.end());
+  }
+  EXPECT_EQ(sent_ids, (std::vector<LandmarkId>{1, 2, 3, 4, 5}));
+  EXPECT_TRUE(sender.select(now, 0.1, 2).ids.empty());
+
+  // Three moved beyond the threshold (by 1, 3 and 2 sigma): the cap takes the two largest, in
+  // the marginal's order, and the third goes next round.
+  now.mean(3 * 0) += 1.0;  // landmark 1
+  now.mean(3 * 2) += 3.0;  // landmark 3
+  now.mean(3 * 4) += 2.0;  // landmark 5
+  Marginal sent = sender.select(now, 0.1, 2);
+  EXPECT_EQ(sent.ids, (std::vector<LandmarkId>{3, 5}));
+  sender.delivered(sent);
+  EXPECT_EQ(sender.select(now, 0.1, 2).ids, std::vector<LandmarkId>{1});
+  // With threshold 0 the cap alone: everything is a candidate, the largest moves first.
+  EXPECT_EQ(sender.select(now, 0.0, 1).ids, std::vector<LandmarkId>{1});
+  EXPECT_EQ(sender.select(now, 0.0, 0).ids.size(), 5u);
+
+  // A robot's cap a round is split evenly over its links, at least one each; 0 is no cap.
+  EXPECT_EQ(link_landmark_cap(210, 14), 15);
+  EXPECT_EQ(link_landmark_cap(210, 49), 4);
+  EXPECT_EQ(link_landmark_cap(10, 20), 1);
+  EXPECT_EQ(link_landmark_cap(10, 0), 10);
+  EXPECT_EQ(link_landmark_cap(0, 3), 0);
+}
+
 TEST(MarginalSharing, AReceiverKeepsAtMostItsLimitOfLandmarks) {
   // A peer cannot grow the store without bound: new ids beyond the limit are not kept, known
   // ones still update.

@@ -57,6 +57,7 @@ void for_each_consensus_field(Consensus& consensus, Visitor&& visit) {
   visit("max_condition_number", consensus.max_condition_number);
   visit("neighbour_chi2_probability", consensus.neighbour_chi2_probability);
   visit("share_kl_threshold", consensus.share_kl_threshold);
+  visit("share_max_landmarks", consensus.share_max_landmarks);
   visit("share_float32", consensus.share_float32);
 }
 

@@ -164,15 +164,36 @@ Marginal expand(const CompactMarginal& compact) {
 
 Marginal quantized(const Marginal& marginal) { return expand(compact(marginal)); }
 
-Marginal MarginalSender::select(const Marginal& full, double kl_threshold) const {
-  if (kl_threshold <= 0.0) return full;
-  std::vector<bool> keep(full.ids.size(), true);
+int link_landmark_cap(int robot_cap, int links) {
+  if (robot_cap <= 0) return 0;
+  return std::max(1, robot_cap / std::max(links, 1));
+}
+
+Marginal MarginalSender::select(const Marginal& full, double kl_threshold,
+                                int max_landmarks) const {
+  const std::size_t n = full.ids.size();
+  const bool capped = max_landmarks > 0 && n > static_cast<std::size_t>(max_landmarks);
+  if (kl_threshold <= 0.0 && !capped) return full;
+  // Priority of each landmark: infinity if never sent on this link, else its KL since.
+  std::vector<double> priority(n, std::numeric_limits<double>::infinity());
   const auto positions = landmark_positions(full);
-  for (std::size_t k = 0; k < full.ids.size(); ++k) {
+  for (std::size_t k = 0; k < n; ++k) {
     const auto it = last_sent_.find(full.ids[k]);
     if (it == last_sent_.end()) continue;
-    keep[k] = kl_divergence(estimate_at(full, positions, k), it->second) > kl_threshold;
+    const double kl = kl_divergence(estimate_at(full, positions, k), it->second);
+    if (kl >= 0.0) priority[k] = kl;  // NaN (a broken marginal): sent, as if never sent
   }
+  std::vector<std::size_t> candidates;
+  for (std::size_t k = 0; k < n; ++k) {
+    if (kl_threshold <= 0.0 || priority[k] > kl_threshold) candidates.push_back(k);
+  }
+  if (max_landmarks > 0 && candidates.size() > static_cast<std::size_t>(max_landmarks)) {
+    std::stable_sort(candidates.begin(), candidates.end(),
+                     [&](std::size_t a, std::size_t b) { return priority[a] > priority[b]; });
+    candidates.resize(static_cast<std::size_t>(max_landmarks));
+  }
+  std::vector<bool> keep(n, false);
+  for (std::size_t k : candidates) keep[k] = true;
   return sub_marginal(full, keep);
 }
 

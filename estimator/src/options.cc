@@ -129,6 +129,10 @@ std::vector<std::string> EstimatorOptions::validate() const {
     problems.add("consensus.share_kl_threshold", consensus.share_kl_threshold,
                  "finite and >= 0 (0 sends everything)");
   }
+  if (consensus.share_max_landmarks < 0) {
+    problems.add("consensus.share_max_landmarks", consensus.share_max_landmarks,
+                 ">= 0 (0: no cap)");
+  }
   problems.check_probability("consensus.neighbour_chi2_probability",
                              consensus.neighbour_chi2_probability);
   return problems.take();

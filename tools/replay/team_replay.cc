@@ -223,7 +223,8 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
   // Event-triggered, compact sharing (consensus.share_*): one sender and one receiver state per
   // directed link (from, to), as the daemons keep them per peer connection.
   const ConsensusOptions& sharing = estimator_options.consensus;
-  const bool compact_sharing = sharing.share_kl_threshold > 0.0 || sharing.share_float32;
+  const bool compact_sharing = sharing.share_kl_threshold > 0.0 || sharing.share_float32 ||
+                               sharing.share_max_landmarks > 0;
   std::map<std::pair<int, int>, MarginalSender> senders;
   std::map<std::pair<int, int>, MarginalReceiver> receivers;
   const auto graph = make_graph(options.graph, robots, options.seed);
@@ -366,7 +367,10 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
             }
             // What j sends i (the changed landmarks, in float32 if asked), then what i fuses.
             MarginalSender& sender = senders[{j, i}];
-            Marginal sent = sender.select(estimators[j].marginal(common), sharing.share_kl_threshold);
+            Marginal sent = sender.select(
+                estimators[j].marginal(common), sharing.share_kl_threshold,
+                link_landmark_cap(sharing.share_max_landmarks,
+                                  static_cast<int>(round_neighbours[j].size())));
             if (sharing.share_float32) {
               const CompactMarginal wire = compact(sent);
               count_bytes(j, wire.bytes());

@@ -61,12 +61,18 @@ Marginal expand(const CompactMarginal& compact);
 /// expand(compact(marginal)): what a neighbour receives of `marginal` in float32.
 Marginal quantized(const Marginal& marginal);
 
+/// A link's share of a robot's landmarks a round (consensus.share_max_landmarks): robot_cap / links
+/// rounded down, at least 1; 0 (no cap) when robot_cap is 0.
+int link_landmark_cap(int robot_cap, int links);
+
 /// One link's sending end.
 class MarginalSender {
  public:
   /// The landmarks of `full` to send now: those never sent on this link or whose marginal moved
-  /// by more than kl_threshold (nats) since. With kl_threshold 0, all of them.
-  Marginal select(const Marginal& full, double kl_threshold) const;
+  /// by more than kl_threshold (nats) since (with kl_threshold 0, all of them), and at most
+  /// max_landmarks of them (0: no cap): the never sent first, then by decreasing KL, ties by
+  /// position in `full`. Order kept.
+  Marginal select(const Marginal& full, double kl_threshold, int max_landmarks = 0) const;
   /// Records the landmarks of `sent` (as the receiver will have them) as delivered.
   void delivered(const Marginal& sent);
   /// The link dropped: everything is sent afresh.

@@ -29,6 +29,13 @@ struct ConsensusOptions {
   /// divergence (nats) since it last sent them to it; the neighbour fuses the last one it got
   /// of the others. 0 (the default) sends every landmark every round.
   double share_kl_threshold = 0.0;
+  /// consensus.share_max_landmarks: at most this many landmarks a robot sends in one round (0:
+  /// no cap), split evenly over the neighbours it sends to (at least one each, see
+  /// link_landmark_cap); on a link, those never sent first, then the ones that moved most (KL).
+  /// The others wait for a later round (the neighbour fuses the last marginal it got of them).
+  /// Bounds the largest rounds, e.g. the first messages to new neighbours, whose joint blocks
+  /// grow with the square of their landmarks, like a radio's budget per round.
+  int share_max_landmarks = 0;
   /// consensus.share_float32: marginals travel in float32 (means as offsets from an origin,
   /// covariances as Cholesky factors), half the bytes; the receiver fuses exactly what arrived.
   bool share_float32 = false;

@@ -1,0 +1,43 @@
+#!/usr/bin/env bash
+# Issue 13's consensus CPU: milliseconds of the consensus phase (marginals out, eq. 19 and
+# Proposition 2) per robot and step of `concord replay` on the shared 15-robot simulation, over a
+# complete graph, each robot's 3 nearest and a ring, for this tree's `concord` and a BASELINE
+# binary (a `concord` built from an older commit), alternating, REPS runs each (default 5), one
+# at a time. Prints the medians, their ratio and the accuracy of both (equal when only speed
+# changed); writes the table to bench/out/consensus-cpu/table.md.
+# Usage: bench/consensus_cpu_bench.sh BASELINE_CONCORD [REPS]
+set -euo pipefail
+cd "$(dirname "$0")/.."
+baseline="${1:?usage: bench/consensus_cpu_bench.sh BASELINE_CONCORD [REPS]}"
+reps="${2:-5}"
+data="${DATA:-../shared/datasets/sim15}"
+out=bench/out/consensus-cpu
+mkdir -p "$out"
+cmake --build build --target concord >/dev/null
+cp build/tools/concord "$out/concord"
+cp "$baseline" "$out/baseline"
+declare -A graphs=([complete]="" [nearest3]="--nearest 3" [ring]="--graph ring")
+for graph in complete nearest3 ring; do
+  for ((rep = 0; rep < reps; ++rep)); do
+    for binary in baseline concord; do
+      # shellcheck disable=SC2086
+      "$out/$binary" replay --dataset "$data" --out "$out/$graph-$binary-$rep" ${graphs[$graph]} \
+        >"$out/$graph-$binary-$rep.log" 2>&1
+    done
+  done
+done
+python3 - "$out" "$reps" <<'PY' | tee "$out/table.md"
+import json, statistics, sys
+out, reps = sys.argv[1], int(sys.argv[2])
+print("| graph | baseline ms | this tree ms | ratio | traj RMSE m (baseline / this) | object err m (baseline / this) |")
+print("|---|---|---|---|---|---|")
+for graph in ["complete", "nearest3", "ring"]:
+    ms, acc = {}, {}
+    for binary in ["baseline", "concord"]:
+        runs = [json.load(open(f"{out}/{graph}-{binary}-{r}/metrics.json")) for r in range(reps)]
+        ms[binary] = statistics.median(m["run"]["consensus_ms_per_robot_step"] for m in runs)
+        a = runs[0]["average"]
+        acc[binary] = (a["trajectory_rmse"], a["object_error"])
+    print(f"| {graph} | {ms['baseline']:.3f} | {ms['concord']:.3f} | {ms['concord'] / ms['baseline']:.2f} | "
+          f"{acc['baseline'][0]:.4f} / {acc['concord'][0]:.4f} | {acc['baseline'][1]:.4f} / {acc['concord'][1]:.4f} |")
+PY
