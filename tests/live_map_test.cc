@@ -116,6 +116,21 @@ TEST(LiveMap, HeadlessChromiumDrawsEveryRobotsPathFromOneRobotsPage) {
   EXPECT_NE(page->find("<canvas"), std::string::npos);
   EXPECT_EQ(page->find("src=\"http"), std::string::npos) << "the page loads nothing from outside";
 
+  // The page reads a trajectory once, then only the frames after the last it has.
+  const auto all = get_json(http(1), "/trajectory");
+  ASSERT_TRUE(all);
+  ASSERT_GE((*all)["poses"].size(), 100u);
+  const int cut = (*all)["poses"][50]["frame"].get<int>();
+  const auto later = get_json(http(1), "/trajectory?since=" + std::to_string(cut));
+  ASSERT_TRUE(later);
+  ASSERT_GE((*later)["poses"].size(), (*all)["poses"].size() - 51);
+  EXPECT_EQ((*later)["poses"][0]["frame"].get<int>(), cut + 1);
+  for (const json& pose : (*later)["poses"]) EXPECT_GT(pose["frame"].get<int>(), cut);
+  for (const char* bad : {"/trajectory?since=x", "/trajectory?since=-2", "/trajectory?since=3x",
+                          "/trajectory?format=kitti&since=3"}) {
+    EXPECT_FALSE(launch::http_get("127.0.0.1", http(1), bad, 1s)) << bad;
+  }
+
   const fs::path shot = out / "live-map.png";
   ChildProcess browser(
       {chromium, "--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",

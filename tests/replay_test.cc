@@ -188,10 +188,13 @@ TEST(Graphs, RadioLimitsKeepOnlyShortEdgesNearestNeighboursAndTheDegreeBound) {
     EXPECT_TRUE(symmetric(bounded));
     for (int i = 0; i < robots; ++i) EXPECT_LE(bounded[i].size(), 3u);
     // Maximal: no two robots with room left stay unlinked.
-    for (int i = 0; i < robots; ++i)
-      for (int j = i + 1; j < robots; ++j)
-        if (bounded[i].size() < 3 && bounded[j].size() < 3)
+    for (int i = 0; i < robots; ++i) {
+      for (int j = i + 1; j < robots; ++j) {
+        if (bounded[i].size() < 3 && bounded[j].size() < 3) {
           EXPECT_EQ(std::count(bounded[i].begin(), bounded[i].end(), j), 1);
+        }
+      }
+    }
   }
 }
 

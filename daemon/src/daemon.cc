@@ -14,6 +14,7 @@
 #include <iterator>
 #include <mutex>
 #include <nlohmann/json.hpp>
+#include <charconv>
 #include <optional>
 #include <random>
 #include <sstream>
@@ -1112,6 +1113,17 @@ void Daemon::Impl::register_routes() {
     const std::string format = it == request.query.end() ? "json" : it->second;
     if (format != "json" && format != "kitti" && format != "tum")
       return web::error_response(400, "format: expected json, kitti or tum, got '" + format + "'");
+    // since=F (json only): the frames after F, for a client that keeps what it has (the live map).
+    std::optional<long long> since;
+    if (const auto found = request.query.find("since"); found != request.query.end()) {
+      long long value = 0;
+      const std::string& text = found->second;
+      const auto [end, error] = std::from_chars(text.data(), text.data() + text.size(), value);
+      if (error != std::errc() || end != text.data() + text.size() || value < -1)
+        return web::error_response(400, "since: expected a frame number >= -1, got '" + text + "'");
+      if (format != "json") return web::error_response(400, "since: only with format=json");
+      since = value;
+    }
     TrajectoryHistory::Snapshot trajectory;
     {
       // Only the snapshot under the estimator's lock; formatting happens outside it.
@@ -1131,6 +1143,7 @@ void Daemon::Impl::register_routes() {
           {}};
     json poses = json::array();
     trajectory.for_each([&](const TrajectoryPoint& point) {
+      if (since && point.frame <= *since) return;
       json entry = pose_json(point.pose);
       entry["frame"] = point.frame;
       poses.push_back(std::move(entry));
