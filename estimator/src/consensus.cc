@@ -90,10 +90,11 @@ std::optional<Matrix> checked_inverse(const Matrix& covariance, double max_condi
 }
 
 /// checked_inverse for one landmark's 3x3 covariance, in closed form: positive definite when its
-/// leading principal minors are positive (Sylvester), the inverse from the cofactors.
+/// leading principal minors are positive (Sylvester), the inverse from the cofactors. Like the
+/// Cholesky factorization, it reads the lower triangle only (the matrix is taken as symmetric).
 std::optional<Eigen::Matrix3d> checked_inverse3(const Eigen::Matrix3d& covariance,
                                                 double max_condition_number) {
-  const Eigen::Matrix3d& P = covariance;
+  const Eigen::Matrix3d P = covariance.selfadjointView<Eigen::Lower>();
   const double minor2 = P(0, 0) * P(1, 1) - P(0, 1) * P(1, 0);
   const double determinant = P.determinant();
   if (!(P(0, 0) > 0.0 && minor2 > 0.0 && determinant > 0.0)) return std::nullopt;
@@ -237,8 +238,8 @@ bool information_average(const std::vector<std::pair<double, Information>>& memb
 }
 
 /// Records the longest landmark step of an average.
-void note_mean_shift(const Eigen::Ref<const Eigen::VectorXd>& own_mean, const Eigen::Ref<const Eigen::VectorXd>& mean,
-                     ConsensusReport& report) {
+void note_mean_shift(const Eigen::Ref<const Eigen::VectorXd>& own_mean,
+                     const Eigen::Ref<const Eigen::VectorXd>& mean, ConsensusReport& report) {
   for (Eigen::Index i = 0; i < own_mean.size(); i += 3) {
     report.largest_mean_shift = std::max(report.largest_mean_shift,
                                          (mean.segment<3>(i) - own_mean.segment<3>(i)).norm());
