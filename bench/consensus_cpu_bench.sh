@@ -4,7 +4,9 @@
 # complete graph, each robot's 3 nearest and a ring, for this tree's `concord` and a BASELINE
 # binary (a `concord` built from an older commit), alternating, REPS runs each (default 5), one
 # at a time. Prints the medians, their ratio and the accuracy of both (equal when only speed
-# changed); writes the table to bench/out/consensus-cpu/table.md.
+# changed); writes the table to bench/out/consensus-cpu/table.md. DATA overrides the dataset;
+# BASELINE_CONFIG gives the baseline a sensor config of its time (a newer config has keys an older
+# binary refuses), e.g. `git show 46ee365:configs/sensors/sim.yaml > /tmp/sim-old.yaml`.
 # Usage: bench/consensus_cpu_bench.sh BASELINE_CONCORD [REPS]
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -21,8 +23,12 @@ for graph in complete nearest3 ring; do
   for ((rep = 0; rep < reps; ++rep)); do
     for binary in baseline concord; do
       # shellcheck disable=SC2086
+      config=()
+      if [ "$binary" = baseline ] && [ -n "${BASELINE_CONFIG:-}" ]; then
+        config=(--config "$BASELINE_CONFIG")
+      fi
       "$out/$binary" replay --dataset "$data" --out "$out/$graph-$binary-$rep" ${graphs[$graph]} \
-        >"$out/$graph-$binary-$rep.log" 2>&1
+        "${config[@]}" >"$out/$graph-$binary-$rep.log" 2>&1
     done
   done
 done
