@@ -8,11 +8,9 @@
 
 #include <algorithm>
 #include <array>
-#include <cstdlib>
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
-#include <sstream>
 
 #include "concord/dataset/result_io.h"
 #include "launch/launch.h"
@@ -34,17 +32,6 @@ using testing::get_json;
 /// range, so that no outgoing connection holds them.
 std::uint16_t live_map_port(int offset) {
   return static_cast<std::uint16_t>(32100 + (getpid() % 33) * 20 + offset);
-}
-
-/// The first `name` found in PATH ("" if none).
-std::string find_in_path(const std::string& name) {
-  const char* path = std::getenv("PATH");
-  std::istringstream folders(path ? path : "/usr/bin:/bin");
-  for (std::string folder; std::getline(folders, folder, ':');) {
-    const fs::path candidate = fs::path(folder) / name;
-    if (!folder.empty() && ::access(candidate.c_str(), X_OK) == 0) return candidate;
-  }
-  return {};
 }
 
 /// Pixels of `image` (BGR) within `tolerance` of `rgb` in every channel: their count and the
@@ -72,8 +59,8 @@ ColourPixels pixels_of(const cv::Mat& image, std::array<int, 3> rgb, int toleran
 }
 
 TEST(LiveMap, HeadlessChromiumDrawsEveryRobotsPathFromOneRobotsPage) {
-  const std::string chromium = find_in_path("chromium");
-  if (chromium.empty()) GTEST_SKIP() << "chromium is not installed (scripts/install-deps.sh)";
+  const auto chromium = testing::find_program("chromium");
+  if (!chromium) GTEST_SKIP() << "chromium is not installed (scripts/install-deps.sh)";
 
   const fs::path out = testing::fresh_folder("live-map");
   auto options = testing::kitti_team_options(out, live_map_port(0), live_map_port(10));
@@ -133,7 +120,7 @@ TEST(LiveMap, HeadlessChromiumDrawsEveryRobotsPathFromOneRobotsPage) {
 
   const fs::path shot = out / "live-map.png";
   ChildProcess browser(
-      {chromium, "--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
+      {chromium->string(), "--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
        "--hide-scrollbars", "--no-first-run", "--user-data-dir=" + (out / "chromium").string(),
        "--window-size=1000,700", "--virtual-time-budget=5000", "--screenshot=" + shot.string(),
        "http://127.0.0.1:" + std::to_string(http(0)) + "/"},

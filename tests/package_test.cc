@@ -20,6 +20,7 @@
 namespace concord {
 namespace {
 
+using testing::find_program;
 using testing::read_text;
 
 namespace fs = std::filesystem;
@@ -36,12 +37,6 @@ std::pair<int, std::string> run(const std::vector<std::string>& argv, const fs::
   ChildProcess child(argv, log);
   if (!child.wait_for(120s)) return {-1, "timed out: " + argv.front()};
   return {child.exit_code().value_or(-1), read_text(log)};
-}
-
-std::optional<fs::path> find_program(const std::string& name) {
-  for (const char* folder : {"/usr/bin", "/usr/local/bin", "/bin"})
-    if (fs::exists(fs::path(folder) / name)) return fs::path(folder) / name;
-  return std::nullopt;
 }
 
 void replace_all(std::string& text, const std::string& from, const std::string& to) {
