@@ -229,11 +229,16 @@ TEST(DaemonLinkFaults, AsyncTeamOnLinksThatKeepDroppingReconnectsAndKeepsFusing)
       connections += relay->connections();
     }
   EXPECT_GT(cuts, 2u);
-  EXPECT_GT(connections, 3u) << "no link was dialled again after a cut";
+  EXPECT_GE(connections, 3u) << "the links did not go through the relays";
+  // After a cut either side may restore the link: the dialler through its relay, or the acceptor
+  // straight to the address the dialler announced. Both count as a reconnection of that peer.
+  std::uint64_t reconnects = 0;
   for (int robot = 0; robot < 3; ++robot) {
     const auto stats = read_json(out / dataset::robot_folder_name(robot) / "stats.json");
     EXPECT_EQ(stats["frames"], 200) << "robot " << robot;
+    reconnects += stats["network"]["reconnects"].get<std::uint64_t>();
   }
+  EXPECT_GT(reconnects, 0u) << "no link came up again after a cut";
   // Robots 0 and 1 share cars: they fused each other's marginals between the cuts.
   EXPECT_GT(read_json(out / dataset::robot_folder_name(1) / "stats.json")["marginals_fused"].get<int>(),
             0);

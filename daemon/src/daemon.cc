@@ -1062,6 +1062,9 @@ json Daemon::Impl::stats_json() const {
                         {"rejected_handshake", totals.rejected_handshake},
                         {"rejected_unauthenticated", totals.rejected_unauthenticated},
                         {"rejected_admission", totals.rejected_admission}};
+    std::uint64_t reconnects = 0;
+    for (const net::PeerStats& peer : network_->peers()) reconnects += peer.reconnects;
+    stats["network"]["reconnects"] = reconnects;
   }
   return stats;
 }
