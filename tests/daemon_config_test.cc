@@ -126,6 +126,38 @@ TEST(DaemonConfig, TrustAndBoundsAreChecked) {
 namespace concord::daemon {
 namespace {
 
+TEST(DaemonConfig, ASimulatedRadioNeedsGroundTruthAndSaneLimits) {
+  const DaemonConfig config = parse_daemon_config(
+      "team_key_file: k\nmembers: [0, 1]\nsource: {dataset: d}\n"
+      "consensus: {radio: {range_m: 12.5, nearest: 3, max_degree: 2, truth: t}}\n",
+      "inline", "/base");
+  EXPECT_DOUBLE_EQ(config.consensus.radio.range_m, 12.5);
+  EXPECT_EQ(config.consensus.radio.nearest, 3);
+  EXPECT_EQ(config.consensus.radio.max_degree, 2);
+  EXPECT_EQ(config.consensus.radio.truth, std::filesystem::path("/base/t"));
+  EXPECT_TRUE(config.consensus.radio.any());
+  EXPECT_FALSE(parse_daemon_config("team_key_file: k\nmembers: [0]\nsource: {dataset: d}\n",
+                                   "inline", "/")
+                   .consensus.radio.any());
+
+  const std::string bad = problems_of(
+      "team_key_file: k\nmembers: [0]\nsource: {dataset: d}\n"
+      "consensus: {radio: {range_m: -1, nearest: -2, max_degree: -3}}\n");
+  EXPECT_NE(bad.find("consensus.radio.range_m"), std::string::npos) << bad;
+  EXPECT_NE(bad.find("consensus.radio.nearest"), std::string::npos) << bad;
+  EXPECT_NE(bad.find("consensus.radio.max_degree"), std::string::npos) << bad;
+  EXPECT_NE(problems_of("team_key_file: k\nmembers: [0]\nsource: {dataset: d}\n"
+                        "consensus: {radio: {power: 5}}\n")
+                .find("unknown key consensus.radio.power"),
+            std::string::npos);
+  // Live sensors have no ground truth: the radio then needs a dataset named for it.
+  const std::string no_truth = problems_of(
+      "team_key_file: k\nmembers: [0]\nsource: {kind: ingest, camera: c}\n"
+      "consensus: {radio: {range_m: 10}}\n");
+  EXPECT_NE(no_truth.find("consensus.radio: needs consensus.radio.truth"), std::string::npos)
+      << no_truth;
+}
+
 TEST(DaemonConfig, AssociationModeLimitsAndInlineAssociationOptions) {
   const DaemonConfig config = parse_daemon_config(
       "team_key_file: k\nmembers: [0, 1]\nsource: {dataset: d}\n"

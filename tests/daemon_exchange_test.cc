@@ -208,6 +208,94 @@ TEST(DaemonExchange, LockstepOnARingReproducesTheRingReplay) {
   EXPECT_TRUE(differs_from_complete) << "the ring made no difference: the test shows nothing";
 }
 
+// consensus.radio: five exchanges whose links follow the robots' true positions (within a range)
+// reproduce `concord replay --range`. Links come and go, and a link that comes back after a gap
+// waits for the peer's round as before (it is not taken for a peer left behind).
+TEST(DaemonExchange, LockstepOverASimulatedRadioReproducesTheRangeLimitedReplay) {
+  sim::SimulationOptions simulation;
+  simulation.robots = 5;
+  simulation.frames = testing::kSanitized ? 40 : 80;
+  simulation.objects = simulation.objects * simulation.frames / 80;  // as dense in both
+  simulation.points_per_frame = 0;
+  const dataset::Dataset data = sim::simulate(simulation);
+  const EstimatorOptions options =
+      config::load_estimator_options(kSource / "configs/sensors/sim.yaml");
+  const auto positions = replay::RadioLimits::positions_of(data);
+  // The range: the median distance between two robots over the run, so that about half the
+  // links are up at a time.
+  std::vector<double> distances;
+  for (int k = 0; k < simulation.frames; ++k)
+    for (int i = 0; i < 5; ++i)
+      for (int j = i + 1; j < 5; ++j) distances.push_back((positions[i][k] - positions[j][k]).norm());
+  std::nth_element(distances.begin(), distances.begin() + distances.size() / 2, distances.end());
+  replay::ReplayOptions limited;
+  limited.radio.range_m = distances[distances.size() / 2];
+  limited.radio.true_positions = positions;
+  const auto reference = replay::run_team(data, options, limited);
+  const auto complete = replay::run_team(data, options, {});
+
+  RadioConfig radio;
+  radio.range_m = limited.radio.range_m;
+  const std::vector<int> members{0, 1, 2, 3, 4};
+  const RadioGraph graph(members, ConsensusGraph::kComplete, radio, positions, 0);
+  // The graph is symmetric, and some link goes down and comes back up.
+  bool gap = false;
+  for (int i = 0; i < 5; ++i) {
+    for (int j = i + 1; j < 5; ++j) {
+      int state = 0;  // 0: not yet up, 1: up, 2: down after up
+      for (int k = 0; k < simulation.frames; ++k) {
+        const bool up = graph.neighbours(i, static_cast<std::uint64_t>(k)).count(j) > 0;
+        ASSERT_EQ(up, graph.neighbours(j, static_cast<std::uint64_t>(k)).count(i) > 0);
+        if (up && state == 2) gap = true;
+        state = up ? 1 : (state == 1 ? 2 : state);
+      }
+    }
+  }
+  ASSERT_TRUE(gap) << "no link came back after a gap: the test shows less than it says";
+  EXPECT_TRUE(graph.neighbours(7, 0).empty());  // not a member
+
+  ConsensusConfig config;
+  config.mode = ConsensusMode::kLockstep;
+  config.round_deadline = std::chrono::seconds(20);
+  ExchangeTeam team(5, config);
+  for (int i = 0; i < 5; ++i)
+    team.exchanges[i]->set_radio(
+        [&graph, i](std::uint64_t round) { return graph.neighbours(i, round); });
+  team.connect_all();
+  const LockstepRun run = run_lockstep(team, data, options);
+  EXPECT_EQ(run.timed_out, 0);
+  bool differs_from_complete = false;
+  for (int i = 0; i < 5; ++i) {
+    ASSERT_EQ(run.trajectories[i].size(), reference.robots[i].trajectory.size());
+    for (std::size_t k = 0; k < run.trajectories[i].size(); ++k) {
+      ASSERT_TRUE(run.trajectories[i][k].isApprox(reference.robots[i].trajectory[k], 1e-9))
+          << "robot " << i << " frame " << k;
+      differs_from_complete |=
+          !run.trajectories[i][k].isApprox(complete.robots[i].trajectory[k], 1e-9);
+    }
+  }
+  EXPECT_TRUE(differs_from_complete) << "the radio made no difference: the test shows nothing";
+  EXPECT_LT(reference.statistics.edge_rounds, complete.statistics.edge_rounds);
+  EXPECT_GT(reference.statistics.edge_rounds, 0);
+}
+
+TEST(DaemonExchange, ARadioGraphNeedsATrackPerMember) {
+  RadioConfig radio;
+  radio.range_m = 10.0;
+  const std::vector<std::vector<Eigen::Vector3d>> one_track{{Eigen::Vector3d::Zero()}};
+  EXPECT_THROW(RadioGraph({0, 1}, ConsensusGraph::kComplete, radio, one_track, 0),
+               std::invalid_argument);
+  EXPECT_THROW(RadioGraph({1, 0}, ConsensusGraph::kComplete, radio, {one_track[0], one_track[0]}, 0),
+               std::invalid_argument);
+  // A robot past its last frame (or past max_frames) has no links.
+  const RadioGraph graph({0, 1}, ConsensusGraph::kComplete, radio,
+                         {{Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero()},
+                          {Eigen::Vector3d::UnitX(), Eigen::Vector3d::UnitX()}},
+                         1);
+  EXPECT_EQ(graph.neighbours(0, 0), (std::set<int>{1}));
+  EXPECT_TRUE(graph.neighbours(0, 1).empty());
+}
+
 TEST(DaemonExchange, ALyingNeighbourIsRefusedAndQuarantined) {
   // Robot 2 holds the team key but sends every marginal 50 m off in x. Its landmarks disagree
   // with the others' beyond the chi-square bound: they are refused, robot 2 is quarantined, and

@@ -23,6 +23,7 @@
 #include "launch/process.h"
 #include "process_support.h"
 #include "replay/team_replay.h"
+#include "sim/simulator.h"
 #include "test_paths.h"
 
 namespace concord {
@@ -102,6 +103,62 @@ TEST(DaemonProcess, ThreeDaemonsInLockstepReproduceTheReplay) {
   }
   // Robots 0 and 1 share objects in these frames (robot 2 drives elsewhere).
   EXPECT_GT(marginals_fused, 200);
+}
+
+TEST(DaemonProcess, DaemonsOverASimulatedRadioReproduceTheRangeLimitedReplay) {
+  // consensus.radio from the dataset's ground truth (concord launch --range): each daemon reads
+  // every member's groundtruth.kitti and links only to the robots within range at each frame.
+  const fs::path out = fresh_folder("radio");
+  sim::SimulationOptions simulation;
+  simulation.robots = 4;
+  simulation.frames = 60;
+  simulation.objects = simulation.objects * simulation.frames / 150;
+  simulation.points_per_frame = 0;
+  const dataset::Dataset data = sim::simulate(simulation);
+  dataset::write_dataset(data, out / "data");
+  // The median distance between two robots over the run: links come and go.
+  const auto positions = replay::RadioLimits::positions_of(data);
+  std::vector<double> distances;
+  for (int k = 0; k < simulation.frames; ++k)
+    for (int i = 0; i < 4; ++i)
+      for (int j = i + 1; j < 4; ++j) distances.push_back((positions[i][k] - positions[j][k]).norm());
+  std::nth_element(distances.begin(), distances.begin() + distances.size() / 2, distances.end());
+
+  launch::LaunchOptions options = team_options(out / "team", 100);
+  options.dataset = out / "data";
+  options.estimator_config = kSource / "configs/sensors/sim.yaml";
+  options.range_m = distances[distances.size() / 2];
+  const launch::LaunchResult result = launch::launch_team(options, 4, nullptr);
+  ASSERT_FALSE(result.timed_out);
+  for (int code : result.exit_codes) ASSERT_EQ(code, 0);
+
+  replay::ReplayOptions limited;
+  limited.radio.range_m = options.range_m;
+  const auto estimator = config::load_estimator_options(options.estimator_config);
+  const auto reference = replay::run_team(dataset::read_dataset(options.dataset), estimator, limited);
+  const auto complete = replay::run_team(dataset::read_dataset(options.dataset), estimator, {});
+  bool differs_from_complete = false;
+  for (int robot = 0; robot < 4; ++robot) {
+    const fs::path folder = options.out / dataset::robot_folder_name(robot);
+    const auto trajectory = dataset::read_trajectory_kitti(folder / "trajectory.kitti");
+    const auto& expected = reference.robots[robot].trajectory;
+    ASSERT_EQ(trajectory.size(), expected.size());
+    for (std::size_t k = 0; k < trajectory.size(); ++k) {
+      for (int r = 0; r < 3; ++r)
+        for (int c = 0; c < 4; ++c)
+          expect_close(trajectory[k].matrix()(r, c), expected[k].matrix()(r, c),
+                       "robot " + std::to_string(robot) + " frame " + std::to_string(k));
+      differs_from_complete |=
+          (trajectory[k].matrix() - complete.robots[robot].trajectory[k].matrix())
+              .cwiseAbs()
+              .maxCoeff() > 1e-5;
+    }
+    std::ifstream stats_file(folder / "stats.json");
+    const json stats = json::parse(stats_file);
+    EXPECT_EQ(stats["consensus"]["deadline_misses"], 0) << "robot " << robot;
+  }
+  EXPECT_TRUE(differs_from_complete) << "the radio made no difference: the test shows nothing";
+  EXPECT_LT(reference.statistics.edge_rounds, complete.statistics.edge_rounds);
 }
 
 TEST(DaemonProcess, AsyncTeamFusesWithoutWaiting) {

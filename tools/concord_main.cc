@@ -9,6 +9,7 @@
 ///   concord calibrate --dataset DIR [--robot R] [--first F] [--frames N]
 ///   concord launch --dataset DIR --out DIR [--lockstep|--async|--separate] [--base-port P]
 ///                  [--http-base-port P] [--config FILE] [--robots R] [--frames N] [--rate HZ]
+///                  [--graph complete|ring] [--range M] [--nearest K] [--max-degree D]
 ///                  [--round-deadline-ms MS] [--failpoint ROBOT:NAME[=ARG] ...]
 ///   concord plot --input CHART.json --out CHART.png
 ///   concord frontend --input DIR --out DIR [--detections FILE] [--odometry FILE] [--frames N]
@@ -911,6 +912,19 @@ int main(int argc, char** argv) {
       ->add_option("--graph", launch_options.graph,
                    "Whom each daemon runs consensus with: complete or ring (members next to it)")
       ->check(CLI::IsMember({"complete", "ring"}));
+  launch_command
+      ->add_option("--range", launch_options.range_m,
+                   "Simulated radio (consensus.radio): a link only while the robots are within "
+                   "this many metres (the dataset's ground truth; 0: no limit)")
+      ->check(CLI::NonNegativeNumber);
+  launch_command
+      ->add_option("--nearest", launch_options.nearest,
+                   "Simulated radio: links only to each robot's K closest robots (0: no limit)")
+      ->check(CLI::NonNegativeNumber);
+  launch_command
+      ->add_option("--max-degree", launch_options.max_degree,
+                   "Simulated radio: at most D links a robot, the shortest first (0: no limit)")
+      ->check(CLI::NonNegativeNumber);
   launch_command->add_flag("--separate", launch_separate, "No consensus");
   launch_command->add_option("--base-port", launch_options.base_port,
                              "Robot i listens for peers on base-port + i")

@@ -121,6 +121,21 @@ std::vector<std::string> DaemonConfig::validate() const {
     problems.push_back("consensus.link_budget_bytes_per_second: " +
                        std::to_string(consensus.link_budget_bytes_per_second) +
                        " is below 1000 bytes per second (not even a landmark set per round)");
+  const RadioConfig& radio = consensus.radio;
+  if (!(radio.range_m >= 0.0 && radio.range_m <= 1e9))
+    problems.push_back("consensus.radio.range_m: expected 0 (no limit) or a distance in metres, got " +
+                       std::to_string(radio.range_m));
+  if (radio.nearest < 0)
+    problems.push_back("consensus.radio.nearest: expected >= 0, got " +
+                       std::to_string(radio.nearest));
+  if (radio.max_degree < 0)
+    problems.push_back("consensus.radio.max_degree: expected >= 0, got " +
+                       std::to_string(radio.max_degree));
+  if (radio.any() && consensus.mode != ConsensusMode::kOff) {
+    if (radio.truth.empty() && (source.kind != SourceKind::kReplay || source.dataset.empty()))
+      problems.push_back("consensus.radio: needs consensus.radio.truth (a dataset with every "
+                         "member's ground truth) unless the source replays a dataset");
+  }
   if (consensus.max_marginal_landmarks < 1)
     problems.push_back("consensus.max_marginal_landmarks: expected >= 1");
   if (consensus.association == AssociationMode::kNegotiated &&
@@ -285,6 +300,14 @@ DaemonConfig parse_daemon_config(const std::string& yaml_text, const std::string
   } else {
     problems.push_back("consensus.association: expected auto, given or negotiated, got '" +
                        association + "'");
+  }
+  {
+    Section radio(consensus.child("radio"), "consensus.radio.", problems);
+    radio.read("range_m", config.consensus.radio.range_m);
+    radio.read("nearest", config.consensus.radio.nearest);
+    radio.read("max_degree", config.consensus.radio.max_degree);
+    radio.read("truth", config.consensus.radio.truth, base_directory);
+    radio.finish();
   }
   NegotiationLimits& limits = config.consensus.negotiation_limits;
   consensus.read("max_description_objects", limits.max_description_objects);

@@ -6,10 +6,13 @@
 #include <iterator>
 #include <optional>
 #include <set>
+#include <stdexcept>
+#include <string>
 
 #include "concord/daemon/association_session.h"
 #include "concord/daemon/negotiation_wire.h"
 #include "concord/daemon/wire.h"
+#include "concord/dataset/radio.h"
 #include "concord/estimator/estimator.h"
 #include "concord/net/log_limiter.h"
 #include "concord/v1/concord.pb.h"
@@ -59,10 +62,21 @@ struct ConsensusExchange::Peer {
   bool goodbye = false;
   /// Highest round the peer announced (LandmarkSet or Marginal); -1 before any.
   std::int64_t last_round = -1;
+  /// consensus.radio: the last round the simulated radio linked this robot to it (-1: none on
+  /// this connection). A peer that announced no round since then is behind.
+  std::int64_t linked_before = -1;
   /// Its current landmark set (full sets and deltas applied in order).
   std::vector<LandmarkId> ids;
   bool ids_known = false;
   std::map<std::uint64_t, std::vector<LandmarkId>> landmark_sets;
+  /// Lockstep: its newest LandmarkSet beyond the future-round window, held until the window
+  /// reaches it (promote_deferred).
+  struct Deferred {
+    std::uint64_t round = 0;
+    std::vector<LandmarkId> ids;
+    std::optional<association::NegotiationMessage> negotiation;
+  };
+  std::optional<Deferred> deferred;
   std::map<std::uint64_t, Received> marginals;
   /// Negotiated association: its negotiation message of each round (checked on arrival).
   std::map<std::uint64_t, association::NegotiationMessage> negotiations;
@@ -106,7 +120,69 @@ std::set<int> ring_neighbours(int robot, std::vector<int> members) {
   return out;
 }
 
+RadioGraph::RadioGraph(std::vector<int> members, ConsensusGraph base, RadioConfig limits,
+                       std::vector<std::vector<Eigen::Vector3d>> positions, int max_frames)
+    : members_(std::move(members)),
+      base_(base),
+      limits_(std::move(limits)),
+      positions_(std::move(positions)),
+      max_frames_(max_frames) {
+  if (!std::is_sorted(members_.begin(), members_.end()) ||
+      std::adjacent_find(members_.begin(), members_.end()) != members_.end())
+    throw std::invalid_argument("radio: members must be sorted and unique");
+  if (positions_.size() != members_.size())
+    throw std::invalid_argument("radio: " + std::to_string(positions_.size()) +
+                                " position tracks for " + std::to_string(members_.size()) +
+                                " members");
+}
+
+std::set<int> RadioGraph::neighbours(int robot, std::uint64_t round) const {
+  const auto at = std::lower_bound(members_.begin(), members_.end(), robot);
+  if (at == members_.end() || *at != robot) return {};
+  const auto n = static_cast<int>(members_.size());
+  // The members still running at this frame, and the base graph over them.
+  std::vector<bool> active(members_.size());
+  std::vector<Eigen::Vector3d> where(members_.size(), Eigen::Vector3d::Zero());
+  for (int m = 0; m < n; ++m) {
+    const auto& track = positions_[static_cast<std::size_t>(m)];
+    active[m] = round < track.size() &&
+                (max_frames_ <= 0 || round < static_cast<std::uint64_t>(max_frames_));
+    if (active[m]) where[m] = track[round];
+  }
+  std::vector<std::vector<int>> candidates(members_.size());
+  for (int m = 0; m < n; ++m) {
+    if (!active[m]) continue;
+    if (base_ == ConsensusGraph::kRing) {
+      for (const int other : ring_neighbours(members_[m], members_)) {
+        const auto index = static_cast<int>(
+            std::lower_bound(members_.begin(), members_.end(), other) - members_.begin());
+        if (active[index]) candidates[m].push_back(index);
+      }
+    } else {
+      for (int o = 0; o < n; ++o)
+        if (o != m && active[o]) candidates[m].push_back(o);
+    }
+  }
+  dataset::RadioLimits limits;
+  limits.range_m = limits_.range_m;
+  limits.nearest = limits_.nearest;
+  limits.max_degree = limits_.max_degree;
+  const auto graph = dataset::limit_graph(candidates, where, limits);
+  std::set<int> out;
+  for (const int index : graph[static_cast<std::size_t>(at - members_.begin())])
+    out.insert(members_[static_cast<std::size_t>(index)]);
+  return out;
+}
+
 void ConsensusExchange::restrict_to(std::set<int> peers) { allowed_ = std::move(peers); }
+
+void ConsensusExchange::set_radio(std::function<std::set<int>(std::uint64_t round)> radio) {
+  radio_ = std::move(radio);
+}
+
+bool ConsensusExchange::takes_part(int robot, const std::optional<std::set<int>>& in_range) const {
+  return (!allowed_ || allowed_->count(robot)) && (!in_range || in_range->count(robot));
+}
 
 void ConsensusExchange::set_association(AssociationSession* session) {
   std::lock_guard lock(mutex_);
@@ -155,15 +231,6 @@ void ConsensusExchange::on_message(int robot, const v1::Envelope& envelope) {
                      "consensus: robot {} sent a landmark set above {} ids; ignored", robot, limit);
         return;
       }
-      if (config_.mode != ConsensusMode::kAsync && beyond_window(message.round())) {
-        // Not kept (bounded memory), but it tells where the peer is (a restarted robot
-        // rejoins there; a peer far ahead is not waited for).
-        ++counters_.future_dropped;
-        peer.last_round =
-            std::max<std::int64_t>(peer.last_round, static_cast<std::int64_t>(message.round()));
-        changed_.notify_all();
-        return;
-      }
       std::vector<LandmarkId> ids;
       if (!message.delta()) {
         ids.assign(message.ids().begin(), message.ids().end());
@@ -202,13 +269,11 @@ void ConsensusExchange::on_message(int robot, const v1::Envelope& envelope) {
         ++counters_.stale_dropped;
         break;
       }
+      std::optional<association::NegotiationMessage> negotiation;
       if (association_ && message.has_negotiation()) {
         std::string error;
-        auto negotiation =
-            from_wire(message.negotiation(), robot, config_.negotiation_limits, error);
-        if (negotiation) {
-          peer.negotiations[message.round()] = std::move(*negotiation);
-        } else {
+        negotiation = from_wire(message.negotiation(), robot, config_.negotiation_limits, error);
+        if (!negotiation) {
           // Refused whole; the LandmarkSet still answers the round, so nobody waits for it.
           ++counters_.negotiations_refused;
           warn_limited(*log_limiter_, robot, "negotiation",
@@ -216,6 +281,17 @@ void ConsensusExchange::on_message(int robot, const v1::Envelope& envelope) {
                        error);
         }
       }
+      if (beyond_window(message.round())) {
+        // A peer ahead of us: a restarted robot rejoining, or (with a simulated radio) one
+        // whose part of the team ran ahead while the link was down. Only its newest such set
+        // is kept (bounded memory), until our rounds come within reach of it; an older one it
+        // replaces is dropped (the peer went on without us in that round).
+        if (peer.deferred) ++counters_.future_dropped;
+        peer.deferred = Peer::Deferred{message.round(), std::move(ids), std::move(negotiation)};
+        changed_.notify_all();
+        return;
+      }
+      if (negotiation) peer.negotiations[message.round()] = std::move(*negotiation);
       peer.landmark_sets[message.round()] = std::move(ids);
       break;
     }
@@ -369,6 +445,7 @@ RoundReport ConsensusExchange::run_round(std::uint64_t round, Estimator& estimat
   {
     std::lock_guard lock(mutex_);
     current_round_ = static_cast<std::int64_t>(round);
+    if (config_.mode != ConsensusMode::kAsync) promote_deferred();
   }
   RoundReport report = config_.mode == ConsensusMode::kAsync ? async_round(round, estimator)
                                                              : lockstep_round(round, estimator);
@@ -496,11 +573,13 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
   // take part when their messages are there in time, and are waited for again once they are).
   std::vector<int> candidates;
   std::set<int> waited;
+  const std::optional<std::set<int>> in_range =
+      radio_ ? std::optional<std::set<int>>(radio_(round)) : std::nullopt;
   {
     std::lock_guard lock(mutex_);
     for (const auto& [robot, peer] : peers_) {
       if (!peer->up || peer->goodbye) continue;
-      if (allowed_ && !allowed_->count(robot)) continue;
+      if (!takes_part(robot, in_range)) continue;
       candidates.push_back(robot);
       if (peer->fresh) reconnected.push_back(robot);
       peer->fresh = false;
@@ -523,10 +602,13 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
   std::set<int> missed;
   {
     std::unique_lock lock(mutex_);
+    // Behind: it announced no round since the last one we were linked in (every round, unless
+    // a simulated radio left some out).
     auto settled = [&](int robot) {
       const Peer& peer = *peers_.at(robot);
+      const std::int64_t linked_before = in_range ? peer.linked_before : k - 1;
       return !peer.up || peer.goodbye || peer.landmark_sets.count(round) > 0 ||
-             peer.last_round > k || peer.last_round < k - 1;
+             peer.last_round > k || peer.last_round < linked_before;
     };
     changed_.wait_until(lock, start + config_.round_deadline, [&] {
       return stopped_ || std::all_of(waited.begin(), waited.end(), settled);
@@ -545,6 +627,7 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
                      robot, config_.round_deadline.count());
       }
     }
+    for (int robot : candidates) peers_.at(robot)->linked_before = k;
   }
   const int degree = static_cast<int>(neighbours.size());
   report.neighbours = degree;
@@ -638,11 +721,13 @@ RoundReport ConsensusExchange::async_round(std::uint64_t round, Estimator& estim
   const std::vector<LandmarkId> ids = estimator.object_ids();
   std::vector<int> live;
   std::map<int, std::vector<LandmarkId>> known_ids;
+  const std::optional<std::set<int>> in_range =
+      radio_ ? std::optional<std::set<int>>(radio_(round)) : std::nullopt;
   {
     std::lock_guard lock(mutex_);
     for (const auto& [robot, peer] : peers_) {
       if (!peer->up || peer->goodbye) continue;
-      if (allowed_ && !allowed_->count(robot)) continue;
+      if (!takes_part(robot, in_range)) continue;
       live.push_back(robot);
       if (peer->ids_known) known_ids[robot] = peer->ids;
     }
@@ -755,6 +840,22 @@ void ConsensusExchange::forget_rounds_up_to(std::uint64_t round) {
                               peer->landmark_sets.upper_bound(round));
     peer->marginals.erase(peer->marginals.begin(), peer->marginals.upper_bound(round));
     peer->negotiations.erase(peer->negotiations.begin(), peer->negotiations.upper_bound(round));
+  }
+  promote_deferred();
+}
+
+void ConsensusExchange::promote_deferred() {
+  for (auto& [robot, peer] : peers_) {
+    if (!peer->deferred || beyond_window(peer->deferred->round)) continue;
+    Peer::Deferred& deferred = *peer->deferred;
+    if (static_cast<std::int64_t>(deferred.round) > forgotten_up_to_) {
+      if (deferred.negotiation)
+        peer->negotiations[deferred.round] = std::move(*deferred.negotiation);
+      peer->landmark_sets[deferred.round] = std::move(deferred.ids);
+    } else {
+      ++counters_.stale_dropped;
+    }
+    peer->deferred.reset();
   }
 }
 

@@ -27,6 +27,7 @@
 #include "concord/config/options_file.h"
 #include "concord/daemon/wire.h"
 #include "concord/dataset/dataset.h"
+#include "concord/dataset/radio.h"
 #include "concord/dataset/result_io.h"
 #include "concord/estimator/estimator.h"
 #include "concord/frontend/frontend.h"
@@ -175,6 +176,8 @@ class Daemon::Impl {
  private:
   bool load_source();
   bool start_services();
+  /// consensus.radio: the exchange's links each round from the members' ground truth.
+  void set_up_radio(const RadioConfig& radio);
   void register_routes();
   void replay_frames();
   void image_frames();
@@ -408,6 +411,7 @@ bool Daemon::Impl::start_services() {
       if (association_) exchange_->set_association(association_.get());
       if (config_.consensus.graph == ConsensusGraph::kRing)
         exchange_->restrict_to(ring_neighbours(config_.robot_id, config_.members));
+      if (const RadioConfig& radio = config_.consensus.radio; radio.any()) set_up_radio(radio);
       network_->set_message_handler([this](int robot, const v1::Envelope& envelope) {
         exchange_->on_message(robot, envelope);
       });
@@ -450,6 +454,25 @@ bool Daemon::Impl::start_services() {
   reload_signals_ = std::make_unique<boost::asio::signal_set>(io_, SIGHUP);
   arm_reload();
   return true;
+}
+
+void Daemon::Impl::set_up_radio(const RadioConfig& radio) {
+  std::vector<int> members = config_.members;
+  std::sort(members.begin(), members.end());
+  members.erase(std::unique(members.begin(), members.end()), members.end());
+  const std::filesystem::path truth = radio.truth.empty() ? config_.source.dataset : radio.truth;
+  const int max_frames =
+      config_.source.kind == SourceKind::kReplay ? config_.source.max_frames : 0;
+  auto graph = std::make_shared<const RadioGraph>(members, config_.consensus.graph, radio,
+                                                  dataset::read_true_positions(truth, members),
+                                                  max_frames);
+  exchange_->set_radio([graph, robot = config_.robot_id](std::uint64_t round) {
+    return graph->neighbours(robot, round);
+  });
+  spdlog::warn(
+      "consensus: a simulated radio decides the links each round (range {} m, nearest {}, max "
+      "degree {}; 0 = no limit) from the ground truth in {}",
+      radio.range_m, radio.nearest, radio.max_degree, truth.string());
 }
 
 void Daemon::Impl::arm_reload() {

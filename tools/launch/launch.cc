@@ -149,6 +149,13 @@ std::string daemon_config_yaml(const LaunchOptions& options, int robot, int robo
   yaml << YAML::Key << "consensus" << YAML::Value << YAML::BeginMap;
   yaml << YAML::Key << "mode" << YAML::Value << options.mode;
   if (options.graph != "complete") yaml << YAML::Key << "graph" << YAML::Value << options.graph;
+  if (options.range_m > 0.0 || options.nearest > 0 || options.max_degree > 0) {
+    yaml << YAML::Key << "radio" << YAML::Value << YAML::BeginMap;
+    yaml << YAML::Key << "range_m" << YAML::Value << options.range_m;
+    yaml << YAML::Key << "nearest" << YAML::Value << options.nearest;
+    yaml << YAML::Key << "max_degree" << YAML::Value << options.max_degree;
+    yaml << YAML::EndMap;
+  }
   yaml << YAML::Key << "wait_for_peers" << YAML::Value << (options.mode == "off" ? 0 : robots - 1);
   if (options.round_deadline_ms > 0)
     yaml << YAML::Key << "round_deadline_ms" << YAML::Value << options.round_deadline_ms;

@@ -37,6 +37,11 @@ struct LaunchOptions {
   std::filesystem::path team_key_file;
   /// consensus.graph of the daemons: complete or ring.
   std::string graph = "complete";
+  /// consensus.radio of the daemons (a simulated radio from the dataset's ground truth, as
+  /// `concord replay --range/--nearest/--max-degree`; 0 = no limit).
+  double range_m = 0.0;
+  int nearest = 0;
+  int max_degree = 0;
   /// consensus.round_deadline_ms of the daemons (0 = the daemon's default).
   int round_deadline_ms = 0;
   /// output.write_interval_ms of the daemons (-1 = the daemon's default).

@@ -31,48 +31,6 @@ std::vector<LandmarkId> intersection(const std::vector<LandmarkId>& a,
 
 }  // namespace
 
-std::vector<std::vector<int>> limit_graph(const std::vector<std::vector<int>>& candidates,
-                                          const std::vector<Eigen::Vector3d>& positions,
-                                          const RadioLimits& limits) {
-  const int robots = static_cast<int>(candidates.size());
-  auto distance = [&](int i, int j) { return (positions[i] - positions[j]).norm(); };
-  // 1. Range.
-  std::vector<std::vector<int>> in_range(robots);
-  for (int i = 0; i < robots; ++i)
-    for (int j : candidates[i])
-      if (limits.range_m <= 0.0 || distance(i, j) <= limits.range_m) in_range[i].push_back(j);
-  // 2. Nearest: an edge when either end has the other among its `nearest` closest.
-  std::vector<std::vector<bool>> keep(robots, std::vector<bool>(robots, false));
-  for (int i = 0; i < robots; ++i) {
-    std::vector<int> order = in_range[i];
-    std::sort(order.begin(), order.end(), [&](int a, int b) {
-      const double da = distance(i, a), db = distance(i, b);
-      return da != db ? da < db : a < b;
-    });
-    if (limits.nearest > 0 && static_cast<int>(order.size()) > limits.nearest)
-      order.resize(static_cast<std::size_t>(limits.nearest));
-    for (int j : order) keep[i][j] = keep[j][i] = true;
-  }
-  // 3. Degree: the shortest edges first, each while both ends have room.
-  std::vector<std::pair<int, int>> edges;
-  for (int i = 0; i < robots; ++i)
-    for (int j = i + 1; j < robots; ++j)
-      if (keep[i][j]) edges.emplace_back(i, j);
-  std::stable_sort(edges.begin(), edges.end(), [&](const auto& a, const auto& b) {
-    return distance(a.first, a.second) < distance(b.first, b.second);
-  });
-  std::vector<std::vector<int>> graph(robots);
-  for (const auto& [i, j] : edges) {
-    if (limits.max_degree > 0 && (static_cast<int>(graph[i].size()) >= limits.max_degree ||
-                                  static_cast<int>(graph[j].size()) >= limits.max_degree))
-      continue;
-    graph[i].push_back(j);
-    graph[j].push_back(i);
-  }
-  for (auto& neighbours : graph) std::sort(neighbours.begin(), neighbours.end());
-  return graph;
-}
-
 GraphKind parse_graph_kind(const std::string& text) {
   if (text == "complete") return GraphKind::kComplete;
   if (text == "ring") return GraphKind::kRing;
@@ -136,19 +94,6 @@ ReplayResult run_team(const dataset::Dataset& dataset, const EstimatorOptions& e
     return run_team(dataset::sensor_inputs(dataset), estimator_options, with_positions, progress);
   }
   return run_team(dataset::sensor_inputs(dataset), estimator_options, options, progress);
-}
-
-std::vector<std::vector<Eigen::Vector3d>> RadioLimits::positions_of(const dataset::Dataset& dataset) {
-  std::vector<std::vector<Eigen::Vector3d>> positions;
-  for (const auto& robot : dataset.robots) {
-    if (static_cast<int>(robot.groundtruth.size()) < robot.num_frames())
-      throw std::invalid_argument("radio limits (range, nearest, max degree) need the ground truth "
-                                  "of every robot's frames: robot " +
-                                  std::to_string(robot.index) + " has too little");
-    auto& track = positions.emplace_back();
-    for (const auto& pose : robot.groundtruth) track.push_back(pose.translation());
-  }
-  return positions;
 }
 
 namespace {

@@ -24,6 +24,7 @@
 
 #include "concord/association/negotiation.h"
 #include "concord/dataset/dataset.h"
+#include "concord/dataset/radio.h"
 #include "concord/estimator/options.h"
 #include "concord/estimator/types.h"
 
@@ -39,24 +40,9 @@ std::string to_string(GraphKind kind);
 /// spanning tree (connected) plus every other edge with probability 0.3, from seed.
 std::vector<std::vector<int>> make_graph(GraphKind kind, int robots, std::uint64_t seed);
 
-/// See ReplayOptions::radio.
-struct RadioLimits {
-  double range_m = 0.0;
-  int nearest = 0;
-  int max_degree = 0;
-  /// The robots' true positions, [robot][frame]: the simulated radio's input only (the robots'
-  /// filters never see them). Required when any limit is set.
-  std::vector<std::vector<Eigen::Vector3d>> true_positions;
-  bool any() const { return range_m > 0.0 || nearest > 0 || max_degree > 0; }
-  /// From a dataset's ground truth; std::invalid_argument if a robot lacks some.
-  static std::vector<std::vector<Eigen::Vector3d>> positions_of(const dataset::Dataset& dataset);
-};
-
-/// This round's graph: the edges of `candidates` (adjacency lists, symmetric) that `limits`
-/// keep, given the robots' positions. Symmetric, deterministic (ties broken by robot ids).
-std::vector<std::vector<int>> limit_graph(const std::vector<std::vector<int>>& candidates,
-                                          const std::vector<Eigen::Vector3d>& positions,
-                                          const RadioLimits& limits);
+/// The simulated radio (concord/dataset/radio.h), shared with the daemons' consensus.radio.
+using dataset::limit_graph;
+using dataset::RadioLimits;
 
 enum class AssociationMode { kGiven, kNegotiated };
 

@@ -126,11 +126,28 @@ struct NegotiationLimits {
   int max_frame_edges_per_record = 256;
 };
 
+/// consensus.radio: a simulated radio for tests and benchmarks on a dataset with ground truth
+/// (concord/dataset/radio.h, as `concord replay --range/--nearest/--max-degree`). Each round a
+/// robot runs consensus only with the peers the rule links it to at that frame, from every
+/// member's true position: both ends decide alike, so the graph stays symmetric. Robot ids must
+/// be the dataset's robot indices. The filter never sees the positions.
+struct RadioConfig {
+  double range_m = 0.0;  ///< consensus.radio.range_m (0: no limit)
+  int nearest = 0;       ///< consensus.radio.nearest (0: no limit)
+  int max_degree = 0;    ///< consensus.radio.max_degree (0: no limit)
+  /// consensus.radio.truth: the dataset whose robot_NN/groundtruth.kitti give the positions
+  /// ("" = source.dataset).
+  std::filesystem::path truth;
+  bool any() const { return range_m > 0.0 || nearest > 0 || max_degree > 0; }
+};
+
 struct ConsensusConfig {
   ConsensusMode mode = ConsensusMode::kLockstep;
   /// consensus.graph: complete or ring. Both ends of a link decide alike (from `members`), so the
   /// graph stays symmetric and the Metropolis weights over it doubly stochastic.
   ConsensusGraph graph = ConsensusGraph::kComplete;
+  /// consensus.radio: limits on each round's graph (off unless a limit is set).
+  RadioConfig radio;
   /// Lockstep: how long round k waits for a live neighbour's messages before going on without it.
   std::chrono::milliseconds round_deadline{5000};
   /// Async: a neighbour's marginal older than this many rounds is not fused.

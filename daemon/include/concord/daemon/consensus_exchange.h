@@ -117,6 +117,29 @@ struct ExchangeFailpoints {
 /// after it, wrapping around; every other member when there are at most three.
 std::set<int> ring_neighbours(int robot, std::vector<int> members);
 
+/// consensus.radio (RadioConfig): a simulated radio over a team whose robot ids are a dataset's
+/// robot indices. Each round the links of the base graph (complete, or the ring over `members`)
+/// among the members that still have frames, limited by range, nearest and degree from the
+/// members' true positions at that frame, exactly as `concord replay --range/--nearest/
+/// --max-degree` (concord/dataset/radio.h). Every robot computes the same graph.
+class RadioGraph {
+ public:
+  /// `positions`: each member's true positions, parallel to `members` (sorted, unique);
+  /// max_frames: the frames each robot runs (0 = as many as its ground truth has).
+  /// std::invalid_argument on mismatched sizes or unsorted members.
+  RadioGraph(std::vector<int> members, ConsensusGraph base, RadioConfig limits,
+             std::vector<std::vector<Eigen::Vector3d>> positions, int max_frames);
+  /// The robots linked to `robot` in round `round` (empty for a non-member).
+  std::set<int> neighbours(int robot, std::uint64_t round) const;
+
+ private:
+  std::vector<int> members_;
+  ConsensusGraph base_;
+  RadioConfig limits_;
+  std::vector<std::vector<Eigen::Vector3d>> positions_;
+  int max_frames_;
+};
+
 class ConsensusExchange {
  public:
   /// Queues an envelope (its body and round set) to a robot; false if it could not be queued.
@@ -141,6 +164,10 @@ class ConsensusExchange {
   /// Consensus only with these peers (others stay connected, and are not sent landmark sets or
   /// marginals); call before the network starts. Default: every live peer.
   void restrict_to(std::set<int> peers);
+  /// consensus.radio: each round, consensus only with the peers `radio(round)` returns (and
+  /// restrict_to allows). It must be symmetric between robots (RadioGraph is). Call before the
+  /// network starts; called on the estimator thread.
+  void set_radio(std::function<std::set<int>(std::uint64_t round)> radio);
 
   /// Estimator thread: consensus round `round` on `estimator` (after its update of that frame).
   RoundReport run_round(std::uint64_t round, Estimator& estimator);
@@ -180,6 +207,8 @@ class ConsensusExchange {
   void forget_rounds_up_to(std::uint64_t round);
   /// Whether a message of `round` is beyond the future-round window (lockstep; mutex held).
   bool beyond_window(std::uint64_t round) const;
+  /// Peers' deferred LandmarkSets that the window now reaches become this round's (mutex held).
+  void promote_deferred();
   /// A waited-for peer missed the deadline (mutex held).
   void count_miss(int robot, Peer& peer, std::uint64_t round);
   /// A peer answered round `round` in time (mutex held).
@@ -194,9 +223,13 @@ class ConsensusExchange {
   void negotiate(std::uint64_t round, Estimator& estimator, const std::vector<int>& candidates,
                  const std::vector<int>& neighbours);
 
+  /// Whether `robot` takes part this round: restrict_to() and the radio's links allow it.
+  bool takes_part(int robot, const std::optional<std::set<int>>& in_range) const;
+
   ConsensusConfig config_;
   AssociationSession* association_ = nullptr;
   std::optional<std::set<int>> allowed_;  ///< restrict_to()
+  std::function<std::set<int>(std::uint64_t)> radio_;  ///< set_radio()
   Send send_;
   ExchangeFailpoints failpoints_;
   std::unique_ptr<net::LogLimiter> log_limiter_;
