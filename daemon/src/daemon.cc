@@ -111,6 +111,10 @@ json matrix_json(const Eigen::MatrixXd& matrix) {
   return rows;
 }
 
+double unix_seconds_now() {
+  return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
+}
+
 double seconds_ago(Clock::time_point then, Clock::time_point now) {
   if (then == Clock::time_point{}) return -1.0;
   return seconds_between(then, now);
@@ -157,6 +161,10 @@ struct LiveState {
   double consensus_seconds = 0.0;  ///< whole rounds, waiting included
   double wait_seconds = 0.0;
   std::vector<double> latencies_ms;  ///< per frame: popped -> estimate published
+  /// System clock (seconds since the epoch) when the first frame was popped and the last frame's
+  /// estimate published; 0 before the first frame.
+  double first_frame_unix = 0.0;
+  double last_frame_unix = 0.0;
   std::vector<std::uint64_t> bytes_per_round;
 };
 
@@ -842,6 +850,12 @@ bool Daemon::Impl::process(QueuedFrame& item) {
       push_bounded(live_.bytes_per_round, bytes);
     }
     push_bounded(live_.latencies_ms, 1e3 * seconds_between(popped, done));
+    // Wall-clock times (comparable between the robots of one machine) of the first frame's
+    // start and the last frame's end: the team's pace over its frames, startup left out.
+    const double now_unix = unix_seconds_now();
+    if (live_.first_frame_unix == 0.0)
+      live_.first_frame_unix = now_unix - seconds_between(popped, done);
+    live_.last_frame_unix = now_unix;
   }
   return true;
 }
@@ -1032,6 +1046,8 @@ json Daemon::Impl::stats_json() const {
       {"update_seconds", live_.update_seconds},
       {"consensus_seconds", live_.consensus_seconds},
       {"wait_seconds", live_.wait_seconds},
+      {"first_frame_unix", live_.first_frame_unix},
+      {"last_frame_unix", live_.last_frame_unix},
       {"latency_ms",
        {{"p50", percentile(live_.latencies_ms, 50)},
         {"p99", percentile(live_.latencies_ms, 99)},

@@ -87,8 +87,8 @@ struct NetworkConfig {
   std::string listen_address = "127.0.0.1";
   std::uint16_t listen_port = 7100;
   std::vector<std::string> peers;  ///< "host:port" of neighbours to dial
-  std::chrono::milliseconds heartbeat_interval{200};
-  std::chrono::milliseconds heartbeat_timeout{2000};
+  std::chrono::milliseconds heartbeat_interval{1000};
+  std::chrono::milliseconds heartbeat_timeout{5000};
   std::size_t max_frame_bytes = 16u << 20;
   std::size_t send_queue_limit = 256;
   bool discovery = false;

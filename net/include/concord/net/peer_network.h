@@ -60,8 +60,8 @@ struct PeerNetworkOptions {
   /// Application messages queued per peer; when full, the oldest queued application message is
   /// dropped (and counted). Control messages (Hello, Heartbeat, Goodbye) are never dropped.
   std::size_t send_queue_limit = 256;
-  std::chrono::milliseconds heartbeat_interval{200};  ///< heartbeat period and watchdog tick
-  std::chrono::milliseconds heartbeat_timeout{2000};  ///< silence after which a peer is down
+  std::chrono::milliseconds heartbeat_interval{1000};  ///< heartbeat period and watchdog tick
+  std::chrono::milliseconds heartbeat_timeout{5000};  ///< silence after which a peer is down
   std::chrono::milliseconds hello_timeout{2000};      ///< connect + handshake deadline
   std::chrono::milliseconds reconnect_initial{100};   ///< first reconnect delay
   std::chrono::milliseconds reconnect_max{5000};      ///< cap of the reconnect delay
