@@ -47,6 +47,10 @@ std::vector<std::vector<int>> limit_graph(const std::vector<std::vector<int>>& c
   for (int i = 0; i < robots; ++i)
     for (int j : candidates[i])
       if (limits.range_m <= 0.0 || distance(i, j) <= limits.range_m) in_range[i].push_back(j);
+  if (limits.nearest <= 0 && limits.max_degree <= 0) {
+    for (auto& neighbours : in_range) std::sort(neighbours.begin(), neighbours.end());
+    return in_range;  // range only: no ordering by distance needed
+  }
   // 2. Nearest: an edge when either end has the other among its `nearest` closest.
   std::vector<std::vector<bool>> keep(robots, std::vector<bool>(robots, false));
   for (int i = 0; i < robots; ++i) {
