@@ -16,6 +16,9 @@
 /// arrived within the robot's last staleness_rounds rounds and was not fused before (arrival, not
 /// the sender's round number, decides: robots' frame numbers need not be aligned).
 ///
+/// A peer takes part in a round when it is live and the graph allows it: restrict_to (a ring) and,
+/// with a simulated radio (set_radio, RadioGraph), that round's links from the true positions.
+///
 /// Network callbacks (on_message, on_peer) run on the network thread; run_round on the estimator
 /// thread. Messages go out through a Send function, so the protocol is testable without sockets.
 
