@@ -598,6 +598,24 @@ int run_frontend_eval(const fs::path& dataset_dir, const fs::path& world_file) {
 }
 
 /// Runs a team of concordd daemons on a dataset, then scores their outputs like `eval`.
+/// --range, --nearest, --max-degree: the simulated radio of `replay` and `launch` (the same rule,
+/// concord/dataset/radio.h; in the daemons, consensus.radio).
+void add_radio_options(CLI::App& command, double& range_m, int& nearest, int& max_degree) {
+  command
+      .add_option("--range", range_m,
+                  "Simulated radio: a link only while the robots are within this many metres (the "
+                  "dataset's ground truth; 0: no limit)")
+      ->check(CLI::NonNegativeNumber);
+  command
+      .add_option("--nearest", nearest,
+                  "Simulated radio: links only to each robot's K closest robots (0: no limit)")
+      ->check(CLI::NonNegativeNumber);
+  command
+      .add_option("--max-degree", max_degree,
+                  "Simulated radio: at most D links a robot, the shortest first (0: no limit)")
+      ->check(CLI::NonNegativeNumber);
+}
+
 int run_launch(launch::LaunchOptions options) {
   dataset::ReadOptions read_options;
   read_options.load_features = false;
@@ -668,19 +686,7 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(0.0, 1.0));
   replay_command->add_option("--seed", seed, "Seed of the random graph and link loss");
   replay::RadioLimits radio;
-  replay_command
-      ->add_option("--range", radio.range_m,
-                   "Simulated radio: a link only while the robots are within this many metres "
-                   "(true positions; 0: no limit)")
-      ->check(CLI::NonNegativeNumber);
-  replay_command
-      ->add_option("--nearest", radio.nearest,
-                   "Simulated radio: links only to each robot's K closest robots (0: no limit)")
-      ->check(CLI::NonNegativeNumber);
-  replay_command
-      ->add_option("--max-degree", radio.max_degree,
-                   "Simulated radio: at most D links a robot, the shortest first (0: no limit)")
-      ->check(CLI::NonNegativeNumber);
+  add_radio_options(*replay_command, radio.range_m, radio.nearest, radio.max_degree);
   replay_command->add_option("--frames", frames, "Use only the first N frames of each robot")
       ->check(CLI::PositiveNumber);
   replay_command->add_flag("--no-point-features", no_point_features,
@@ -912,19 +918,8 @@ int main(int argc, char** argv) {
       ->add_option("--graph", launch_options.graph,
                    "Whom each daemon runs consensus with: complete or ring (members next to it)")
       ->check(CLI::IsMember({"complete", "ring"}));
-  launch_command
-      ->add_option("--range", launch_options.range_m,
-                   "Simulated radio (consensus.radio): a link only while the robots are within "
-                   "this many metres (the dataset's ground truth; 0: no limit)")
-      ->check(CLI::NonNegativeNumber);
-  launch_command
-      ->add_option("--nearest", launch_options.nearest,
-                   "Simulated radio: links only to each robot's K closest robots (0: no limit)")
-      ->check(CLI::NonNegativeNumber);
-  launch_command
-      ->add_option("--max-degree", launch_options.max_degree,
-                   "Simulated radio: at most D links a robot, the shortest first (0: no limit)")
-      ->check(CLI::NonNegativeNumber);
+  add_radio_options(*launch_command, launch_options.range_m, launch_options.nearest,
+                    launch_options.max_degree);
   launch_command->add_flag("--separate", launch_separate, "No consensus");
   launch_command->add_option("--base-port", launch_options.base_port,
                              "Robot i listens for peers on base-port + i")
