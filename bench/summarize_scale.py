@@ -21,7 +21,8 @@ def team(folder):
         "misses": sum(s.get("consensus", {}).get("deadline_misses", 0) for s in stats),
         "trajectory": metrics["average"]["trajectory_rmse"],
         "objects": metrics["average"]["object_error"],
-        "edges": None,
+        "pose_nees": metrics["average"]["pose_nees"]["mean"],
+        "object_nees": metrics["average"]["object_nees"]["mean"],
     }
 
 
@@ -37,12 +38,15 @@ def main():
           "robot finished (stats.json `first_frame_unix`, `last_frame_unix`), startup left out; "
           "10 Hz means at most 33 s (the frames span 29.9 s).")
     print("- **team CPU**: user + system seconds of all 50 daemons, startup included.")
+    print("- **NEES**: team means of the pose (6-D, consistent mean 6) and object (3-D, consistent "
+          "mean 3) NEES from `concord eval`; objects are under-confident under consensus at many "
+          "robots (issue 9).")
     print("- **links a round** and **as the replay**: from `concord replay --range R` of the same "
           "data; a lockstep radio row equals the replay when its trajectory and object figures are "
           "the replay's.\n")
     print("| seed | mode | graph | links a round | 300 frames took s | 10 Hz held | team CPU s (user + system) "
-          "| deadline misses | traj RMSE m | object err m | replay traj / obj m |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+          "| deadline misses | traj RMSE m | object err m | pose / object NEES | replay traj / obj m |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for seed in seeds:
         base = os.path.join(out, f"scale-sim50-seed{seed}")
         for mode in ("lockstep", "async"):
@@ -61,7 +65,7 @@ def main():
                 held = "yes" if t["frames"] == 300 and t["span"] <= 33.0 else "no"
                 print(f"| {seed} | {mode} | {graph} | {links} | {t['span']:.1f} | {held} | "
                       f"{t['user']:.0f} + {t['system']:.0f} | {t['misses']} | {t['trajectory']:.4f} | "
-                      f"{t['objects']:.4f} | {reference} |")
+                      f"{t['objects']:.4f} | {t['pose_nees']:.2f} / {t['object_nees']:.2f} | {reference} |")
 
 
 if __name__ == "__main__":
