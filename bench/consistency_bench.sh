@@ -53,12 +53,19 @@ wait
 run kitti00-600-consensus "$shared/kitti00" --frames 600 &
 run kitti00-600-separate "$shared/kitti00" --frames 600 --separate &
 wait
-run kitti00-objects-half "$shared/kitti00" \
-  --set object_noise.horizontal=9.5 --set object_noise.vertical=2 \
-  --set object_noise.disparity=1 --set object_noise.vertical_disparity=0.5 &
-run kitti00-objects-double "$shared/kitti00" \
-  --set object_noise.horizontal=38 --set object_noise.vertical=8 \
-  --set object_noise.disparity=4 --set object_noise.vertical_disparity=2 &
+# The object noise halved and doubled, from the config's own values (so that the variants follow
+# the config when it changes).
+scaled_object_noise() {  # factor -> --set arguments
+  python3 - "$1" <<'PY'
+import sys, yaml
+noise = yaml.safe_load(open("configs/sensors/kitti-stereo.yaml"))["object_noise"]
+print(" ".join(f"--set object_noise.{k}={v * float(sys.argv[1]):g}" for k, v in noise.items()))
+PY
+}
+# shellcheck disable=SC2046  # the --set arguments split on purpose
+run kitti00-objects-half "$shared/kitti00" $(scaled_object_noise 0.5) &
+# shellcheck disable=SC2046
+run kitti00-objects-double "$shared/kitti00" $(scaled_object_noise 2) &
 wait
 run kitti00-vo77 "$shared/kitti00-vo77"
 run kitti00-vo77-objects-only "$shared/kitti00-vo77" --no-point-features

@@ -205,6 +205,7 @@ TEST(DaemonCheckpoint, RoundTripsTheFilterStateAndPendingObjectsAndRefusesDamage
   checkpoint.timestamps = {4.0, 4.1};
   checkpoint.poses = {Eigen::Isometry3d::Identity(), Eigen::Isometry3d::Identity()};
   checkpoint.state = concord::testing::random_state(3, 2, random);
+  checkpoint.state.landmarks[0].archived = true;  // a consider state (object_archive_mode)
   checkpoint.pending[9] = {{40, Eigen::Vector4d(0.1, 0.2, 0.05, 0.2)},
                            {41, Eigen::Vector4d(0.11, 0.2, 0.06, 0.2)}};
   const std::string bytes = serialize_checkpoint(checkpoint);
@@ -216,6 +217,8 @@ TEST(DaemonCheckpoint, RoundTripsTheFilterStateAndPendingObjectsAndRefusesDamage
   ASSERT_EQ(back->state.landmarks.size(), 2u);
   EXPECT_EQ(back->state.landmarks[1].p_linearization,
             checkpoint.state.landmarks[1].p_linearization);
+  EXPECT_TRUE(back->state.landmarks[0].archived);
+  EXPECT_FALSE(back->state.landmarks[1].archived);
   ASSERT_EQ(back->pending.size(), 1u);
   ASSERT_EQ(back->pending.at(9).size(), 2u);
   EXPECT_EQ(back->pending.at(9)[1].frame, 41);

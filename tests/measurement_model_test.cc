@@ -241,6 +241,49 @@ TEST(KalmanUpdate, CorrelatedNoiseMatchesGaussianConditioning) {
   EXPECT_TRUE(state.poses[1].T_world_body.matrix().isApprox(expected_pose.matrix(), 1e-10));
 }
 
+TEST(KalmanUpdate, ArchivedObjectsAreSchmidtConsiderStates) {
+  // Two poses and three objects, the middle one archived (a consider state). The update must be
+  // the Joseph form with the archived rows of the gain zeroed, K_s = E P H^T S^-1:
+  //   P' = (I - K_s H) P (I - K_s H)^T + K_s V K_s^T,
+  // which leaves the archived object's mean and covariance as they were and updates its
+  // cross-covariances with the rest; with every object active it is the plain update.
+  std::mt19937 random(21);
+  State state = testing::random_state(2, 3, random);
+  state.landmarks[1].archived = true;
+  const int n = state.dimension();
+  const int held = state.landmark_index(1);
+  const int m = 5;
+  Eigen::MatrixXd H = Eigen::MatrixXd::Zero(m, n);
+  H.middleCols(0, 12) = Eigen::MatrixXd::Random(m, 12);                       // both poses
+  H.middleCols(state.landmark_index(2), 3) = Eigen::MatrixXd::Random(m, 3);  // an active object
+  const Eigen::MatrixXd V = testing::random_spd(m, random, 0.5, 1.0);
+  const Eigen::VectorXd r = testing::random_vector(m, random);
+  const Eigen::MatrixXd P = state.covariance;
+  Eigen::MatrixXd K = P * H.transpose() * (H * P * H.transpose() + V).inverse();
+  K.middleRows(held, 3).setZero();
+  const Eigen::MatrixXd I_KH = Eigen::MatrixXd::Identity(n, n) - K * H;
+  const Eigen::MatrixXd expected = I_KH * P * I_KH.transpose() + K * V * K.transpose();
+  const Eigen::VectorXd correction = K * r;
+
+  const State before = state;
+  ASSERT_TRUE(StateHelper::update(state, H, r, V));
+  EXPECT_TRUE(state.covariance.isApprox(expected, 1e-10));
+  const Eigen::Matrix3d held_block = state.covariance.block<3, 3>(held, held);
+  EXPECT_TRUE((held_block.array() == P.block<3, 3>(held, held).array()).all());
+  EXPECT_EQ(state.landmarks[1].p_world, before.landmarks[1].p_world);
+  EXPECT_FALSE(state.covariance.middleCols(held, 3).isApprox(P.middleCols(held, 3), 1e-3));
+  EXPECT_TRUE(state.landmarks[2].p_world.isApprox(
+      before.landmarks[2].p_world + correction.segment<3>(state.landmark_index(2)), 1e-10));
+  const Eigen::LLT<Eigen::MatrixXd> positive(state.covariance);
+  EXPECT_EQ(positive.info(), Eigen::Success);
+
+  // The same update with the object active again moves it: the gain rows are back.
+  State active = before;
+  active.landmarks[1].archived = false;
+  ASSERT_TRUE(StateHelper::update(active, H, r, V));
+  EXPECT_FALSE(active.landmarks[1].p_world.isApprox(before.landmarks[1].p_world, 1e-6));
+}
+
 TEST(Augmentation, MatchesEquation30) {
   std::mt19937 random(14);
   State state = testing::random_state(2, 1, random);

@@ -90,6 +90,7 @@ void for_each_field(Options& options, Visitor&& visit) {
   visit("object_init_max_reprojection_error", options.object_init_max_reprojection_error);
   visit("object_chi2_probability", options.object_chi2_probability);
   visit("object_archive_after_frames", options.object_archive_after_frames);
+  visit("object_archive_mode", options.object_archive_mode);
   visit("use_point_features", options.use_point_features);
   visit("feature_noise", options.feature_noise);
   visit("feature_min_observations", options.feature_min_observations);
@@ -113,6 +114,10 @@ void read_node(YamlSection& section, const YAML::Node& value, const std::string&
 }
 void read_node(YamlSection& section, const YAML::Node& value, const std::string& key, bool& field) {
   section.read_value(value, key, field, "true or false");
+}
+void read_node(YamlSection& section, const YAML::Node& value, const std::string& key,
+               std::string& field) {
+  section.read_value(value, key, field, "a string");
 }
 void read_node(YamlSection& section, const YAML::Node& node, const std::string& key,
                Correlation& field) {
@@ -203,6 +208,7 @@ std::string format_number(double value) {
 std::string format_value(int value) { return std::to_string(value); }
 std::string format_value(double value) { return format_number(value); }
 std::string format_value(bool value) { return value ? "true" : "false"; }
+std::string format_value(const std::string& value) { return value; }
 /// Flow map of the four components.
 std::string format_value(const StereoNoise& noise) {
   std::string text = "{";

@@ -8,7 +8,7 @@ namespace concord::daemon {
 
 namespace {
 
-constexpr char kMagic[] = "CONCORD-CHECKPOINT-5\n";
+constexpr char kMagic[] = "CONCORD-CHECKPOINT-6\n";
 constexpr std::size_t kMagicBytes = sizeof(kMagic) - 1;
 
 std::uint64_t fnv1a(const char* data, std::size_t size) {
@@ -92,6 +92,7 @@ std::string serialize_checkpoint(const Checkpoint& checkpoint) {
     for (int i = 0; i < 3; ++i) w.put<double>(landmark.p_world[i]);
     w.put<std::int32_t>(landmark.last_observed_frame);
     for (int i = 0; i < 3; ++i) w.put<double>(landmark.p_linearization[i]);
+    w.put<std::uint8_t>(landmark.archived ? 1 : 0);
   }
   w.put<std::uint32_t>(static_cast<std::uint32_t>(state.archived.size()));
   for (const auto& [id, object] : state.archived) {
@@ -159,15 +160,18 @@ std::optional<Checkpoint> parse_checkpoint(const std::string& bytes, std::string
     clone.frame = frame;
     state.poses.push_back(clone);
   }
-  if (!r.count(n, 8 + 24 + 4 + 24)) return fail("bad landmark count");
+  if (!r.count(n, 8 + 24 + 4 + 24 + 1)) return fail("bad landmark count");
   for (std::uint32_t i = 0; i < n; ++i) {
     ObjectLandmark landmark;
     std::int32_t last = 0;
+    std::uint8_t archived = 0;
     if (!r.get(landmark.id) || !r.get(landmark.p_world[0]) || !r.get(landmark.p_world[1]) ||
         !r.get(landmark.p_world[2]) || !r.get(last) || !r.get(landmark.p_linearization[0]) ||
-        !r.get(landmark.p_linearization[1]) || !r.get(landmark.p_linearization[2]))
+        !r.get(landmark.p_linearization[1]) || !r.get(landmark.p_linearization[2]) ||
+        !r.get(archived) || archived > 1)
       return fail("bad landmark " + std::to_string(i));
     landmark.last_observed_frame = last;
+    landmark.archived = archived == 1;
     state.landmarks.push_back(landmark);
   }
   if (!r.count(n, 8 + 96 + 4)) return fail("bad archived object count");

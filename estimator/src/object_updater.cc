@@ -56,6 +56,10 @@ ObjectUpdateStats ObjectUpdater::process(State& state,
       continue;
     }
     state.landmarks[slot].last_observed_frame = frame;
+    if (state.landmarks[slot].archived) {
+      state.landmarks[slot].archived = false;  // seen again: active, with every correlation it kept
+      ++stats.reactivated;
+    }
     accepted_rows += static_cast<int>(linearized->residual.size());
     accepted.push_back(std::move(*linearized));
     ++stats.updated;
@@ -215,6 +219,16 @@ void ObjectUpdater::archive_stale(State& state, int frame, ObjectUpdateStats& st
     }
   }
   if (stale.empty()) return;
+  if (options_.object_archive_mode == "consider") {
+    // Kept in the joint covariance as consider states (State, StateHelper::update).
+    int archived = 0;
+    for (int slot : stale) {
+      archived += state.landmarks[slot].archived ? 0 : 1;
+      state.landmarks[slot].archived = true;
+    }
+    stats.archived += archived;
+    return;
+  }
   for (int slot : stale) {
     const auto& landmark = state.landmarks[slot];
     const int index = state.landmark_index(slot);

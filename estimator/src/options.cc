@@ -20,6 +20,8 @@ std::string to_text(double value) {
 
 std::string to_text(int value) { return std::to_string(value); }
 
+std::string to_text(const std::string& value) { return "\"" + value + "\""; }
+
 /// Collects "<key> = <value>: must be <rule>" messages.
 class Problems {
  public:
@@ -107,6 +109,9 @@ std::vector<std::string> EstimatorOptions::validate() const {
   }
   problems.check_probability("object_chi2_probability", object_chi2_probability);
   problems.check_at_least("object_archive_after_frames", object_archive_after_frames, 0);
+  if (object_archive_mode != "consider" && object_archive_mode != "marginal") {
+    problems.add("object_archive_mode", object_archive_mode, "consider or marginal");
+  }
 
   problems.check_stereo_noise("feature_noise", feature_noise);
   problems.check_at_least("feature_min_observations", feature_min_observations, 2);

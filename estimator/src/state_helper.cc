@@ -15,6 +15,31 @@ Eigen::MatrixXd covariance_times_jacobian_transpose(const Eigen::MatrixXd& P,
   return P(Eigen::all, columns) * H(Eigen::all, columns).transpose();
 }
 
+/// The covariance indices of the archived objects (Schmidt consider states), ascending.
+std::vector<int> archived_indices(const State& state) {
+  std::vector<int> indices;
+  for (int slot = 0; slot < state.num_landmarks(); ++slot) {
+    if (!state.landmarks[slot].archived) continue;
+    for (int k = 0; k < 3; ++k) indices.push_back(state.landmark_index(slot) + k);
+  }
+  return indices;
+}
+
+/// 0 .. n-1 without the ascending `indices`.
+std::vector<int> complement(const std::vector<int>& indices, int n) {
+  std::vector<int> out;
+  out.reserve(static_cast<std::size_t>(n) - indices.size());
+  auto next = indices.begin();
+  for (int i = 0; i < n; ++i) {
+    if (next != indices.end() && *next == i) {
+      ++next;
+    } else {
+      out.push_back(i);
+    }
+  }
+  return out;
+}
+
 }  // namespace
 
 void StateHelper::apply_correction(State& state, const Eigen::VectorXd& correction) {
@@ -47,12 +72,26 @@ bool StateHelper::update(State& state, const Eigen::MatrixXd& H, const Eigen::Ve
   if (llt.info() != Eigen::Success) return false;
 
   // 2. Correction K r with K = U innovation^-1 (eq. 26, 28).
-  const Eigen::VectorXd correction = U * llt.solve(residual);
+  Eigen::VectorXd correction = U * llt.solve(residual);
 
   // 3. P <- P - U innovation^-1 U^T = P - W^T W with W = L^-1 U^T (eq. 66), on one triangle.
   const Eigen::MatrixXd W = llt.matrixL().solve(U.transpose());
-  P.selfadjointView<Eigen::Lower>().rankUpdate(W.transpose(), -1.0);
-  P.triangularView<Eigen::StrictlyUpper>() = P.transpose();
+  const std::vector<int> held = archived_indices(state);
+  if (held.empty()) {
+    P.selfadjointView<Eigen::Lower>().rankUpdate(W.transpose(), -1.0);
+    P.triangularView<Eigen::StrictlyUpper>() = P.transpose();
+  } else {
+    // Schmidt update: archived objects are consider states, their gain rows zero. With K_s that
+    // gain, the Joseph form P - K_s H P - P H^T K_s^T + K_s S K_s^T is P - W^T W everywhere
+    // except the archived x archived block, which keeps its value: their estimates do not move,
+    // and their cross-covariances with the active state follow its update. Only the active rows
+    // are formed: O(active x n x m).
+    const std::vector<int> active = complement(held, state.dimension());
+    const Eigen::MatrixXd reduction = W(Eigen::all, active).transpose() * W;  // active x n
+    P(active, Eigen::all) -= reduction;
+    P(held, active) = P(active, held).transpose();
+    correction(held).setZero();
+  }
 
   apply_correction(state, correction);
   return true;

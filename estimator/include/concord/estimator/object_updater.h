@@ -20,8 +20,9 @@ struct ObjectUpdateStats {
   int initialized = 0;      ///< new objects added to the state
   int init_failed = 0;      ///< initialization attempts rejected (triangulation, depth, error)
   int init_gated = 0;       ///< initializations rejected by the chi-square test of their other rows
-  int reactivated = 0;      ///< archived objects that rejoined the state (fused back by CI)
-  int archived = 0;         ///< objects that left the joint state this frame
+  int reactivated = 0;      ///< archived objects seen again (consider: active again; marginal:
+                            ///< rejoined the state, fused back by CI)
+  int archived = 0;         ///< objects archived this frame (object_archive_mode)
   int update_failures = 0;  ///< Kalman updates refused (innovation not positive definite)
 };
 
@@ -34,10 +35,11 @@ class ObjectUpdater {
                 PendingObjects pending = {});
 
   /// Processes the objects observed at the state's newest frame: 1. update with observations
-  /// of in-state objects (chi-square gated), 2. initialize objects with enough observations in
-  /// the window (archived ones among them rejoin: initialized afresh, then their archived
-  /// marginal fused in by covariance intersection), 3. archive objects not observed for
-  /// object_archive_after_frames.
+  /// of in-state objects (chi-square gated; an archived consider state among them is active
+  /// again), 2. initialize objects with enough observations in the window (with
+  /// object_archive_mode marginal, archived ones among them rejoin: initialized afresh, then
+  /// their archived marginal fused in by covariance intersection), 3. archive objects not
+  /// observed for object_archive_after_frames.
   ObjectUpdateStats process(State& state, const std::vector<StereoObservation>& objects);
 
   /// The observations waiting for an initialization (part of what a checkpoint must keep for

@@ -116,6 +116,17 @@ struct EstimatorOptions {
   /// the unknown correlation between the two. Bounds the state for a long-lived robot. 0 keeps
   /// every object forever.
   int object_archive_after_frames = 0;
+  /// object_archive_mode: what archiving does with an object. "marginal" (the default) moves it
+  /// out of the joint state as an independent marginal, fused back by covariance intersection
+  /// when seen again; the rejoin carries that fusion to the poses as if the old marginal were
+  /// independent of them given the object, which it is not, and pose NEES grows through a run.
+  /// "consider" keeps it in the joint covariance as a Schmidt consider state
+  /// (ObjectLandmark::archived): the robot's updates leave it as it is but keep its
+  /// correlations, so it rejoins consistently. Updates then cost O(active x all) instead of
+  /// O(all^2), but a marginal carries every object in one joint block and a consensus step costs
+  /// O(all^2) per fused object: for separate runs and small teams (docs/estimator.md,
+  /// "Archiving").
+  std::string object_archive_mode = "marginal";
 
   // --- Point features (opportunistic, MSCKF update, eq. 24-28) ---
   /// use_point_features: run the MSCKF update on point-feature tracks.

@@ -46,6 +46,13 @@ struct ObjectLandmark {
   /// observations are evaluated here, so that every observation of it agrees on the unobservable
   /// directions (first-estimate Jacobians; the residual uses p_world).
   Eigen::Vector3d p_linearization = Eigen::Vector3d::Zero();
+  /// Archived (object_archive_mode consider): not observed for object_archive_after_frames. It
+  /// stays in the joint covariance as a Schmidt "consider" state: the robot's own updates keep
+  /// its cross-covariances with the rest of the state current but leave its mean and covariance
+  /// as they are (StateHelper::update), so the cost of an update grows with the active state, not
+  /// with every object ever seen; consensus still averages it (shared as an independent
+  /// marginal). Observed again, it is active again, with every correlation it had.
+  bool archived = false;
 };
 
 class State {

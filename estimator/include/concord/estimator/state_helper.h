@@ -22,7 +22,10 @@ class StateHelper {
   /// Kalman update with residual r = H x~ + v, v ~ N(0, noise), and optional correlation
   /// S = E[w v^T] (n x m; nullptr for none):
   ///   K = (P H^T + S)(H P H^T + V + H S + S^T H^T)^-1,  P <- P - K (H P + S^T)   (eq. 26-27, 66).
-  /// Only the columns where H is non-zero are touched to form P H^T. Returns false (and leaves
+  /// Only the columns where H is non-zero are touched to form P H^T. Archived objects
+  /// (ObjectLandmark::archived) are Schmidt consider states: their gain rows are zero, so their
+  /// means and covariance block stay as they are while their cross-covariances follow the
+  /// update (the Joseph form with that gain), in O(active x n x m). Returns false (and leaves
   /// the state unchanged) when the innovation covariance is not positive definite.
   [[nodiscard]] static bool update(State& state, const Eigen::MatrixXd& H, const Eigen::VectorXd& residual,
                      const Eigen::MatrixXd& noise, const Eigen::MatrixXd* correlation = nullptr);
