@@ -84,8 +84,8 @@ bool StateHelper::update(State& state, const Eigen::MatrixXd& H, const Eigen::Ve
     // Schmidt update: archived objects are consider states, their gain rows zero. With K_s that
     // gain, the Joseph form P - K_s H P - P H^T K_s^T + K_s S K_s^T is P - W^T W everywhere
     // except the archived x archived block, which keeps its value: their estimates do not move,
-    // and their cross-covariances with the active state follow its update. Only the active rows
-    // are formed: O(active x n x m).
+    // and their cross-covariances with the active state follow its update (exact without
+    // correlated noise; with it, the same rule). Only the active rows are formed.
     const std::vector<int> active = complement(held, state.dimension());
     const Eigen::MatrixXd reduction = W(Eigen::all, active).transpose() * W;  // active x n
     P(active, Eigen::all) -= reduction;

@@ -122,10 +122,10 @@ struct EstimatorOptions {
   /// independent of them given the object, which it is not, and pose NEES grows through a run.
   /// "consider" keeps it in the joint covariance as a Schmidt consider state
   /// (ObjectLandmark::archived): the robot's updates leave it as it is but keep its
-  /// correlations, so it rejoins consistently. Updates then cost O(active x all) instead of
-  /// O(all^2), but a marginal carries every object in one joint block and a consensus step costs
-  /// O(all^2) per fused object: for separate runs and small teams (docs/estimator.md,
-  /// "Archiving").
+  /// correlations, so it rejoins consistently. But every object stays in the covariance:
+  /// updates cost O(active x all), a marginal carries every object in one joint block and a
+  /// consensus step costs O(all^2) per fused object. For separate runs and small teams
+  /// (docs/estimator.md, "Archiving").
   std::string object_archive_mode = "marginal";
 
   // --- Point features (opportunistic, MSCKF update, eq. 24-28) ---

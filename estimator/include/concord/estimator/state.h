@@ -49,9 +49,9 @@ struct ObjectLandmark {
   /// Archived (object_archive_mode consider): not observed for object_archive_after_frames. It
   /// stays in the joint covariance as a Schmidt "consider" state: the robot's own updates keep
   /// its cross-covariances with the rest of the state current but leave its mean and covariance
-  /// as they are (StateHelper::update), so the cost of an update grows with the active state, not
-  /// with every object ever seen; consensus still averages it (shared as an independent
-  /// marginal). Observed again, it is active again, with every correlation it had.
+  /// as they are (StateHelper::update); consensus averages it with the other in-state objects (in
+  /// the joint block of the robot's marginal). Observed again, it is active again, with every
+  /// correlation it had.
   bool archived = false;
 };
 
