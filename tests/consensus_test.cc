@@ -301,6 +301,53 @@ TEST(ConsensusAverage, LandmarksInDifferentBlocksOfANeighbourAreAveragedSeparate
   EXPECT_GT(half.dot(x_block * half), 0.7);
 }
 
+TEST(ConsensusEventTriggered, SettledLandmarksAreLeftOutAndTheRestFusedAsAlone) {
+  // The neighbour agrees exactly with the robot on two of its three landmarks and disagrees on
+  // one: with consensus.fuse_kl_threshold, the two are left out (their average is the robot's
+  // own: KL 0) and the third is fused exactly as if the neighbour had sent it alone.
+  std::mt19937 random(23);
+  const State start = testing::random_state(2, 3, random);
+  Marginal neighbour = Consensus::marginal(start, start.object_ids());
+  const LandmarkId moved = neighbour.ids[1];
+  neighbour.mean.segment<3>(3) += Eigen::Vector3d(0.3, -0.2, 0.1);
+  Marginal alone;
+  alone.ids = {moved};
+  alone.mean = neighbour.mean.segment<3>(3);
+  alone.blocks = {neighbour.blocks.front().block<3, 3>(3, 3)};
+
+  ConsensusOptions options = no_safeguards();
+  options.fuse_kl_threshold = 1e-3;
+  State triggered = start;
+  const auto report = Consensus::fuse(triggered, {{0.5, neighbour}}, options);
+  EXPECT_EQ(report.landmarks_settled, 2);
+  EXPECT_EQ(report.landmarks_fused, 1);
+  State reference = start;
+  const auto reference_report = Consensus::fuse(reference, {{0.5, alone}}, no_safeguards());
+  EXPECT_EQ(reference_report.landmarks_fused, 1);
+  EXPECT_TRUE(triggered.covariance.isApprox(reference.covariance, 1e-12));
+  for (int i = 0; i < 3; ++i) {
+    EXPECT_TRUE(triggered.landmarks[i].p_world.isApprox(reference.landmarks[i].p_world, 1e-12));
+  }
+  // Fused alone, the moved landmark drags its correlated neighbours along (Proposition 2);
+  // without the threshold the whole joint block is averaged and they are held where both robots
+  // agree they are: a different step.
+  State every = start;
+  const auto every_report = Consensus::fuse(every, {{0.5, neighbour}}, no_safeguards());
+  EXPECT_EQ(every_report.landmarks_settled, 0);
+  EXPECT_EQ(every_report.landmarks_fused, 3);
+  EXPECT_TRUE(every.landmarks[0].p_world.isApprox(start.landmarks[0].p_world, 1e-12));
+  EXPECT_GT((reference.landmarks[0].p_world - start.landmarks[0].p_world).norm(), 1e-4);
+
+  // A threshold above the moved landmark's step leaves the state exactly as it was.
+  options.fuse_kl_threshold = 1e6;
+  State untouched = start;
+  const auto none = Consensus::fuse(untouched, {{0.5, neighbour}}, options);
+  EXPECT_EQ(none.landmarks_settled, 3);
+  EXPECT_EQ(none.landmarks_fused, 0);
+  EXPECT_TRUE(untouched.covariance.isApprox(start.covariance, 0.0));
+  EXPECT_TRUE(untouched.landmarks[1].p_world.isApprox(start.landmarks[1].p_world, 0.0));
+}
+
 TEST(CovarianceIntersection, MinimizesTheDeterminantAndKeepsTheMeanBetween) {
   ObjectEstimate a{1, Eigen::Vector3d(0, 0, 0), Eigen::Vector3d(1.0, 4.0, 1.0).asDiagonal()};
   ObjectEstimate b{1, Eigen::Vector3d(1, 1, 1), Eigen::Vector3d(4.0, 1.0, 1.0).asDiagonal()};

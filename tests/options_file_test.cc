@@ -55,6 +55,7 @@ EstimatorOptions unusual_options() {
   }
   options.consensus.max_condition_number = 1e15 / 3.0;
   options.consensus.neighbour_chi2_probability = 0.9876;
+  options.consensus.fuse_kl_threshold = 2.5e-3;
   return options;
 }
 
@@ -89,6 +90,7 @@ void expect_same_options(const EstimatorOptions& actual, const EstimatorOptions&
   EXPECT_EQ(actual.consensus.max_condition_number, expected.consensus.max_condition_number);
   EXPECT_EQ(actual.consensus.neighbour_chi2_probability,
             expected.consensus.neighbour_chi2_probability);
+  EXPECT_EQ(actual.consensus.fuse_kl_threshold, expected.consensus.fuse_kl_threshold);
 }
 
 // --- YAML round trip and loading ---
@@ -296,6 +298,8 @@ TEST(OptionsValidateTest, EachRuleNamesTheKeyTheValueAndTheRange) {
        "consensus.max_condition_number = 1: must be finite and > 1"},
       {"neighbour chi2", [](auto& o) { o.consensus.neighbour_chi2_probability = 1.5; },
        "consensus.neighbour_chi2_probability = 1.5: must be in [0, 1)"},
+      {"fuse threshold", [](auto& o) { o.consensus.fuse_kl_threshold = -0.5; },
+       "consensus.fuse_kl_threshold = -0.5: must be finite and >= 0"},
   };
   for (const ValidationCase& test_case : cases) {
     SCOPED_TRACE(test_case.description);

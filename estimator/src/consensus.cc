@@ -7,6 +7,7 @@
 #include <map>
 #include <optional>
 
+#include "concord/estimator/marginal_sharing.h"
 #include "concord/estimator/state_helper.h"
 #include "concord/estimator/updater_helper.h"
 
@@ -353,6 +354,40 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
       holders.emplace_back(static_cast<int>(j), found);
     }
     if (!holders.empty()) accepted.emplace_back(id, holders);
+  }
+
+  // 2b. Event-triggered fusion (consensus.fuse_kl_threshold): a landmark whose average, from
+  //     the 3x3 marginals, is within the threshold of the robot's own is left out of the round.
+  if (options.fuse_kl_threshold > 0.0) {
+    const auto settled = [&](const std::pair<LandmarkId, Holders>& entry) {
+      const auto& [id, holders] = entry;
+      const Location& own_at = *own->find(id);
+      ObjectEstimate current{id, own->mean(own_at), own->covariance(own_at)};
+      const auto own_information =
+          checked_inverse3(current.covariance, options.max_condition_number);
+      if (!own_information) return false;  // fused (or refused) as usual below
+      Eigen::Matrix3d matrix = Eigen::Matrix3d::Zero();
+      Eigen::Vector3d vector = Eigen::Vector3d::Zero();
+      double own_weight = 1.0;
+      for (const auto& [j, location] : holders) {
+        const Member& neighbour = neighbour_members[j];
+        const auto information =
+            checked_inverse3(neighbour.covariance(*location), options.max_condition_number);
+        if (!information) continue;
+        own_weight -= neighbour.weight;
+        matrix += neighbour.weight * *information;
+        vector += neighbour.weight * (*information * neighbour.mean(*location));
+      }
+      matrix += own_weight * *own_information;
+      vector += own_weight * (*own_information * current.p_world);
+      const Eigen::LLT<Eigen::Matrix3d> average(matrix);
+      if (average.info() != Eigen::Success) return false;
+      ObjectEstimate step{id, average.solve(vector), average.solve(Eigen::Matrix3d::Identity())};
+      return kl_divergence(step, current) <= options.fuse_kl_threshold;
+    };
+    const auto kept = std::remove_if(accepted.begin(), accepted.end(), settled);
+    report.landmarks_settled = static_cast<int>(accepted.end() - kept);
+    accepted.erase(kept, accepted.end());
   }
 
   // 3. The weighted average (eq. 19) of landmarks grouped by (in joint state?, and for the

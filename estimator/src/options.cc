@@ -130,6 +130,10 @@ std::vector<std::string> EstimatorOptions::validate() const {
     problems.add("consensus.max_condition_number", consensus.max_condition_number,
                  "finite and > 1");
   }
+  if (!(std::isfinite(consensus.fuse_kl_threshold) && consensus.fuse_kl_threshold >= 0.0)) {
+    problems.add("consensus.fuse_kl_threshold", consensus.fuse_kl_threshold,
+                 "finite and >= 0 (0 fuses every landmark)");
+  }
   if (!(std::isfinite(consensus.share_kl_threshold) && consensus.share_kl_threshold >= 0.0)) {
     problems.add("consensus.share_kl_threshold", consensus.share_kl_threshold,
                  "finite and >= 0 (0 sends everything)");

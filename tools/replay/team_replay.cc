@@ -339,6 +339,7 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
         const ConsensusReport report = estimators[i].fuse(inbox[i]);
         ++statistics.consensus_robot_steps;
         statistics.landmarks_fused += report.landmarks_fused;
+        statistics.landmarks_settled += report.landmarks_settled;
         statistics.neighbours_skipped += report.neighbours_skipped;
         statistics.landmarks_refused += report.landmarks_refused;
       }

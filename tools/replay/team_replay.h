@@ -103,6 +103,7 @@ struct ReplayStatistics {
   long long robot_steps = 0;            ///< (robot, frame) pairs processed
   long long consensus_robot_steps = 0;  ///< (robot, round) pairs that fused at least one marginal
   long long landmarks_fused = 0;
+  long long landmarks_settled = 0;  ///< left out by consensus.fuse_kl_threshold
   long long neighbours_skipped = 0;
   long long landmarks_refused = 0;  ///< neighbours' landmarks refused by the chi-square test
   long long object_initializations_gated = 0;

@@ -33,6 +33,9 @@ struct ConsensusReport {
   std::vector<int> refused_per_neighbour;
   /// Landmarks each neighbour's marginal offered that the robot holds (tested), per neighbour.
   std::vector<int> tested_per_neighbour;
+  /// Landmarks held by a neighbour that were left out because their step was below
+  /// consensus.fuse_kl_threshold.
+  int landmarks_settled = 0;
   double largest_mean_shift = 0.0;  ///< metres, the longest step of a landmark mean
 };
 

@@ -24,6 +24,14 @@ struct ConsensusOptions {
   /// pass it with at least this probability (more when their errors are correlated, as
   /// neighbours' are after consensus). 0 disables the test.
   double neighbour_chi2_probability = 0.999;
+  /// consensus.fuse_kl_threshold: event-triggered fusion. A landmark whose consensus step would
+  /// move it by at most this Kullback-Leibler divergence KL(average || own) (nats, from the 3x3
+  /// marginals of the robot and the neighbours that hold it) is left out of the round: not
+  /// averaged, not carried into the state by Proposition 2. It stays within that distance of
+  /// its neighbours' average and is fused again when it drifts beyond it. Proposition 2 costs
+  /// in proportion to the landmarks fused, so this cuts the consensus step's CPU where most
+  /// landmarks have settled. 0 (the default) fuses every landmark every round.
+  double fuse_kl_threshold = 0.0;
   /// consensus.share_kl_threshold: event-triggered sharing (marginal_sharing.h). A robot sends a
   /// neighbour only the landmarks whose marginal moved by more than this Kullback-Leibler
   /// divergence (nats) since it last sent them to it; the neighbour fuses the last one it got
