@@ -183,8 +183,10 @@ TEST(DaemonLinkFaults, LockstepOverDelayedJitteredLossyLinksGivesTheReplaysEstim
   // the text format's precision: delays reorder nothing in lockstep.
   const dataset::Dataset data = dataset::read_dataset(team.options.dataset);
   const auto reference = replay::run_team(
-      data, config::load_estimator_options(team.options.estimator_config), replay::ReplayOptions{});
+      dataset::slice(data, frames, 3),
+      config::load_estimator_options(team.options.estimator_config), replay::ReplayOptions{});
   int marginals_fused = 0;
+  long long landmarks_fused = 0, landmarks_settled = 0;
   for (int robot = 0; robot < 3; ++robot) {
     const fs::path folder = out / dataset::robot_folder_name(robot);
     const auto trajectory = dataset::read_trajectory_kitti(folder / "trajectory.kitti");
@@ -197,8 +199,13 @@ TEST(DaemonLinkFaults, LockstepOverDelayedJitteredLossyLinksGivesTheReplaysEstim
     const auto stats = read_json(folder / "stats.json");
     EXPECT_EQ(stats["rounds"], frames);
     marginals_fused += stats["marginals_fused"].get<int>();
+    landmarks_fused += stats["landmarks_fused"].get<long long>();
+    landmarks_settled += stats["landmarks_settled"].get<long long>();
   }
   EXPECT_GT(marginals_fused, frames / 2);
+  // The same averages as the replay's, landmark for landmark.
+  EXPECT_EQ(landmarks_fused, reference.statistics.landmarks_fused);
+  EXPECT_EQ(landmarks_settled, reference.statistics.landmarks_settled);
   std::uint64_t chunks = 0, losses = 0;
   for (const auto& dialled : team.relays)
     for (const auto& relay : dialled) {

@@ -149,6 +149,7 @@ struct LiveState {
   std::uint64_t rounds = 0;
   std::uint64_t marginals_fused = 0;
   std::uint64_t landmarks_fused = 0;
+  std::uint64_t landmarks_settled = 0;  ///< left out by consensus.fuse_kl_threshold
   std::uint64_t objects_initialized = 0;
   /// The estimator's refusals: object observations rejected by its gates, new objects whose
   /// initialization failed its chi-square test, point-feature tracks rejected, and Kalman updates
@@ -845,6 +846,7 @@ bool Daemon::Impl::process(QueuedFrame& item) {
       ++live_.rounds;
       live_.marginals_fused += static_cast<std::uint64_t>(round.fused);
       live_.landmarks_fused += static_cast<std::uint64_t>(round.consensus.landmarks_fused);
+      live_.landmarks_settled += static_cast<std::uint64_t>(round.consensus.landmarks_settled);
       live_.consensus_seconds += seconds_between(updated, done);
       live_.wait_seconds += round.wait_seconds;
       push_bounded(live_.bytes_per_round, bytes);
@@ -1040,6 +1042,8 @@ json Daemon::Impl::stats_json() const {
       {"resumed_from_round", live_.resumed_from_round},
       {"rounds", live_.rounds},
       {"marginals_fused", live_.marginals_fused},
+      {"landmarks_fused", live_.landmarks_fused},
+      {"landmarks_settled", live_.landmarks_settled},
       {"wall_seconds", seconds_between(started_, Clock::now())},
       {"cpu_user_seconds", seconds(usage.ru_utime)},
       {"cpu_system_seconds", seconds(usage.ru_stime)},
@@ -1268,6 +1272,11 @@ void Daemon::Impl::register_routes() {
                    static_cast<double>(live_.rounds));
       text.counter("concord_marginals_fused_total", "Neighbour marginals fused", robot,
                    static_cast<double>(live_.marginals_fused));
+      text.counter("concord_landmarks_fused_total", "Landmarks replaced by a consensus average",
+                   robot, static_cast<double>(live_.landmarks_fused));
+      text.counter("concord_landmarks_settled_total",
+                   "Landmarks left out of a round by consensus.fuse_kl_threshold", robot,
+                   static_cast<double>(live_.landmarks_settled));
       text.gauge("concord_objects", "Objects in the map", robot,
                  static_cast<double>(live_.objects.size()));
       if (live_.disparity_offset) {
