@@ -360,7 +360,7 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
   //     the 3x3 marginals, is within the threshold of the robot's own is left out of the round.
   if (options.fuse_kl_threshold > 0.0) {
     const auto settled = [&](const std::pair<LandmarkId, Holders>& entry) {
-      const auto& [id, holders] = entry;
+      const auto& [id, offered] = entry;
       const Location& own_at = *own->find(id);
       ObjectEstimate current{id, own->mean(own_at), own->covariance(own_at)};
       const auto own_information =
@@ -369,7 +369,7 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
       Eigen::Matrix3d matrix = Eigen::Matrix3d::Zero();
       Eigen::Vector3d vector = Eigen::Vector3d::Zero();
       double own_weight = 1.0;
-      for (const auto& [j, location] : holders) {
+      for (const auto& [j, location] : offered) {
         const Member& neighbour = neighbour_members[j];
         const auto information =
             checked_inverse3(neighbour.covariance(*location), options.max_condition_number);
