@@ -181,6 +181,41 @@ std::optional<Eigen::VectorXd> proposition_two_single(Eigen::MatrixXd& P, Eigen:
   return correction;
 }
 
+/// A landmark's holders: (position among the neighbour members, where it sits in that one's
+/// marginal).
+using Holders = std::vector<std::pair<int, const Location*>>;
+
+/// The neighbours' part of one landmark's average (eq. 19) from their 3x3 marginals:
+/// sum_j w_j I_j and sum_j w_j I_j m_j, and the weight they take from the robot. A holder whose
+/// covariance is not positive definite or ill-conditioned is left out (its weight stays with
+/// the robot) and counted.
+struct NeighbourShare {
+  Eigen::Matrix3d matrix = Eigen::Matrix3d::Zero();
+  Eigen::Vector3d vector = Eigen::Vector3d::Zero();
+  double weight = 0.0;
+  int used = 0;
+  int skipped = 0;
+};
+
+NeighbourShare neighbour_share(const std::vector<Member>& members, const Holders& holders,
+                               double max_condition_number) {
+  NeighbourShare share;
+  for (const auto& [j, location] : holders) {
+    const Member& neighbour = members[j];
+    const auto information =
+        checked_inverse3(neighbour.covariance(*location), max_condition_number);
+    if (!information) {
+      ++share.skipped;
+      continue;
+    }
+    share.weight += neighbour.weight;
+    share.matrix += neighbour.weight * *information;
+    share.vector += neighbour.weight * (*information * neighbour.mean(*location));
+    ++share.used;
+  }
+  return share;
+}
+
 /// A Gaussian over a group of landmarks in information form (matrix, vector = matrix * mean).
 struct Information {
   Eigen::MatrixXd matrix;
@@ -329,7 +364,6 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
   //    (a neighbour's mean beyond the chi-square bound under the sum of both covariances is
   //    refused: an outlier, a wrong association or a lie; not averaged in, counted).
   // (id, its holders: neighbour position and where the landmark sits in its marginal), by id.
-  using Holders = std::vector<std::pair<int, const Location*>>;
   std::vector<std::pair<LandmarkId, Holders>> accepted;
   accepted.reserve(own->locations.size());
   Holders holders;
@@ -366,23 +400,15 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
       const auto own_information =
           checked_inverse3(current.covariance, options.max_condition_number);
       if (!own_information) return false;  // fused (or refused) as usual below
-      Eigen::Matrix3d matrix = Eigen::Matrix3d::Zero();
-      Eigen::Vector3d vector = Eigen::Vector3d::Zero();
-      double own_weight = 1.0;
-      for (const auto& [j, location] : offered) {
-        const Member& neighbour = neighbour_members[j];
-        const auto information =
-            checked_inverse3(neighbour.covariance(*location), options.max_condition_number);
-        if (!information) continue;
-        own_weight -= neighbour.weight;
-        matrix += neighbour.weight * *information;
-        vector += neighbour.weight * (*information * neighbour.mean(*location));
-      }
-      matrix += own_weight * *own_information;
-      vector += own_weight * (*own_information * current.p_world);
-      const Eigen::LLT<Eigen::Matrix3d> average(matrix);
+      NeighbourShare share =
+          neighbour_share(neighbour_members, offered, options.max_condition_number);
+      const double own_weight = 1.0 - share.weight;
+      share.matrix += own_weight * *own_information;
+      share.vector += own_weight * (*own_information * current.p_world);
+      const Eigen::LLT<Eigen::Matrix3d> average(share.matrix);
       if (average.info() != Eigen::Success) return false;
-      ObjectEstimate step{id, average.solve(vector), average.solve(Eigen::Matrix3d::Identity())};
+      ObjectEstimate step{id, average.solve(share.vector),
+                          average.solve(Eigen::Matrix3d::Identity())};
       return kl_divergence(step, current) <= options.fuse_kl_threshold;
     };
     const auto kept = std::remove_if(accepted.begin(), accepted.end(), settled);
@@ -434,25 +460,13 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
       // Most groups: one landmark. The same average and replacement as below, with fixed-size
       // algebra and no allocation.
       const auto& [id, holders] = accepted[positions.front()];
-      Eigen::Matrix3d matrix = Eigen::Matrix3d::Zero();
-      Eigen::Vector3d vector = Eigen::Vector3d::Zero();
-      double own_weight = 1.0;
-      bool any = false;
-      for (const auto& [j, location] : holders) {
-        const Member& neighbour = neighbour_members[j];
-        const Location& at = *location;
-        const auto information =
-            checked_inverse3(neighbour.covariance(at), options.max_condition_number);
-        if (!information) {
-          ++report.neighbours_skipped;  // its weight stays with the robot
-          continue;
-        }
-        own_weight -= neighbour.weight;
-        matrix += neighbour.weight * *information;
-        vector += neighbour.weight * (*information * neighbour.mean(at));
-        any = true;
-      }
-      if (!any) continue;
+      const NeighbourShare share =
+          neighbour_share(neighbour_members, holders, options.max_condition_number);
+      report.neighbours_skipped += share.skipped;  // their weight stays with the robot
+      if (share.used == 0) continue;
+      Eigen::Matrix3d matrix = share.matrix;
+      Eigen::Vector3d vector = share.vector;
+      const double own_weight = 1.0 - share.weight;
       const Eigen::Index c = in_joint_state ? 3 * union_position[positions.front()] : 0;
       ObjectEstimate* archived = in_joint_state ? nullptr : &state.archived.at(id);
       const Eigen::Vector3d own_mean =
