@@ -866,7 +866,9 @@ TEST(PeerNetwork, SendQueueDropsTheOldestWhenThePeerDoesNotRead) {
   Waiter waiter;
   PeerNetworkOptions options = test_options(1);
   options.send_queue_limit = 4;
-  options.heartbeat_timeout = 3s;  // the silent reader must stay up while the queue overflows
+  // The silent reader (it sends nothing after its hello) must stay up while the queue overflows
+  // and while it then reads everything: on a loaded machine that took more than 3 s once.
+  options.heartbeat_timeout = 10s;
   Node a(options, waiter);
   a.start();
   RawClient reader_that_never_reads(a.port());
