@@ -4,6 +4,7 @@
 
 #include <random>
 
+#include "concord/estimator/feature_updater.h"
 #include "concord/estimator/lie.h"
 #include "concord/estimator/propagator.h"
 #include "concord/estimator/state_helper.h"
@@ -208,6 +209,58 @@ TEST(Triangulation, RecoversAPointFromNoiselessStereo) {
   ASSERT_TRUE(estimate);
   EXPECT_LT((*estimate - p_world).norm(), 1e-8);
   EXPECT_LT(UpdaterHelper::rms_reprojection_error(camera, poses, observations, *estimate), 1e-10);
+}
+
+/// The frames at which one track, observed without noise in every frame from frame 0 on, enters
+/// a feature update (FeatureUpdateStats::tracks_used) over `frames` frames.
+std::vector<int> frames_a_track_is_used(const EstimatorOptions& options, int frames) {
+  const StereoCamera camera = kitti_like_camera();
+  FeatureUpdater updater(options, camera);
+  const Eigen::Vector3d p_world(30.0, 1.5, 0.5);
+  std::vector<int> used;
+  for (int frame = 0; frame < frames; ++frame) {
+    State state;  // poses 0..frame on a straight line, a small independent covariance
+    for (int k = 0; k <= frame; ++k) {
+      Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
+      pose.translation() = Eigen::Vector3d(0.2 * k, 0.0, 0.0);
+      state.poses.push_back({k, pose});
+    }
+    state.covariance = 1e-6 * Eigen::MatrixXd::Identity(state.dimension(), state.dimension());
+    const auto projection = UpdaterHelper::project(camera, state.newest_pose().T_world_body, p_world);
+    if (!projection) {
+      ADD_FAILURE() << "the point is not in view at frame " << frame;
+      return used;
+    }
+    StereoObservation observation;
+    observation.id = 7;
+    observation.uv = camera.denormalize(projection->xy);
+    const FeatureUpdateStats stats = updater.process(state, {observation});
+    EXPECT_EQ(stats.tracks_rejected, 0) << frame;
+    if (stats.tracks_used > 0) used.push_back(frame);
+  }
+  return used;
+}
+
+TEST(FeatureUpdate, ATrackIsUsedInChunksOfFeatureMaxObservations) {
+  EstimatorOptions options;
+  options.window_size = 20;
+  options.feature_min_observations = 3;
+  options.feature_chi2_probability = 0.0;  // no gate: only the chunking is under test
+  // Default: a track still in view is used once it fills the window, then starts afresh.
+  EXPECT_EQ(frames_a_track_is_used(options, 45), (std::vector<int>{19, 39}));
+  options.feature_max_observations = 4;
+  EXPECT_EQ(frames_a_track_is_used(options, 12), (std::vector<int>{3, 7, 11}));
+  // A chunk longer than the window is the window.
+  options.feature_max_observations = 30;
+  EXPECT_EQ(frames_a_track_is_used(options, 45), (std::vector<int>{19, 39}));
+  // Validation: 0 or at least feature_min_observations.
+  options.feature_max_observations = 2;
+  ASSERT_EQ(options.validate().size(), 1u);
+  EXPECT_NE(options.validate().front().find("feature_max_observations"), std::string::npos);
+  options.feature_max_observations = -1;
+  EXPECT_EQ(options.validate().size(), 1u);
+  options.feature_max_observations = 0;
+  EXPECT_TRUE(options.validate().empty());
 }
 
 TEST(KalmanUpdate, CorrelatedNoiseMatchesGaussianConditioning) {

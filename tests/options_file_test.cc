@@ -46,6 +46,7 @@ EstimatorOptions unusual_options() {
   options.use_point_features = false;
   options.feature_noise = StereoNoise::isotropic(0.75);
   options.feature_min_observations = 4;
+  options.feature_max_observations = 9;
   options.feature_max_reprojection_error = 2.5;
   options.feature_min_distance = 0.3;
   options.feature_max_distance = 1e3;
@@ -82,6 +83,7 @@ void expect_same_options(const EstimatorOptions& actual, const EstimatorOptions&
   EXPECT_EQ(actual.feature_noise.disparity, expected.feature_noise.disparity);
   EXPECT_EQ(actual.feature_noise.vertical_disparity, expected.feature_noise.vertical_disparity);
   EXPECT_EQ(actual.feature_min_observations, expected.feature_min_observations);
+  EXPECT_EQ(actual.feature_max_observations, expected.feature_max_observations);
   EXPECT_EQ(actual.feature_max_reprojection_error, expected.feature_max_reprojection_error);
   EXPECT_EQ(actual.feature_min_distance, expected.feature_min_distance);
   EXPECT_EQ(actual.feature_max_distance, expected.feature_max_distance);
@@ -272,6 +274,8 @@ TEST(OptionsValidateTest, EachRuleNamesTheKeyTheValueAndTheRange) {
        "object_min_observations = 1: must be >= 2"},
       {"feature observations", [](auto& o) { o.feature_min_observations = 0; },
        "feature_min_observations = 0: must be >= 2"},
+      {"feature chunk", [](auto& o) { o.feature_max_observations = 2; },
+       "feature_max_observations = 2: must be 0 (the window size) or >= feature_min_observations"},
       {"object min distance", [](auto& o) { o.object_min_distance = 0; },
        "object_min_distance = 0: must be finite and > 0"},
       {"object max distance", [](auto& o) { o.object_max_distance = 5; },

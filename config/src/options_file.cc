@@ -95,6 +95,7 @@ void for_each_field(Options& options, Visitor&& visit) {
   visit("use_point_features", options.use_point_features);
   visit("feature_noise", options.feature_noise);
   visit("feature_min_observations", options.feature_min_observations);
+  visit("feature_max_observations", options.feature_max_observations);
   visit("feature_max_reprojection_error", options.feature_max_reprojection_error);
   visit("feature_min_distance", options.feature_min_distance);
   visit("feature_max_distance", options.feature_max_distance);

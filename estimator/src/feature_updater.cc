@@ -1,5 +1,7 @@
 #include "concord/estimator/feature_updater.h"
 
+#include <algorithm>
+
 #include "concord/estimator/state_helper.h"
 
 namespace concord {
@@ -31,13 +33,17 @@ FeatureUpdateStats FeatureUpdater::process(State& state,
     ++stats.observations;
   }
 
-  // 1. Select tracks that ended or fill the window; drop observations that left the window.
+  // 1. Select tracks that ended or fill the window (or their chunk, feature_max_observations);
+  //    drop observations that left the window.
+  const int chunk = options_.feature_max_observations > 0
+                        ? std::min(options_.feature_max_observations, options_.window_size)
+                        : options_.window_size;
   std::vector<LandmarkId> selected;
   for (auto it = tracks_.begin(); it != tracks_.end();) {
     auto& track = it->second;
     std::erase_if(track, [&](const TrackObservation& o) { return o.frame < oldest_frame; });
     const bool ended = track.empty() || track.back().frame != frame;
-    const bool fills_window = static_cast<int>(track.size()) >= options_.window_size;
+    const bool fills_window = static_cast<int>(track.size()) >= chunk;
     if (ended && static_cast<int>(track.size()) < options_.feature_min_observations) {
       it = tracks_.erase(it);
       continue;

@@ -115,6 +115,10 @@ std::vector<std::string> EstimatorOptions::validate() const {
 
   problems.check_stereo_noise("feature_noise", feature_noise);
   problems.check_at_least("feature_min_observations", feature_min_observations, 2);
+  if (feature_max_observations != 0 && feature_max_observations < feature_min_observations) {
+    problems.add("feature_max_observations", feature_max_observations,
+                 "0 (the window size) or >= feature_min_observations");
+  }
   problems.check_optional_bound("feature_max_reprojection_error", feature_max_reprojection_error);
   problems.check_distance_range("feature_min_distance", feature_min_distance,
                                 "feature_max_distance", feature_max_distance);

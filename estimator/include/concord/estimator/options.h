@@ -144,6 +144,15 @@ struct EstimatorOptions {
   StereoNoise feature_noise = StereoNoise::isotropic(1.0);
   /// feature_min_observations: stereo observations of a track needed to use it.
   int feature_min_observations = 3;
+  /// feature_max_observations: a track is used in an update once it has this many observations
+  /// (or fills the window, whichever comes first), and its later observations start afresh; 0,
+  /// the default, is the window size. The update takes a track's observation errors as
+  /// independent; a frame-to-frame tracker's (KLT) errors are not: each frame's position
+  /// inherits the previous one's error, so the error drifts along a track, and a long track then
+  /// claims far more than it knows. An offset shared by a whole chunk is absorbed by the
+  /// triangulated point; only the drift within a chunk misleads the update, so shorter chunks
+  /// trade parallax for honesty (docs/frontend.md, "Track drift").
+  int feature_max_observations = 0;
   /// feature_max_reprojection_error: largest RMS reprojection error of a triangulated track
   /// (image units); 0, the default, sets no bound. A fixed bound refuses good tracks when the
   /// window's poses drift (the reprojection error then grows with the pose uncertainty, not with
