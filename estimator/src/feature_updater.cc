@@ -43,12 +43,12 @@ FeatureUpdateStats FeatureUpdater::process(State& state,
     auto& track = it->second;
     std::erase_if(track, [&](const TrackObservation& o) { return o.frame < oldest_frame; });
     const bool ended = track.empty() || track.back().frame != frame;
-    const bool fills_window = static_cast<int>(track.size()) >= chunk;
+    const bool fills_chunk = static_cast<int>(track.size()) >= chunk;
     if (ended && static_cast<int>(track.size()) < options_.feature_min_observations) {
       it = tracks_.erase(it);
       continue;
     }
-    if (ended || fills_window) selected.push_back(it->first);
+    if (ended || fills_chunk) selected.push_back(it->first);
     ++it;
   }
   if (selected.empty()) return stats;
@@ -119,7 +119,7 @@ FeatureUpdateStats FeatureUpdater::process(State& state,
     ++stats.tracks_used;
   }
 
-  // 3. Consume the used observations: ended tracks go, window-filling tracks start afresh.
+  // 3. Consume the used observations: ended tracks go, tracks that filled their chunk start afresh.
   for (LandmarkId id : selected) {
     auto it = tracks_.find(id);
     if (it->second.back().frame != frame) {

@@ -207,9 +207,6 @@ RobotRun run_sequence(const fs::path& folder, int robot, bool single,
 
 }  // namespace
 
-/// Observations of a track per feature update in the estimator.yaml this writes (see below).
-constexpr int kFeatureChunk = 12;
-
 EstimatorOptions suggested_estimator_options(const FrontendRunSummary& summary,
                                              const StereoCamera& camera,
                                              const FrontendOptions& options) {
@@ -230,7 +227,7 @@ EstimatorOptions suggested_estimator_options(const FrontendRunSummary& summary,
   // The tracker's KLT follows a feature frame to frame, so its error drifts along a track: the
   // estimator uses a track in chunks of at most this many observations (docs/frontend.md, "Track
   // drift"; chosen on a rendered team that is not the one the results report).
-  estimator.feature_max_observations = kFeatureChunk;
+  estimator.feature_max_observations = 12;
   estimator.object_noise = StereoNoise::isotropic(options.objects.detection_sigma);
   estimator.object_init_max_reprojection_error = 3.0 * options.objects.detection_sigma;
   const double focal_baseline = camera.K(0, 0) * camera.baseline();
