@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 #include <set>
 
 #include "concord/dataset/dataset.h"
@@ -220,19 +221,42 @@ TEST(FrontendRendered, DetectionsBecomeStereoObservationsOfTheObjectCentres) {
   const auto frames = run_rendered();
   const auto& rendered = rendered_sequence();
   const StereoSequence sequence = read_stereo_sequence(rendered.sequence);
-  int detections = 0, observed = 0;
+  int detections = 0, observed = 0, refused = 0;
   std::vector<std::vector<StereoObservation>> objects;
   for (const FrontendFrame& frame : frames) {
     detections += frame.detections;
     observed += frame.objects_observed;
     objects.push_back(frame.input.objects);
+    refused += frame.objects_ambiguous + frame.objects_inconsistent;
   }
   ASSERT_GT(detections, 20);
-  EXPECT_GE(observed, 0.85 * detections);
+  // Most detections are matched; a few matches are refused as ambiguous or left-right
+  // inconsistent.
+  EXPECT_GE(observed + refused, 0.85 * detections);
+  EXPECT_LE(refused, 0.1 * detections);
   StereoCamera camera = rendered.camera;
   camera.T_cam0_body = Eigen::Isometry3d::Identity();
   const auto accuracy = evaluation::object_observation_accuracy(
       camera, *sequence.groundtruth, objects, rendered.simulated.objects_groundtruth);
+  // The refused matches, measured without the checks, are mostly wrong: their disparities are
+  // far worse than the kept ones'.
+  FrontendOptions unchecked;
+  unchecked.objects.ambiguity_ratio = 1.0;
+  unchecked.objects.left_right_tolerance = 1000.0;
+  const auto frames_unchecked = run_rendered(unchecked);
+  std::vector<std::vector<StereoObservation>> refused_objects(frames.size());
+  for (std::size_t k = 0; k < frames.size(); ++k) {
+    for (const StereoObservation& object : frames_unchecked[k].input.objects) {
+      const bool kept = std::any_of(
+          objects[k].begin(), objects[k].end(),
+          [&](const StereoObservation& other) { return other.id == object.id; });
+      if (!kept) refused_objects[k].push_back(object);
+    }
+  }
+  const auto refused_accuracy = evaluation::object_observation_accuracy(
+      camera, *sequence.groundtruth, refused_objects, rendered.simulated.objects_groundtruth);
+  ASSERT_GT(refused_accuracy.disparity.count, 0);
+  EXPECT_GT(refused_accuracy.disparity.median, 5.0 * accuracy.disparity.median);
   EXPECT_EQ(accuracy.centre.count, observed);
   // Box centres differ from the projected cube centre by perspective only.
   EXPECT_LT(accuracy.centre.median, 3.0);
@@ -256,6 +280,62 @@ TEST(FrontendRendered, ObjectsAtTheBorderOrWithoutAMatchAreSkipped) {
   const cv::Mat flat(left.size(), CV_8UC1, cv::Scalar(128));
   box = {0, 1, "cube", 100.0, 100.0, 160.0, 160.0};
   EXPECT_EQ(observe_object(box, left, flat, camera, {}).skipped, ObjectSkip::kNoMatch);
+}
+
+/// A smooth random texture (blurred uniform noise), the same for the same seed.
+cv::Mat random_texture(cv::Size size, int seed) {
+  cv::Mat texture(size, CV_8UC1);
+  cv::RNG rng(seed);
+  rng.fill(texture, cv::RNG::UNIFORM, 0, 256);
+  cv::GaussianBlur(texture, texture, cv::Size(0, 0), 1.5);
+  return texture;
+}
+
+TEST(FrontendObjects, AnAmbiguousOrLeftRightInconsistentMatchGivesNoObservation) {
+  const StereoCamera& camera = rendered_sequence().camera;
+  const cv::Size size(376, 240);
+  // The box's central region (the half measured) is 30 x 30 px at x = 215, y = 115.
+  const Detection box{0, 1, "cube", 200.0, 100.0, 260.0, 160.0};
+  const cv::Rect region(215, 115, 30, 30);
+  const auto at_x = [&](int x) { return cv::Rect(x, region.y, region.width, region.height); };
+  const cv::Mat left = random_texture(size, 1);
+  const cv::Mat patch = left(region).clone();
+
+  // The region 40 px to the left in the right image, on unrelated texture: observed.
+  cv::Mat right = random_texture(size, 2);
+  patch.copyTo(right(at_x(region.x - 40)));
+  const ObjectMeasurement plain = observe_object(box, left, right, camera, {});
+  ASSERT_TRUE(plain.observation.has_value()) << static_cast<int>(plain.skipped);
+  EXPECT_NEAR(plain.surface_disparity, 40.0, 0.5);
+
+  // The same texture again further along the row (a repeated pattern): ambiguous.
+  patch.copyTo(right(at_x(region.x - 120)));
+  EXPECT_EQ(observe_object(box, left, right, camera, {}).skipped, ObjectSkip::kAmbiguous);
+
+  // A weaker copy (NCC about 0.8) is the best match in the right image, but it matches back to
+  // an exact copy of itself elsewhere in the left image (the region is another surface's there):
+  // left-right inconsistent; observed only when the check allows a 100 px difference.
+  cv::Mat weak;
+  cv::addWeighted(patch, 0.6, random_texture(region.size(), 3), 0.4, 0.0, weak);
+  right = random_texture(size, 2);
+  weak.copyTo(right(at_x(region.x - 40)));
+  cv::Mat left_with_copy = left.clone();
+  weak.copyTo(left_with_copy(at_x(region.x + 85)));
+  const ObjectMeasurement inconsistent = observe_object(box, left_with_copy, right, camera, {});
+  EXPECT_EQ(inconsistent.skipped, ObjectSkip::kInconsistent);
+  EXPECT_GT(inconsistent.score, 0.7);
+  ObjectOptions lenient;
+  lenient.left_right_tolerance = 100.0;
+  const ObjectMeasurement accepted = observe_object(box, left_with_copy, right, camera, lenient);
+  ASSERT_TRUE(accepted.observation.has_value());
+  EXPECT_NEAR(accepted.surface_disparity, 40.0, 0.5);
+  // Without the copy in the left image the weaker match is the consistent one.
+  EXPECT_TRUE(observe_object(box, left, right, camera, {}).observation.has_value());
+
+  ObjectOptions invalid;
+  invalid.ambiguity_ratio = 0.0;
+  invalid.left_right_tolerance = -1.0;
+  EXPECT_EQ(invalid.validate().size(), 2u);
 }
 
 TEST(FrontendRendered, TheUsersOwnOdometryGoesThroughTheSameInterface) {

@@ -523,7 +523,9 @@ int run_frontend_command(const fs::path& input, const fs::path& out,
     std::cout << "concord frontend: robot " << robot << ": " << s.frames << " frames, "
               << s.tracks_per_frame << " tracks a frame (min " << s.min_tracks
               << "), mean track length " << s.mean_track_length << ", " << s.objects_observed
-              << " of " << s.detections << " detections observed, " << s.odometry_failures
+              << " of " << s.detections << " detections observed (" << s.objects_ambiguous
+              << " ambiguous, " << s.objects_inconsistent << " left-right inconsistent), "
+              << s.odometry_failures
               << " odometry failures, " << s.total_ms.p50 << " ms a frame (p50), " << s.total_ms.p99
               << " ms (p99); CPU without image decoding " << s.processing_cpu_ms.p50
               << " ms (p50), " << s.processing_cpu_ms.p99 << " ms (p99)\n";

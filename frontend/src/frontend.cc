@@ -123,6 +123,8 @@ class StereoFrontend::Impl {
           out.input.objects.push_back(*measured.observation);
           ++out.objects_observed;
         }
+        out.objects_ambiguous += measured.skipped == ObjectSkip::kAmbiguous ? 1 : 0;
+        out.objects_inconsistent += measured.skipped == ObjectSkip::kInconsistent ? 1 : 0;
       }
     }
     out.timings.objects = milliseconds_since(stage);

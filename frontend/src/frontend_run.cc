@@ -70,6 +70,8 @@ nlohmann::ordered_json summary_json(const SequenceSummary& s) {
           {"feature_track_sigma", s.feature_track_sigma},
           {"detections", s.detections},
           {"objects_observed", s.objects_observed},
+          {"objects_ambiguous", s.objects_ambiguous},
+          {"objects_inconsistent", s.objects_inconsistent},
           {"milliseconds_per_frame",
            {{"total", percentiles_json(s.total_ms)},
             {"total_cpu", percentiles_json(s.total_cpu_ms)},
@@ -149,6 +151,8 @@ RobotRun run_sequence(const fs::path& folder, int robot, bool single,
     if (frame.row_noise_sigma > 0.0) row_sigmas.push_back(frame.row_noise_sigma);
     run.summary.detections += frame.detections;
     run.summary.objects_observed += frame.objects_observed;
+    run.summary.objects_ambiguous += frame.objects_ambiguous;
+    run.summary.objects_inconsistent += frame.objects_inconsistent;
     if (frame.input.frame > 0) {
       outliers += static_cast<double>(frame.motion.outliers.size());
       if (!frame.motion.valid) {

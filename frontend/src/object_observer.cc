@@ -20,6 +20,9 @@ std::vector<std::string> ObjectOptions::validate() const {
   require(min_match_score > -1.0 && min_match_score < 1.0, "min_match_score", min_match_score,
           "in (-1, 1)");
   require(max_disparity > 0.0, "max_disparity", max_disparity, "> 0");
+  require(ambiguity_ratio > 0.0 && ambiguity_ratio <= 1.0, "ambiguity_ratio", ambiguity_ratio,
+          "in (0, 1]");
+  require(left_right_tolerance >= 0.0, "left_right_tolerance", left_right_tolerance, ">= 0");
   require(centre_depth_fraction >= 0.0, "centre_depth_fraction", centre_depth_fraction, ">= 0");
   require(border >= 0, "border", border, ">= 0");
   require(detection_sigma > 0.0, "detection_sigma", detection_sigma, "> 0");
@@ -61,6 +64,33 @@ ObjectMeasurement observe_object(const Detection& box, const cv::Mat& left, cons
     result.skipped = ObjectSkip::kNoMatch;
     return result;
   }
+  // 3. Checks of the match: no other peak along the row nearly as good (a repeated or weak
+  //    texture), and the matched right region matches back to the box's region (left-right
+  //    consistency; a region partly covered by another surface fails it).
+  const int exclusion = std::max(2, region.width / 2);
+  double second = -1.0;
+  for (int x = 0; x < scores.cols; ++x) {
+    if (std::abs(x - best_at.x) > exclusion) {
+      second = std::max(second, static_cast<double>(scores.at<float>(0, x)));
+    }
+  }
+  if (best > 0.0 && second >= options.ambiguity_ratio * best) {
+    result.skipped = ObjectSkip::kAmbiguous;
+    return result;
+  }
+  const int right_x = search_start + best_at.x;
+  const int back_end = std::min(left.cols, right_x + region.width + static_cast<int>(options.max_disparity));
+  const cv::Rect back_strip(right_x, region.y, back_end - right_x, region.height);
+  cv::Mat back_scores;
+  cv::matchTemplate(left(back_strip),
+                    right(cv::Rect(right_x, region.y, region.width, region.height)), back_scores,
+                    cv::TM_CCOEFF_NORMED);
+  cv::Point back_at;
+  cv::minMaxLoc(back_scores, nullptr, nullptr, nullptr, &back_at);
+  if (std::abs(right_x + back_at.x - region.x) > options.left_right_tolerance) {
+    result.skipped = ObjectSkip::kInconsistent;
+    return result;
+  }
   // Sub-pixel peak: a parabola through the best score and its neighbours.
   double offset = 0.0;
   if (best_at.x > 0 && best_at.x < scores.cols - 1) {
@@ -74,7 +104,7 @@ ObjectMeasurement observe_object(const Detection& box, const cv::Mat& left, cons
     result.skipped = ObjectSkip::kNoMatch;
     return result;
   }
-  // 3. From the surface to the centre: depth + fraction * the box's width in metres.
+  // 4. From the surface to the centre: depth + fraction * the box's width in metres.
   const double fx = camera.K(0, 0);
   const double focal_baseline = fx * camera.baseline();
   const double surface_depth = focal_baseline / surface_disparity;

@@ -46,6 +46,8 @@ void visit_option_fields(Options& options, Visitor&& visit) {
   visit("objects", "min_region_size", b.min_region_size);
   visit("objects", "min_match_score", b.min_match_score);
   visit("objects", "max_disparity", b.max_disparity);
+  visit("objects", "ambiguity_ratio", b.ambiguity_ratio);
+  visit("objects", "left_right_tolerance", b.left_right_tolerance);
   visit("objects", "centre_depth_fraction", b.centre_depth_fraction);
   visit("objects", "border", b.border);
   visit("objects", "detection_sigma", b.detection_sigma);

@@ -52,9 +52,12 @@ struct FrontendFrame {
   double mean_track_length = 0.0;
   /// The tracker's noise estimate from the stereo rows (TrackedFrame::row_noise_sigma).
   double row_noise_sigma = 0.0;
-  /// Detections of the frame, and how many gave observations.
+  /// Detections of the frame, how many gave observations, and how many were refused for an
+  /// ambiguous or left-right inconsistent stereo match (ObjectSkip).
   int detections = 0;
   int objects_observed = 0;
+  int objects_ambiguous = 0;
+  int objects_inconsistent = 0;
   FrameTimings timings;
 };
 

@@ -93,6 +93,15 @@ struct ObjectOptions {
   double min_match_score = 0.7;
   /// Largest disparity searched, pixels.
   double max_disparity = 300.0;
+  /// A match is ambiguous, and gives no observation, when another peak of the correlation along
+  /// the row (more than half the region's width from the best) scores above this fraction of
+  /// the best: a repeated texture or a weakly textured region, whose disparity may be another
+  /// surface's. 1 refuses only exact ties.
+  double ambiguity_ratio = 0.97;
+  /// Left-right consistency: the matched right region, matched back along the left image's row,
+  /// must land within this many pixels of the box's region; else the match is refused (an
+  /// occluded or partly covered region whose right-image match is another surface's).
+  double left_right_tolerance = 2.0;
   /// The disparity measures the object's visible surface; its centre lies deeper. The centre's
   /// depth is taken as surface depth + centre_depth_fraction * (the box's width in metres): 0.5
   /// for objects about as deep as they are wide, 0 for the surface itself.

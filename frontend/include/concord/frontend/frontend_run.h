@@ -83,9 +83,12 @@ struct SequenceSummary {
   /// Noise of a track coordinate from the tracks' own consistency under the odometry
   /// (track_consistency), pixels: the value the estimator's feature_noise (per coordinate) should take.
   double feature_track_sigma = 0.0;
-  /// Detections and the observations made from them.
+  /// Detections, the observations made from them, and the detections refused for an ambiguous or
+  /// left-right inconsistent stereo match.
   long long detections = 0;
   long long objects_observed = 0;
+  long long objects_ambiguous = 0;
+  long long objects_inconsistent = 0;
   /// Per-frame milliseconds: total (wall, and the thread's CPU time with and without loading the
   /// images) and each stage (wall).
   Percentiles total_ms, total_cpu_ms, processing_cpu_ms, load_ms, rectify_ms, track_ms, odometry_ms,

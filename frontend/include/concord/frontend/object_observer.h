@@ -5,7 +5,8 @@
 /// the object's disparity, measured by matching the box's central region along the same row of
 /// the rectified right image (normalized cross-correlation, sub-pixel peak). The match sees the
 /// object's visible surface, so the disparity is converted to the depth of the object's centre
-/// (ObjectOptions::centre_depth_fraction). Names OpenCV types: for the front-end and its tests.
+/// (ObjectOptions::centre_depth_fraction). A match that is ambiguous along the row or fails the
+/// left-right check gives no observation. Names OpenCV types: for the front-end and its tests.
 
 #include <opencv2/core.hpp>
 #include <optional>
@@ -17,8 +18,10 @@
 
 namespace concord::frontend {
 
-/// Why a detection gave no observation.
-enum class ObjectSkip { kNone, kAtBorder, kTooSmall, kNoMatch };
+/// Why a detection gave no observation: at the border, too small, no match above the score, a
+/// match nearly as good elsewhere along the row (ambiguous), or a match that does not match back
+/// to the box's region (inconsistent).
+enum class ObjectSkip { kNone, kAtBorder, kTooSmall, kNoMatch, kAmbiguous, kInconsistent };
 
 struct ObjectMeasurement {
   /// The observation (id = the detection's track id), when measured.
