@@ -9,6 +9,9 @@
 #include "concord/daemon/config.h"
 #include "concord/daemon/daemon.h"
 #include "concord/dataset/result_io.h"
+#include "concord/frontend/detections.h"
+#include "concord/frontend/frontend.h"
+#include "concord/frontend/sequence.h"
 #include "frontend_test_support.h"
 
 namespace concord::daemon {
@@ -65,6 +68,24 @@ TEST(DaemonImageSource, TheDaemonRunsTheFrontEndIntoTheEstimator) {
   const auto stats = nlohmann::json::parse(std::ifstream(out / "stats.json"));
   EXPECT_EQ(stats["frames"], truth.size());
   EXPECT_EQ(stats["frames_rejected"], 0);
+  // The front-end's counts are those of the same front-end run outside the daemon.
+  frontend::StereoSequence sequence = frontend::read_stereo_sequence(rendered.sequence);
+  const int frames = sequence.num_frames();
+  frontend::StereoFrontend direct(
+      std::move(sequence), {},
+      frontend::read_detections(rendered.sequence / "detections.csv", frames));
+  long long detections = 0, observed = 0, refused = 0;
+  while (!direct.done()) {
+    const frontend::FrontendFrame frame = direct.process_next();
+    detections += frame.detections;
+    observed += frame.objects_observed;
+    refused += frame.objects_ambiguous + frame.objects_inconsistent;
+  }
+  ASSERT_GT(observed, 0);
+  EXPECT_EQ(stats["frontend"]["detections"], detections);
+  EXPECT_EQ(stats["frontend"]["objects_observed"], observed);
+  EXPECT_EQ(stats["frontend"]["objects_refused"], refused);
+  EXPECT_EQ(stats["frontend"]["odometry_failures"], 0);
 }
 
 TEST(DaemonImageSource, AnUnreadableSequenceStopsTheDaemonWithStatusTwo) {

@@ -144,6 +144,13 @@ struct LiveState {
   std::uint64_t frames_dropped = 0;
   std::uint64_t frames_gap = 0;          ///< frames never processed: rejected, missing, skipped
   std::uint64_t motion_unknown = 0;      ///< gaps bridged without odometry (assumed no motion)
+  /// The image source's front-end (source.kind images): detections, the object observations made
+  /// from them, detections refused for an ambiguous or left-right inconsistent stereo match, and
+  /// frames without visual odometry.
+  std::uint64_t frontend_detections = 0;
+  std::uint64_t frontend_objects_observed = 0;
+  std::uint64_t frontend_objects_refused = 0;
+  std::uint64_t frontend_odometry_failures = 0;
   std::uint64_t output_failures = 0;     ///< output writes that failed
   std::int64_t resumed_from_round = -1;  ///< checkpoint round resumed from (-1: fresh start)
   std::uint64_t rounds = 0;
@@ -605,9 +612,18 @@ void Daemon::Impl::image_frames() {
                     error.what());
       break;
     }
-    if (frame.input.frame > 0 && !frame.motion.valid) {
+    const bool odometry_failed = frame.input.frame > 0 && !frame.motion.valid;
+    if (odometry_failed) {
       spdlog::warn("source: no visual odometry at frame {} (the previous motion is repeated)",
                    frame.input.frame);
+    }
+    {
+      std::lock_guard lock(live_.mutex);
+      live_.frontend_detections += static_cast<std::uint64_t>(frame.detections);
+      live_.frontend_objects_observed += static_cast<std::uint64_t>(frame.objects_observed);
+      live_.frontend_objects_refused +=
+          static_cast<std::uint64_t>(frame.objects_ambiguous + frame.objects_inconsistent);
+      live_.frontend_odometry_failures += odometry_failed ? 1 : 0;
     }
     QueuedFrame item{std::move(frame.input), frame.timestamp, Clock::now(), {}};
     if (!queue_.push(std::move(item))) return;
@@ -1038,6 +1054,11 @@ json Daemon::Impl::stats_json() const {
       {"frames_dropped", live_.frames_dropped},
       {"frames_gap", live_.frames_gap},
       {"motion_unknown", live_.motion_unknown},
+      {"frontend",
+       {{"detections", live_.frontend_detections},
+        {"objects_observed", live_.frontend_objects_observed},
+        {"objects_refused", live_.frontend_objects_refused},
+        {"odometry_failures", live_.frontend_odometry_failures}}},
       {"output_failures", live_.output_failures},
       {"resumed_from_round", live_.resumed_from_round},
       {"rounds", live_.rounds},
@@ -1260,6 +1281,19 @@ void Daemon::Impl::register_routes() {
       text.counter("concord_ingest_motion_unknown_total",
                    "Ingest gaps bridged without odometry (no motion assumed)", robot,
                    static_cast<double>(live_.motion_unknown));
+      if (config_.source.kind == SourceKind::kImages) {
+        text.counter("concord_frontend_detections_total", "Detections read by the front-end",
+                     robot, static_cast<double>(live_.frontend_detections));
+        text.counter("concord_frontend_objects_observed_total",
+                     "Detections the front-end turned into stereo object observations", robot,
+                     static_cast<double>(live_.frontend_objects_observed));
+        text.counter("concord_frontend_objects_refused_total",
+                     "Detections refused for an ambiguous or left-right inconsistent match",
+                     robot, static_cast<double>(live_.frontend_objects_refused));
+        text.counter("concord_frontend_odometry_failures_total",
+                     "Frames without visual odometry (the previous motion repeated)", robot,
+                     static_cast<double>(live_.frontend_odometry_failures));
+      }
       text.counter("concord_output_failures_total", "Output writes that failed", robot,
                    static_cast<double>(live_.output_failures));
       text.counter("concord_update_seconds_total", "Time in the estimator update", robot,
