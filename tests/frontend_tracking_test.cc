@@ -307,6 +307,12 @@ TEST(FrontendObjects, AnAmbiguousOrLeftRightInconsistentMatchGivesNoObservation)
   const ObjectMeasurement plain = observe_object(box, left, right, camera, {});
   ASSERT_TRUE(plain.observation.has_value()) << static_cast<int>(plain.skipped);
   EXPECT_NEAR(plain.surface_disparity, 40.0, 0.5);
+  // A search range beyond the image (any configured value) is the image width.
+  ObjectOptions wide;
+  wide.max_disparity = 1e12;
+  const ObjectMeasurement wide_search = observe_object(box, left, right, camera, wide);
+  ASSERT_TRUE(wide_search.observation.has_value());
+  EXPECT_NEAR(wide_search.surface_disparity, 40.0, 0.5);
 
   // The same texture again further along the row (a repeated pattern): ambiguous.
   patch.copyTo(right(at_x(region.x - 120)));

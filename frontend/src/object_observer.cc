@@ -50,8 +50,11 @@ ObjectMeasurement observe_object(const Detection& box, const cv::Mat& left, cons
   }
   const cv::Rect region(static_cast<int>(std::round(centre_x - 0.5 * width)),
                         static_cast<int>(std::round(centre_y - 0.5 * height)), width, height);
-  // 2. Its match along the same rows of the right image, disparities 0 to max_disparity.
-  const int search_start = std::max(0, region.x - static_cast<int>(options.max_disparity));
+  // 2. Its match along the same rows of the right image, disparities 0 to max_disparity (at most
+  //    the image width, which also keeps any configured value within int).
+  const int max_disparity =
+      static_cast<int>(std::min(options.max_disparity, static_cast<double>(left.cols)));
+  const int search_start = std::max(0, region.x - max_disparity);
   const cv::Rect strip(search_start, region.y, region.x + region.width - search_start,
                        region.height);
   cv::Mat scores;
@@ -79,7 +82,7 @@ ObjectMeasurement observe_object(const Detection& box, const cv::Mat& left, cons
     return result;
   }
   const int right_x = search_start + best_at.x;
-  const int back_end = std::min(left.cols, right_x + region.width + static_cast<int>(options.max_disparity));
+  const int back_end = std::min(left.cols, right_x + region.width + max_disparity);
   const cv::Rect back_strip(right_x, region.y, back_end - right_x, region.height);
   cv::Mat back_scores;
   cv::matchTemplate(left(back_strip),

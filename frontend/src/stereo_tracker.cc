@@ -85,7 +85,9 @@ std::optional<float> search_disparity(const cv::Mat& left, const cv::Mat& right,
   }
   const int area = side * side;
   for (int index = 0; index < area; ++index) patch[index] = patch[index] * area - sum;
-  const int largest = std::min(static_cast<int>(max_disparity * scale), x - radius);
+  // (The bound is applied before the conversion: a configured disparity beyond int stays defined.)
+  const int largest =
+      static_cast<int>(std::min(max_disparity * scale, static_cast<double>(x - radius)));
   int best_cost = std::numeric_limits<int>::max(), best_disparity = -1;
   for (int disparity = 0; disparity <= largest; ++disparity) {
     const int right_x = x - disparity;
