@@ -9,8 +9,9 @@
 # run, one after the other (never two at once: their times are compared), then the given run is
 # evaluated again from each robot's alignment frame on (`eval --first-frames-from`).
 # Settings: the sensor configs as they are (configs/sensors/sim.yaml, kitti-stereo.yaml; the
-# association options are the in-class defaults). Nothing here was tuned on seeds 1-5 or on
-# kitti00; the one choice measured on this branch (dropping confirmation_growth) used seeds 11-13.
+# association options are the in-class defaults but for each config's start_up_axis). Nothing
+# here was tuned on seeds 1-5 or on kitti00; the choices measured on this branch (dropping
+# confirmation_growth; the up axis's refusal) used seeds 11-13.
 # Writes docs/results-association.md; runs in bench/out/association/ (kept between runs: delete the
 # folder to start afresh).
 # Usage: bench/association_bench.sh [SEEDS] [TEAM SIZES]   (default "1 2 3 4 5" "3 5 10 15")

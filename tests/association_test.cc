@@ -310,6 +310,54 @@ TEST(PairwiseAssociationTest, DisjointMapsAreNotAligned) {
   EXPECT_NE(found.status, AlignmentStatus::kAligned) << found.matches.size();
 }
 
+TEST(PairwiseAssociationTest, AKnownUpAxisRefusesATransformThatTurnsTheWorldOver) {
+  // A flat layout (every object at one height, like cars on a road) and, elsewhere, its mirror
+  // image. Distances cannot tell them apart, and a rotation by 180 degrees about a horizontal
+  // axis maps one onto the other: without knowing which way is up the mirror image is "aligned".
+  // Robots whose start frames are level (association.start_up_axis) refuse that transform.
+  std::mt19937 random(31);
+  Scene flat = random_scene(40, 40.0, 2.5, 0, random);
+  for (Eigen::Vector3d& position : flat.positions) position.z() = 1.0;
+  Scene mirrored = flat;
+  for (Eigen::Vector3d& position : mirrored.positions) position.x() = -position.x();
+  const Eigen::Isometry3d T_b_world = make_transform(0.7, 0.0, Eigen::Vector3d(3, -2, 0));
+  const RobotMap a = observe(flat, 0, 0, Eigen::Isometry3d::Identity(), -100.0, 100.0, 0.05, 0,
+                             random);
+  const RobotMap b_mirrored = observe(mirrored, 1, 1, T_b_world, -100.0, 100.0, 0.05, 0, random);
+  const RobotMap b_same = observe(flat, 1, 1, T_b_world, -100.0, 100.0, 0.05, 0, random);
+  const Eigen::Vector3d up = Eigen::Vector3d::UnitZ();
+  const auto tilt_degrees = [&](const Eigen::Isometry3d& T) {
+    return std::acos(std::clamp(up.dot(T.linear() * up), -1.0, 1.0)) * 180.0 / std::numbers::pi;
+  };
+
+  AssociationOptions unknown_up = test_options();
+  const PairAlignment turned = align_maps(a.map, b_mirrored.map, unknown_up);
+  ASSERT_EQ(turned.status, AlignmentStatus::kAligned) << to_string(turned.status);
+  EXPECT_GT(tilt_degrees(turned.T_a_b), 170.0);
+
+  AssociationOptions level = test_options();
+  level.start_up_axis = "+z";
+  const PairAlignment refused = align_maps(a.map, b_mirrored.map, level);
+  EXPECT_EQ(refused.status, AlignmentStatus::kTilted) << to_string(refused.status);
+  EXPECT_TRUE(refused.matches.empty());
+
+  // The same flat layout (not mirrored) is aligned with the up axis known, level and right.
+  const PairAlignment right = align_maps(a.map, b_same.map, level);
+  ASSERT_EQ(right.status, AlignmentStatus::kAligned) << to_string(right.status);
+  EXPECT_LT(tilt_degrees(right.T_a_b), 2.0);
+  const Score s = score(right.matches, a, b_same);
+  EXPECT_EQ(s.wrong, 0);
+  EXPECT_GE(s.correct, static_cast<int>(0.9 * s.common));
+
+  // A tilt bound wider than the turn lets it through again; the axis is named in the robots'
+  // body frame, so "-z" (down) is the same constraint as "+z".
+  level.max_start_tilt = 180.0;
+  EXPECT_EQ(align_maps(a.map, b_mirrored.map, level).status, AlignmentStatus::kAligned);
+  level.max_start_tilt = 20.0;
+  level.start_up_axis = "-z";
+  EXPECT_NE(align_maps(a.map, b_mirrored.map, level).status, AlignmentStatus::kAligned);
+}
+
 TEST(PairwiseAssociationTest, ARepetitiveGridIsNotMerged) {
   // A 6 x 6 grid of identical objects 4 m apart (parked cars in rows): the maps overlap, but a
   // shift by one cell explains them almost as well, so nothing may be merged.
@@ -623,6 +671,21 @@ TEST(NegotiationTest, OptionsAreValidatedNamingTheKey) {
   EXPECT_NE(problems[0].find("association.min_inliers"), std::string::npos);
   EXPECT_NE(problems[1].find("association.confirmations"), std::string::npos);
   EXPECT_THROW(Negotiator(0, 0, options), std::invalid_argument);
+
+  AssociationOptions level;
+  level.start_up_axis = "up";
+  level.max_start_tilt = 0.0;
+  const auto level_problems = level.validate();
+  ASSERT_EQ(level_problems.size(), 2u);
+  EXPECT_NE(level_problems[0].find("association.start_up_axis = up"), std::string::npos);
+  EXPECT_NE(level_problems[1].find("association.max_start_tilt"), std::string::npos);
+  for (const char* axis : {"unknown", "+x", "-x", "+y", "-y", "+z", "-z"}) {
+    level = AssociationOptions();
+    level.start_up_axis = axis;
+    EXPECT_TRUE(level.validate().empty()) << axis;
+  }
+  EXPECT_EQ(start_up_vector("-y"), -Eigen::Vector3d::UnitY());
+  EXPECT_TRUE(start_up_vector("unknown").isZero());
 }
 
 }  // namespace

@@ -11,6 +11,8 @@
 #include <limits>
 #include <string>
 
+#include "test_paths.h"
+
 namespace concord::config {
 namespace {
 
@@ -321,6 +323,38 @@ TEST(OptionsValidateTest, ReportsEveryProblem) {
   options.object_noise.horizontal = -1;
   options.consensus.neighbour_chi2_probability = -1;
   EXPECT_EQ(options.validate().size(), 3u);
+}
+
+TEST(NegotiationOptionsFileTest, TheAssociationSectionReadsWritesAndRefusesBadValues) {
+  const association::NegotiationOptions read = parse_negotiation_options(
+      "window_size: 9\nassociation:\n  start_up_axis: \"-y\"\n  max_start_tilt: 7.5\n"
+      "  confirmations: 4\n",
+      "test.yaml");
+  EXPECT_EQ(read.association.start_up_axis, "-y");
+  EXPECT_EQ(read.association.max_start_tilt, 7.5);
+  EXPECT_EQ(read.confirmations, 4);
+  // Written and read back, every key included.
+  const std::string text = to_yaml(read);
+  EXPECT_THAT(text, HasSubstr("  start_up_axis: -y\n"));
+  const association::NegotiationOptions again = parse_negotiation_options(text, "written.yaml");
+  EXPECT_EQ(again.association.start_up_axis, "-y");
+  EXPECT_EQ(again.association.max_start_tilt, 7.5);
+  // An override, and values that are refused with their key.
+  EXPECT_EQ(apply_association_overrides(read, {"association.start_up_axis=+z"})
+                .association.start_up_axis,
+            "+z");
+  try {
+    parse_negotiation_options("association:\n  start_up_axis: down\n", "bad.yaml");
+    ADD_FAILURE() << "an unknown axis was accepted";
+  } catch (const ConfigError& error) {
+    EXPECT_THAT(error.what(), HasSubstr("association.start_up_axis = down"));
+  }
+  EXPECT_THROW(apply_association_overrides(read, {"association.max_start_tilt=-1"}), ConfigError);
+  // The checked-in sensor configs load (their up axes: the simulator's body z, KITTI's camera -y).
+  const std::filesystem::path sensors = testing::kSource / "configs/sensors";
+  EXPECT_EQ(load_negotiation_options(sensors / "sim.yaml").association.start_up_axis, "+z");
+  EXPECT_EQ(load_negotiation_options(sensors / "kitti-stereo.yaml").association.start_up_axis,
+            "-y");
 }
 
 }  // namespace

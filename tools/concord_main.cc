@@ -346,6 +346,7 @@ int run_replay(const fs::path& dataset_dir, const fs::path& out, bool separate,
            : 0.0},
       {"searches", s.searches},
       {"ambiguous", s.ambiguous},
+      {"tilted", s.tilted},
       {"frame_edges", s.frame_edges},
       {"reanchorings", s.reanchorings},
       {"links_accepted", s.links_accepted},
@@ -369,8 +370,8 @@ int run_replay(const fs::path& dataset_dir, const fs::path& out, bool separate,
             << " s, negotiation " << s.negotiation_seconds << " s)\n";
   if (result.association == replay::AssociationMode::kNegotiated) {
     std::cerr << "concord replay: negotiation: " << s.searches << " searches (" << s.ambiguous
-              << " ambiguous), " << s.frame_edges << " frame edges, " << s.reanchorings
-              << " moves into a team frame, " << s.links_accepted << " links accepted, "
+              << " ambiguous; " << s.tilted << " tilted), " << s.frame_edges << " frame edges, "
+              << s.reanchorings << " moves into a team frame, " << s.links_accepted << " links accepted, "
               << s.links_split << " split, " << s.link_conflicts << " refused as conflicts, "
               << s.team_id_conflicts << " left out by the team ids; " << s.negotiation_bytes
               << " bytes in " << s.negotiation_messages << " messages\n";

@@ -190,6 +190,7 @@ bool Negotiator::process_pair(int neighbour, const MapDescription& theirs, int r
                    found.rival_clique_size, to_string(found.status).c_str());
     }
     if (found.status == AlignmentStatus::kAmbiguous) ++counters_.ambiguous;
+    if (found.status == AlignmentStatus::kTilted) ++counters_.tilted;
     if (found.status != AlignmentStatus::kAligned) {
       pair.streak = 0;
       pair.last.reset();

@@ -7,6 +7,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <limits>
+#include <numbers>
 #include <optional>
 
 #include "concord/association/alignment.h"
@@ -259,6 +260,12 @@ std::vector<std::string> AssociationOptions::validate() const {
   require(max_candidates >= 3, "max_candidates", max_candidates, ">= 3");
   require(max_clique_expansions >= 1, "max_clique_expansions",
           static_cast<double>(max_clique_expansions), ">= 1");
+  if (start_up_axis != "unknown" && start_up_vector(start_up_axis).isZero()) {
+    problems.push_back("association.start_up_axis = " + start_up_axis +
+                       ": must be unknown, +x, -x, +y, -y, +z or -z");
+  }
+  require(std::isfinite(max_start_tilt) && max_start_tilt > 0.0 && max_start_tilt <= 180.0,
+          "max_start_tilt", max_start_tilt, "in (0, 180] degrees");
   return problems;
 }
 
@@ -276,8 +283,41 @@ std::string to_string(AlignmentStatus status) {
       return "degenerate";
     case AlignmentStatus::kAmbiguous:
       return "ambiguous";
+    case AlignmentStatus::kTilted:
+      return "tilted";
   }
   return "unknown";
+}
+
+Eigen::Vector3d start_up_vector(const std::string& axis) {
+  if (axis.size() != 2 || (axis[0] != '+' && axis[0] != '-')) return Eigen::Vector3d::Zero();
+  const double sign = axis[0] == '+' ? 1.0 : -1.0;
+  switch (axis[1]) {
+    case 'x':
+      return sign * Eigen::Vector3d::UnitX();
+    case 'y':
+      return sign * Eigen::Vector3d::UnitY();
+    case 'z':
+      return sign * Eigen::Vector3d::UnitZ();
+    default:
+      return Eigen::Vector3d::Zero();
+  }
+}
+
+bool keeps_level(const Eigen::Isometry3d& T_a_b, const lie::Matrix6d& covariance,
+                 const AssociationOptions& options) {
+  const Eigen::Vector3d up = start_up_vector(options.start_up_axis);
+  if (up.isZero()) return true;
+  const double cosine = std::clamp(up.dot(T_a_b.linear() * up), -1.0, 1.0);
+  // The fit's uncertainty about the horizontal axes (the rotation block of the left
+  // perturbation, in a's frame, without its part about the up axis).
+  const Eigen::Matrix3d across = Eigen::Matrix3d::Identity() - up * up.transpose();
+  const Eigen::Matrix3d tilt_covariance =
+      across * covariance.bottomRightCorner<3, 3>() * across.transpose();
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> solver(tilt_covariance,
+                                                              Eigen::EigenvaluesOnly);
+  const double sigma = std::sqrt(std::max(0.0, solver.eigenvalues()(2)));
+  return std::acos(cosine) <= options.max_start_tilt * std::numbers::pi / 180.0 + 3.0 * sigma;
 }
 
 double mahalanobis_squared(const ObjectDescription& a, const ObjectDescription& b,
@@ -449,6 +489,12 @@ PairAlignment align_maps(const MapDescription& full_a, const MapDescription& ful
   }
   result.clique_size = best->inliers;
   const std::optional<RigidAlignment> clique_fit = best->fit;
+  // A best hypothesis that turns the start frames over is refused outright: the up axis only ever
+  // adds a refusal (the next clique is not tried in its place, and rivals still count).
+  if (!keeps_level(clique_fit->T_target_source, clique_fit->covariance, options)) {
+    result.status = AlignmentStatus::kTilted;
+    return result;
+  }
 
   // 4. Rival hypothesis: the largest rigid hypothesis among the candidates this transform
   //    rejects (a symmetric or repetitive layout has one nearly as large). Sets of 3 always fit,
@@ -491,6 +537,10 @@ PairAlignment align_maps(const MapDescription& full_a, const MapDescription& ful
   }
   if (!final_fit) {
     result.status = AlignmentStatus::kDegenerate;
+    return result;
+  }
+  if (!keeps_level(T, final_fit->covariance, options)) {
+    result.status = AlignmentStatus::kTilted;
     return result;
   }
   result.status = AlignmentStatus::kAligned;

@@ -43,6 +43,8 @@ void for_each_association_field(Negotiation& options, Visitor&& visit) {
   visit("max_candidates", association.max_candidates);
   visit("max_clique_expansions", association.max_clique_expansions);
   visit("use_classes", association.use_classes);
+  visit("start_up_axis", association.start_up_axis);
+  visit("max_start_tilt", association.max_start_tilt);
   visit("description_interval", options.description_interval);
   visit("confirmations", options.confirmations);
   visit("transform_agreement_chi2_probability", options.transform_agreement_chi2_probability);

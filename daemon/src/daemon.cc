@@ -1088,6 +1088,7 @@ json Daemon::Impl::stats_json() const {
     stats["negotiation"] = {{"searches", n.searches},
                             {"aligned", n.aligned},
                             {"ambiguous", n.ambiguous},
+                            {"tilted", n.tilted},
                             {"frame_edges", n.frame_edges},
                             {"reanchorings", n.reanchorings},
                             {"links_accepted", n.links_accepted},

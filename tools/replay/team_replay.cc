@@ -375,6 +375,7 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
       statistics.description_bytes += counters.description_bytes;
       statistics.searches += counters.searches;
       statistics.ambiguous += counters.ambiguous;
+      statistics.tilted += counters.tilted;
       statistics.frame_edges += counters.frame_edges;
       statistics.reanchorings += counters.reanchorings;
       statistics.links_accepted += counters.links_accepted;

@@ -134,6 +134,7 @@ struct ReplayStatistics {
   /// Sums of the negotiators' counters (association::NegotiationCounters).
   long long searches = 0;
   long long ambiguous = 0;
+  long long tilted = 0;
   long long frame_edges = 0;
   long long reanchorings = 0;
   long long links_accepted = 0;

@@ -101,6 +101,7 @@ struct NegotiationCounters {
   long long searches = 0;           ///< align_maps calls (maps in different frames)
   long long aligned = 0;            ///< of which found a transform
   long long ambiguous = 0;          ///< of which were ambiguous
+  long long tilted = 0;             ///< of which tilted the start frames (start_up_axis)
   long long frame_edges = 0;        ///< transforms accepted (as owner)
   long long reanchorings = 0;       ///< moves of its own state into another frame
   long long links_accepted = 0;     ///< correspondences accepted (as owner)

@@ -59,6 +59,19 @@ struct AssociationOptions {
   int max_clique_expansions = 200000;
   /// use_classes: only objects of the same class (or of unknown class) are candidates.
   bool use_classes = true;
+  /// start_up_axis: the body axis that points up when the robot stands level ("+x", "-x", "+y",
+  /// "-y", "+z", "-z"), the same for every robot of the team, or "unknown" (the default). When
+  /// known, two robots' start frames are taken to be level to within max_start_tilt (ground
+  /// robots, or start frames levelled by an IMU's gravity), and a pair whose best transform
+  /// tilts one robot's up axis further from the other's (beyond max_start_tilt plus three
+  /// standard deviations of the fit) is refused for that description. It only ever refuses:
+  /// rivals still count, no other hypothesis is tried instead. A wrong match of two nearly
+  /// flat or collinear layouts (cars along streets) can fit a rotation that turns one robot's
+  /// world over as well as the right one fits.
+  std::string start_up_axis = "unknown";
+  /// max_start_tilt: degrees; how far two robots' start frames may be tilted relative to each
+  /// other (slopes, suspension, mounting), with start_up_axis.
+  double max_start_tilt = 10.0;
 
   /// Every problem with the values, each naming the key and the bad value; empty when valid.
   std::vector<std::string> validate() const;

@@ -40,6 +40,7 @@ enum class AlignmentStatus {
   kTooFewInliers,     ///< the largest consistent set is smaller than min_inliers
   kDegenerate,        ///< the consistent set does not fix a transform (collinear, too small)
   kAmbiguous,         ///< a rival hypothesis of comparable size
+  kTilted,            ///< the transform tilts the start frames beyond max_start_tilt
 };
 
 std::string to_string(AlignmentStatus status);
@@ -72,6 +73,17 @@ PairAlignment align_maps(const MapDescription& a, const MapDescription& b,
 std::vector<Match> match_with_transform(const MapDescription& a, const MapDescription& b,
                                         const Eigen::Isometry3d& T_a_b, bool local,
                                         const AssociationOptions& options);
+
+/// The unit vector of an AssociationOptions::start_up_axis ("+x" ... "-z"); zero for "unknown"
+/// or anything else.
+Eigen::Vector3d start_up_vector(const std::string& axis);
+
+/// Whether T_a_b keeps the up axis (start_up_axis) level: the angle between up and R_a_b up is
+/// at most max_start_tilt plus three standard deviations of the transform's rotation about the
+/// horizontal axes (`covariance`, a left perturbation in a's frame on [rho; phi]). Always true
+/// when the axis is unknown.
+bool keeps_level(const Eigen::Isometry3d& T_a_b, const lie::Matrix6d& covariance,
+                 const AssociationOptions& options);
 
 /// Squared Mahalanobis distance of two descriptions of one object in one frame (marginal
 /// covariances plus distance_noise).
