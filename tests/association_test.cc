@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <iterator>
 #include <map>
 #include <numbers>
 #include <random>
@@ -479,6 +480,85 @@ TEST(TeamIdsTest, AnInconsistentCycleIsResolvedDeterministicallyAndCounted) {
   const TeamIds again = assign_team_ids(links);
   EXPECT_EQ(again.team_of, ids.team_of);
   EXPECT_EQ(again.conflicts, 1);
+}
+
+/// The union-find of assign_team_ids written plainly (sets for everything): the reference the
+/// library's version must agree with on any links.
+TeamIds reference_team_ids(std::vector<ObjectLink> links) {
+  std::sort(links.begin(), links.end(), [](const ObjectLink& x, const ObjectLink& y) {
+    if (x.mahalanobis_squared != y.mahalanobis_squared) {
+      return x.mahalanobis_squared < y.mahalanobis_squared;
+    }
+    return x.a != y.a ? x.a < y.a : x.b < y.b;
+  });
+  std::map<ObjectKey, ObjectKey> parent;
+  std::map<ObjectKey, std::set<int>> robots;
+  for (const ObjectLink& link : links) {
+    for (const ObjectKey key : {link.a, link.b}) {
+      parent.emplace(key, key);
+      robots[key].insert(robot_of(key));
+    }
+  }
+  const auto find = [&](ObjectKey key) {
+    while (parent.at(key) != key) key = parent.at(key);
+    return key;
+  };
+  TeamIds ids;
+  std::set<std::pair<ObjectKey, ObjectKey>> seen;
+  std::set<ObjectKey> linked;
+  for (const ObjectLink& link : links) {
+    if (!seen.emplace(link.a, link.b).second) continue;
+    const ObjectKey x = find(link.a), y = find(link.b);
+    if (x != y) {
+      std::vector<int> common;
+      std::set_intersection(robots[x].begin(), robots[x].end(), robots[y].begin(),
+                            robots[y].end(), std::back_inserter(common));
+      if (!common.empty()) {
+        ++ids.conflicts;
+        continue;
+      }
+      parent[y] = x;
+      robots[x].insert(robots[y].begin(), robots[y].end());
+    }
+    linked.insert(link.a);
+    linked.insert(link.b);
+  }
+  std::map<ObjectKey, ObjectKey> smallest;
+  for (const ObjectKey key : linked) {  // ascending
+    const ObjectKey team = smallest.emplace(find(key), key).first->second;
+    ids.team_of[key] = team;
+    ids.members[team].push_back(key);
+  }
+  return ids;
+}
+
+TEST(TeamIdsTest, AgreesWithAPlainUnionFindOnRandomLinksWithDuplicatesAndConflicts) {
+  std::mt19937 random(17);
+  std::uniform_int_distribution<int> robot(0, 5), object(0, 11);
+  std::uniform_int_distribution<int> strength(0, 20);  // ties are common
+  for (int trial = 0; trial < 200; ++trial) {
+    std::vector<ObjectLink> links;
+    const int count = 1 + trial % 60;
+    for (int n = 0; n < count; ++n) {
+      const int r = robot(random);
+      int s = robot(random);
+      if (s == r) s = (s + 1) % 6;
+      links.push_back(ObjectLink::make(object_key(r, object(random)), object_key(s, object(random)),
+                                       0.25 * strength(random)));
+    }
+    // Some links again, weaker or as strong.
+    for (int n = 0; n < count / 4; ++n) {
+      ObjectLink again = links[static_cast<std::size_t>(n * 3) % links.size()];
+      again.mahalanobis_squared += 0.25 * (n % 2);
+      links.push_back(again);
+    }
+    std::shuffle(links.begin(), links.end(), random);
+    const TeamIds expected = reference_team_ids(links);
+    const TeamIds actual = assign_team_ids(links);
+    ASSERT_EQ(actual.team_of, expected.team_of) << "trial " << trial;
+    ASSERT_EQ(actual.members, expected.members) << "trial " << trial;
+    ASSERT_EQ(actual.conflicts, expected.conflicts) << "trial " << trial;
+  }
 }
 
 // ---- Negotiation ----

@@ -140,6 +140,17 @@ std::optional<Reanchoring> Negotiator::finish_round(int round) {
     }
     team_ids_ = assign_team_ids(std::move(links));
     counters_.team_id_conflicts = team_ids_.conflicts;
+    // Every neighbour's shared objects at once (one pass over the teams, not one a neighbour).
+    shared_.clear();
+    for (const auto& [team, members] : team_ids_.members) {
+      const auto own = std::find_if(members.begin(), members.end(),
+                                    [&](ObjectKey key) { return robot_of(key) == robot_; });
+      if (own == members.end()) continue;
+      for (const ObjectKey key : members) {
+        if (key != *own) shared_[robot_of(key)].emplace_back(id_of(*own), id_of(key));
+      }
+    }
+    for (auto& [neighbour, pairs] : shared_) std::sort(pairs.begin(), pairs.end());
     records_changed_ = false;
   }
 
@@ -407,17 +418,8 @@ bool Negotiator::frames_connected(int a, int b) const {
 }
 
 std::vector<std::pair<LandmarkId, LandmarkId>> Negotiator::shared_objects(int neighbour) const {
-  std::vector<std::pair<LandmarkId, LandmarkId>> shared;
-  for (const auto& [team, members] : team_ids_.members) {
-    std::optional<LandmarkId> own, theirs;
-    for (ObjectKey key : members) {
-      if (robot_of(key) == robot_) own = id_of(key);
-      if (robot_of(key) == neighbour) theirs = id_of(key);
-    }
-    if (own && theirs) shared.emplace_back(*own, *theirs);
-  }
-  std::sort(shared.begin(), shared.end());
-  return shared;
+  const auto it = shared_.find(neighbour);
+  return it == shared_.end() ? std::vector<std::pair<LandmarkId, LandmarkId>>() : it->second;
 }
 
 std::optional<int> Negotiator::frame_of(int neighbour) const {

@@ -204,6 +204,8 @@ class Negotiator {
   std::vector<FrameEdge> own_frame_edges_;
   bool records_changed_ = true;
   TeamIds team_ids_;
+  /// shared_objects of every neighbour, rebuilt with the team ids.
+  std::map<int, std::vector<std::pair<LandmarkId, LandmarkId>>> shared_;
   NegotiationCounters counters_;
   Eigen::Isometry3d T_frame_start_ = Eigen::Isometry3d::Identity();
   lie::Matrix6d covariance_frame_start_ = lie::Matrix6d::Zero();
