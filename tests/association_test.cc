@@ -561,6 +561,78 @@ TEST(TeamIdsTest, AgreesWithAPlainUnionFindOnRandomLinksWithDuplicatesAndConflic
   }
 }
 
+TEST(TeamIdsTest, AnIndexKeptUpToDateOneSourceAtATimeAgreesWithTheWholeUnionFind) {
+  // Sources (owners' records) replaced one to three at a time before each commit: links kept,
+  // dropped, added and made stronger or weaker, whole records emptied; after every commit the
+  // index must give what the union-find over the union of every source's links gives.
+  std::mt19937 random(29);
+  std::uniform_int_distribution<int> robot(0, 5), object(0, 9), source_of(0, 4);
+  std::uniform_int_distribution<int> strength(0, 12), percent(0, 99);
+  TeamIdIndex index;
+  std::map<int, std::vector<ObjectLink>> sources;
+  // A source's links as a set of pairs with their strongest distances.
+  const auto canonical = [](const std::vector<ObjectLink>& list) {
+    std::map<std::pair<ObjectKey, ObjectKey>, double> strongest;
+    for (const ObjectLink& link : list) {
+      auto [it, fresh] = strongest.emplace(std::pair{link.a, link.b}, link.mahalanobis_squared);
+      if (!fresh) it->second = std::min(it->second, link.mahalanobis_squared);
+    }
+    return strongest;
+  };
+  int conflicted_steps = 0, merged_steps = 0, unchanged_steps = 0;
+  for (int step = 0; step < 600; ++step) {
+    const auto before = sources;
+    for (int staged = 1 + percent(random) % 3; staged > 0; --staged) {
+      const int source = source_of(random);
+      std::vector<ObjectLink> links;
+      if (percent(random) >= 8) {  // else the source's record is emptied
+        for (ObjectLink link : sources[source]) {
+          const int fate = percent(random);
+          if (fate < 15) continue;                                            // dropped
+          if (fate < 25) link.mahalanobis_squared = 0.25 * strength(random);  // re-weighed
+          links.push_back(link);
+          if (fate >= 95) links.push_back(link);  // a duplicate in one record
+        }
+        for (int n = percent(random) % 6; n > 0; --n) {
+          const int r = robot(random);
+          int t = robot(random);
+          if (t == r) t = (t + 1) % 6;
+          links.push_back(ObjectLink::make(object_key(r, object(random)),
+                                           object_key(t, object(random)), 0.25 * strength(random)));
+        }
+      }
+      std::shuffle(links.begin(), links.end(), random);
+      index.stage(source, links);
+      sources[source] = links;
+    }
+    const bool changed = index.commit();
+    std::vector<ObjectLink> all;
+    for (const auto& [owner, own] : sources) all.insert(all.end(), own.begin(), own.end());
+    const TeamIds expected = reference_team_ids(all);
+    ASSERT_EQ(index.ids().team_of, expected.team_of) << "step " << step;
+    ASSERT_EQ(index.ids().members, expected.members) << "step " << step;
+    ASSERT_EQ(index.ids().conflicts, expected.conflicts) << "step " << step;
+    if (!changed) {
+      // Nothing changed: every source holds the same links as before.
+      ++unchanged_steps;
+      for (const auto& [source, links] : sources) {
+        const auto old = before.find(source);
+        ASSERT_EQ(canonical(old == before.end() ? std::vector<ObjectLink>() : old->second),
+                  canonical(links))
+            << "step " << step << " source " << source;
+      }
+    }
+    conflicted_steps += expected.conflicts > 0;
+    merged_steps += std::any_of(expected.members.begin(), expected.members.end(),
+                                [](const auto& team) { return team.second.size() >= 3; });
+  }
+  // The sequence did reach the cases that matter: conflicts, teams of three or more, commits
+  // with nothing to do.
+  EXPECT_GT(conflicted_steps, 100);
+  EXPECT_GT(merged_steps, 100);
+  EXPECT_GT(unchanged_steps, 0);
+}
+
 // ---- Negotiation ----
 
 /// Robots of a synthetic team exchanging messages on a complete graph, round by round, with

@@ -75,7 +75,7 @@ association::NegotiationMessage sample_message() {
     object.local_covariance = 0.5 * object.covariance;
     map.objects.push_back(object);
   }
-  message.map = map;
+  message.map = std::make_shared<const association::MapDescription>(map);
   association::OwnerRecord record;
   record.owner = 0;
   record.version = 4;

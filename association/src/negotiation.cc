@@ -79,7 +79,7 @@ Negotiator::Negotiator(int robot, int start_frame, NegotiationOptions options)
 }
 
 void Negotiator::set_own_map(MapDescription map, int round) {
-  own_map_ = std::move(map);
+  own_map_ = std::make_shared<const MapDescription>(std::move(map));
   own_map_round_ = round;
 }
 
@@ -87,7 +87,7 @@ NegotiationMessage Negotiator::message_for(int neighbour, int round) {
   NegotiationMessage message;
   message.sender = robot_;
   message.frame = frame_;
-  if (describes(round) && own_map_ && own_map_round_ == round) message.map = *own_map_;
+  if (describes(round) && own_map_ && own_map_round_ == round) message.map = own_map_;
   std::map<int, int>& sent = sent_versions_[neighbour];
   for (const auto& [owner, record] : records_) {
     if (owner == neighbour) continue;  // it knows its own decisions
@@ -105,13 +105,13 @@ NegotiationMessage Negotiator::message_for(int neighbour, int round) {
 
 void Negotiator::receive(const NegotiationMessage& message, int round) {
   neighbour_frames_[message.sender] = message.frame;
-  if (message.map) neighbour_maps_[message.sender] = {round, *message.map};
+  if (message.map) neighbour_maps_[message.sender] = {round, message.map};
   for (const OwnerRecord& record : message.records) {
     if (record.owner == robot_) continue;  // its own decisions are authoritative here
     auto it = records_.find(record.owner);
     if (it == records_.end() || it->second.version < record.version) {
       records_[record.owner] = record;
-      records_changed_ = true;
+      team_ids_.stage(record.owner, record.links);
     }
   }
   // The sender has every record it sent, so it need not get them back.
@@ -127,22 +127,17 @@ std::optional<Reanchoring> Negotiator::finish_round(int round) {
   if (own_map_ && own_map_round_ == round) {
     for (const auto& [neighbour, received] : neighbour_maps_) {
       if (neighbour <= robot_ || received.round != round) continue;
-      own_changed = process_pair(neighbour, received.map, round) || own_changed;
+      own_changed = process_pair(neighbour, *received.map, round) || own_changed;
     }
   }
   if (own_changed) rebuild_own_record();
 
-  // 2. Team ids over every known owner's links.
-  if (records_changed_) {
-    std::vector<ObjectLink> links;
-    for (const auto& [owner, record] : records_) {
-      links.insert(links.end(), record.links.begin(), record.links.end());
-    }
-    team_ids_ = assign_team_ids(std::move(links));
-    counters_.team_id_conflicts = team_ids_.conflicts;
+  // 2. Team ids over every known owner's links (kept up to date as records came in).
+  if (team_ids_.commit()) {
+    counters_.team_id_conflicts = team_ids_.ids().conflicts;
     // Every neighbour's shared objects at once (one pass over the teams, not one a neighbour).
     shared_.clear();
-    for (const auto& [team, members] : team_ids_.members) {
+    for (const auto& [team, members] : team_ids_.ids().members) {
       const auto own = std::find_if(members.begin(), members.end(),
                                     [&](ObjectKey key) { return robot_of(key) == robot_; });
       if (own == members.end()) continue;
@@ -151,7 +146,6 @@ std::optional<Reanchoring> Negotiator::finish_round(int round) {
       }
     }
     for (auto& [neighbour, pairs] : shared_) std::sort(pairs.begin(), pairs.end());
-    records_changed_ = false;
   }
 
   // 3. The team frame.
@@ -326,8 +320,12 @@ void Negotiator::rebuild_own_record() {
           ObjectLink::make(object_key(robot_, ids.first), object_key(neighbour, ids.second), d2));
     }
   }
+  // In key order: what every receiver's team-id index wants (it need not sort them again).
+  std::sort(record.links.begin(), record.links.end(), [](const ObjectLink& x, const ObjectLink& y) {
+    return x.a != y.a ? x.a < y.a : x.b < y.b;
+  });
   record.frame_edges = own_frame_edges_;
-  records_changed_ = true;
+  team_ids_.stage(robot_, record.links);
 }
 
 Negotiator::FrameTarget Negotiator::team_frame_of(int frame) const {

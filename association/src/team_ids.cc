@@ -4,6 +4,7 @@
 #include <iterator>
 #include <numeric>
 #include <span>
+#include <unordered_set>
 
 namespace concord::association {
 
@@ -36,29 +37,152 @@ ObjectKey TeamIds::team_id(ObjectKey key) const {
 }
 
 TeamIds assign_team_ids(std::vector<ObjectLink> links) {
-  // Duplicates: the strongest copy of a link counts, the others are ignored.
-  std::sort(links.begin(), links.end(), [](const ObjectLink& x, const ObjectLink& y) {
+  TeamIdIndex index;
+  index.set_links(0, std::move(links));
+  return index.ids();
+}
+
+bool TeamIdIndex::set_links(int source, std::vector<ObjectLink> links) {
+  stage(source, std::move(links));
+  return commit();
+}
+
+void TeamIdIndex::stage(int source, std::vector<ObjectLink> links) {
+  // The smaller key first; a link of a key with itself says nothing.
+  for (ObjectLink& link : links) {
+    if (link.a > link.b) std::swap(link.a, link.b);
+  }
+  std::erase_if(links, [](const ObjectLink& link) { return link.a == link.b; });
+  // One link a pair, the strongest (records usually come sorted: see OwnerRecord).
+  const auto by_keys = [](const ObjectLink& x, const ObjectLink& y) {
     if (x.a != y.a) return x.a < y.a;
     if (x.b != y.b) return x.b < y.b;
     return x.mahalanobis_squared < y.mahalanobis_squared;
-  });
+  };
+  if (!std::is_sorted(links.begin(), links.end(), by_keys)) {
+    std::sort(links.begin(), links.end(), by_keys);
+  }
   links.erase(std::unique(links.begin(), links.end()), links.end());  // == compares a and b
+  std::vector<ObjectLink>& before = sources_[source];
+  // The difference, both lists ascending by (a, b); a link whose strength changed goes and comes.
+  const auto key_less = [](const ObjectLink& x, const ObjectLink& y) {
+    return x.a != y.a ? x.a < y.a : x.b < y.b;
+  };
+  auto old_link = before.begin();
+  auto new_link = links.begin();
+  while (old_link != before.end() || new_link != links.end()) {
+    if (new_link == links.end() || (old_link != before.end() && key_less(*old_link, *new_link))) {
+      remove(source, *old_link++);
+    } else if (old_link == before.end() || key_less(*new_link, *old_link)) {
+      add(source, *new_link++);
+    } else {
+      if (old_link->mahalanobis_squared != new_link->mahalanobis_squared) {
+        remove(source, *old_link);
+        add(source, *new_link);
+      }
+      ++old_link;
+      ++new_link;
+    }
+  }
+  if (links.empty()) {
+    sources_.erase(source);
+  } else {
+    before = std::move(links);
+  }
+}
+
+TeamIdIndex::Edge& TeamIdIndex::edge(ObjectKey from, ObjectKey to) {
+  auto& edges = adjacent_.at(from);
+  return *std::find_if(edges.begin(), edges.end(), [&](const Edge& e) { return e.other == to; });
+}
+
+void TeamIdIndex::update_strength(const ObjectLink& link, double strongest) {
+  edge(link.a, link.b).strongest = strongest;
+  edge(link.b, link.a).strongest = strongest;
+}
+
+void TeamIdIndex::add(int source, const ObjectLink& link) {
+  auto& strengths = links_[{link.a, link.b}];
+  if (strengths.empty()) {
+    adjacent_[link.a].push_back({link.b, link.mahalanobis_squared, false});
+    adjacent_[link.b].push_back({link.a, link.mahalanobis_squared, false});
+  }
+  strengths[source] = link.mahalanobis_squared;
+  double strongest = strengths.begin()->second;
+  for (const auto& [from, d2] : strengths) strongest = std::min(strongest, d2);
+  update_strength(link, strongest);
+  touched_.push_back(link.a);
+  touched_.push_back(link.b);
+}
+
+void TeamIdIndex::remove(int source, const ObjectLink& link) {
+  const auto it = links_.find({link.a, link.b});
+  if (it == links_.end()) return;
+  it->second.erase(source);
+  if (it->second.empty()) {
+    links_.erase(it);
+    if (edge(link.a, link.b).conflict) --conflicts_;
+    for (const auto& [from, to] : {std::pair{link.a, link.b}, std::pair{link.b, link.a}}) {
+      auto& edges = adjacent_.at(from);
+      edges.erase(std::find_if(edges.begin(), edges.end(),
+                               [&](const Edge& e) { return e.other == to; }));
+      if (edges.empty()) adjacent_.erase(from);
+    }
+  } else {
+    double strongest = it->second.begin()->second;
+    for (const auto& [from, d2] : it->second) strongest = std::min(strongest, d2);
+    update_strength(link, strongest);
+  }
+  touched_.push_back(link.a);
+  touched_.push_back(link.b);
+}
+
+bool TeamIdIndex::commit() {
+  if (touched_.empty()) return false;
+  // The connected parts of the link graph that hold the touched keys, as they are now. They hold
+  // every old team of their keys too: a key of an old part reaches a touched key without a
+  // removed link.
+  std::vector<ObjectKey> keys;
+  keys.swap(touched_);
+  std::unordered_set<ObjectKey> region(keys.begin(), keys.end());
+  keys.assign(region.begin(), region.end());
+  for (std::size_t next = 0; next < keys.size(); ++next) {
+    const auto edges = adjacent_.find(keys[next]);
+    if (edges == adjacent_.end()) continue;
+    for (const Edge& e : edges->second) {
+      if (region.insert(e.other).second) keys.push_back(e.other);
+    }
+  }
+  std::sort(keys.begin(), keys.end());
+  // Their old teams go.
+  for (const ObjectKey key : keys) {
+    const auto team = ids_.team_of.find(key);
+    if (team == ids_.team_of.end()) continue;
+    ids_.members.erase(team->second);
+    ids_.team_of.erase(team);
+  }
+  // Their links, strongest first (then by keys).
+  std::vector<ObjectLink> links;
+  for (const ObjectKey key : keys) {
+    const auto edges = adjacent_.find(key);
+    if (edges == adjacent_.end()) continue;
+    for (Edge& e : edges->second) {
+      if (e.other < key) continue;
+      if (e.conflict) {
+        e.conflict = false;
+        --conflicts_;
+      }
+      links.push_back({key, e.other, e.strongest});
+    }
+  }
   std::sort(links.begin(), links.end(), [](const ObjectLink& x, const ObjectLink& y) {
     if (x.mahalanobis_squared != y.mahalanobis_squared) {
       return x.mahalanobis_squared < y.mahalanobis_squared;
     }
     return x.a != y.a ? x.a < y.a : x.b < y.b;
   });
-  // Nodes are the keys that appear in links; a component remembers its robots (ascending; a
-  // node that was never merged holds none here and has its own key's robot).
-  std::vector<ObjectKey> keys;
-  keys.reserve(2 * links.size());
-  for (const ObjectLink& link : links) {
-    keys.push_back(link.a);
-    keys.push_back(link.b);
-  }
-  std::sort(keys.begin(), keys.end());
-  keys.erase(std::unique(keys.begin(), keys.end()), keys.end());
+  // Union-find over the region's keys; a component remembers its robots (ascending; a node that
+  // was never merged holds none here and has its own key's robot).
   const auto node = [&](ObjectKey key) {
     return static_cast<int>(std::lower_bound(keys.begin(), keys.end(), key) - keys.begin());
   };
@@ -75,8 +199,6 @@ TeamIds assign_team_ids(std::vector<ObjectLink> links) {
     while (parent[n] != n) n = parent[n] = parent[parent[n]];
     return n;
   };
-
-  TeamIds ids;
   std::vector<bool> linked(keys.size(), false);
   std::vector<int> robots_union;
   for (const ObjectLink& link : links) {
@@ -87,7 +209,8 @@ TeamIds assign_team_ids(std::vector<ObjectLink> links) {
       continue;
     }
     if (share_a_robot(robots(x), robots(y))) {
-      ++ids.conflicts;
+      edge(link.a, link.b).conflict = true;
+      ++conflicts_;
       continue;
     }
     if (robots(x).size() < robots(y).size()) std::swap(x, y);
@@ -100,19 +223,16 @@ TeamIds assign_team_ids(std::vector<ObjectLink> links) {
     linked[node_a] = linked[node_b] = true;
   }
   // Team id: the smallest key of the component (keys are ascending, so the first seen).
-  std::vector<std::map<ObjectKey, std::vector<ObjectKey>>::iterator> team_of_root(
-      keys.size(), ids.members.end());
+  std::vector<ObjectKey> team_of_root(keys.size(), -1);
   for (std::size_t n = 0; n < keys.size(); ++n) {
     if (!linked[n]) continue;
-    const int root = find(static_cast<int>(n));
-    auto& team = team_of_root[root];
-    // New teams come in ascending order of their ids: each goes at the end of the map.
-    if (team == ids.members.end()) team = ids.members.emplace_hint(ids.members.end(), keys[n],
-                                                                    std::vector<ObjectKey>());
-    ids.team_of.emplace_hint(ids.team_of.end(), keys[n], team->first);
-    team->second.push_back(keys[n]);
+    ObjectKey& team = team_of_root[find(static_cast<int>(n))];
+    if (team < 0) team = keys[n];
+    ids_.team_of.emplace(keys[n], team);
+    ids_.members[team].push_back(keys[n]);
   }
-  return ids;
+  ids_.conflicts = conflicts_;
+  return true;
 }
 
 }  // namespace concord::association

@@ -214,7 +214,7 @@ std::optional<association::NegotiationMessage> from_wire(const v1::Negotiation& 
               ", sender in frame " + std::to_string(out.frame);
       return std::nullopt;
     }
-    out.map = std::move(map);
+    out.map = std::make_shared<const association::MapDescription>(std::move(map));
   }
   if (message.records_size() > limits.max_records) {
     error = "negotiation: " + std::to_string(message.records_size()) +

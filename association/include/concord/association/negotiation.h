@@ -36,6 +36,7 @@
 #include <Eigen/Geometry>
 #include <cstddef>
 #include <map>
+#include <memory>
 #include <optional>
 #include <string>
 #include <utility>
@@ -65,7 +66,7 @@ struct FrameEdge {
 struct OwnerRecord {
   int owner = 0;
   int version = 0;
-  std::vector<ObjectLink> links;
+  std::vector<ObjectLink> links;  ///< ascending by (a, b) as the owner makes them
   std::vector<FrameEdge> frame_edges;
 
   /// Bytes in a fixed-width encoding: 12 bytes of header, 20 per link (two keys, a float), 144
@@ -78,8 +79,9 @@ struct NegotiationMessage {
   int sender = 0;
   /// The frame the sender's state is in.
   int frame = kWorldFrame;
-  /// The sender's map, on its describing rounds.
-  std::optional<MapDescription> map;
+  /// The sender's map, on its describing rounds (shared, not copied, between the messages of a
+  /// round and their receivers: a description is never changed once made).
+  std::shared_ptr<const MapDescription> map;
   /// Owner records the neighbour has not had from the sender.
   std::vector<OwnerRecord> records;
 
@@ -142,9 +144,9 @@ class Negotiator {
   std::vector<std::pair<LandmarkId, LandmarkId>> shared_objects(int neighbour) const;
   /// Team id of one of the robot's objects, or -1 while unshared.
   ObjectKey team_id(LandmarkId own_id) const {
-    return team_ids_.team_id(object_key(robot_, own_id));
+    return team_ids_.ids().team_id(object_key(robot_, own_id));
   }
-  const TeamIds& team_ids() const { return team_ids_; }
+  const TeamIds& team_ids() const { return team_ids_.ids(); }
   /// The frame a neighbour last said it is in (nullopt before its first message).
   std::optional<int> frame_of(int neighbour) const;
   const NegotiationCounters& counters() const { return counters_; }
@@ -158,7 +160,7 @@ class Negotiator {
  private:
   struct NeighbourMap {
     int round = -1;
-    MapDescription map;
+    std::shared_ptr<const MapDescription> map;
   };
   /// What the owner of a pair remembers between descriptions.
   struct PairState {
@@ -192,7 +194,7 @@ class Negotiator {
   int robot_;
   int frame_;
   NegotiationOptions options_;
-  std::optional<MapDescription> own_map_;
+  std::shared_ptr<const MapDescription> own_map_;
   int own_map_round_ = -1;
   std::map<int, NeighbourMap> neighbour_maps_;
   std::map<int, int> neighbour_frames_;
@@ -202,8 +204,8 @@ class Negotiator {
   /// Per neighbour: version of each owner's record last sent to it.
   std::map<int, std::map<int, int>> sent_versions_;
   std::vector<FrameEdge> own_frame_edges_;
-  bool records_changed_ = true;
-  TeamIds team_ids_;
+  /// Team ids over the links of every record in records_.
+  TeamIdIndex team_ids_;
   /// shared_objects of every neighbour, rebuilt with the team ids.
   std::map<int, std::vector<std::pair<LandmarkId, LandmarkId>>> shared_;
   NegotiationCounters counters_;

@@ -7,6 +7,7 @@
 /// distance, then by their keys), so every robot that knows the same links computes the same ids.
 
 #include <map>
+#include <utility>
 #include <vector>
 
 #include "concord/association/map_description.h"
@@ -41,5 +42,46 @@ struct TeamIds {
 
 /// Union-find over the links (duplicates ignored), strongest first, conflicts left out.
 TeamIds assign_team_ids(std::vector<ObjectLink> links);
+
+/// The team ids of a set of links that changes a source at a time (a source: one owner's record),
+/// kept equal to assign_team_ids over the union of every source's links. The union-find's
+/// decisions on a link depend only on the stronger links of the same connected part of the link
+/// graph (conflicting links included), so a change is worked out again only on the parts it
+/// touches: a robot that hears of one owner's new record does not redo the whole team.
+class TeamIdIndex {
+ public:
+  /// Replaces the links of `source` (duplicates: the strongest copy counts; a link may come from
+  /// several sources, the strongest counts). ids() follows at the next commit().
+  void stage(int source, std::vector<ObjectLink> links);
+  /// Works the staged changes into ids(); true when any link of the union changed.
+  bool commit();
+  /// stage() and commit().
+  bool set_links(int source, std::vector<ObjectLink> links);
+  const TeamIds& ids() const { return ids_; }
+
+ private:
+  /// A link as seen from one of its keys.
+  struct Edge {
+    ObjectKey other = 0;
+    double strongest = 0.0;  ///< the smallest squared distance any source gives it
+    bool conflict = false;   ///< left out by the union-find (kept on the smaller key's side)
+  };
+  void add(int source, const ObjectLink& link);
+  void remove(int source, const ObjectLink& link);
+  /// Sets both sides' strength of a link from its sources.
+  void update_strength(const ObjectLink& link, double strongest);
+  Edge& edge(ObjectKey from, ObjectKey to);
+
+  /// Every source's links, ascending by (a, b), one per pair.
+  std::map<int, std::vector<ObjectLink>> sources_;
+  /// Every link of the union: the squared distance each source gives it.
+  std::map<std::pair<ObjectKey, ObjectKey>, std::map<int, double>> links_;
+  /// The link graph: each key's links.
+  std::map<ObjectKey, std::vector<Edge>> adjacent_;
+  /// Keys of links changed since the last commit.
+  std::vector<ObjectKey> touched_;
+  int conflicts_ = 0;
+  TeamIds ids_;
+};
 
 }  // namespace concord::association
