@@ -91,7 +91,7 @@ association::NegotiationMessage sample_message() {
   edge.round = 15;
   edge.owner = 0;
   record.frame_edges.push_back(edge);
-  message.records.push_back(record);
+  message.records.push_back(std::make_shared<const association::OwnerRecord>(record));
   return message;
 }
 
@@ -126,16 +126,16 @@ TEST(NegotiationWire, RoundTripIsExact) {
     EXPECT_EQ(a.local_covariance, b.local_covariance);
   }
   ASSERT_EQ(decoded->records.size(), 1u);
-  const auto& record = decoded->records[0];
+  const auto& record = *decoded->records[0];
   EXPECT_EQ(record.owner, 0);
   EXPECT_EQ(record.version, 4);
   ASSERT_EQ(record.links.size(), 1u);
-  EXPECT_EQ(record.links[0].a, message.records[0].links[0].a);
-  EXPECT_EQ(record.links[0].b, message.records[0].links[0].b);
+  EXPECT_EQ(record.links[0].a, message.records[0]->links[0].a);
+  EXPECT_EQ(record.links[0].b, message.records[0]->links[0].b);
   EXPECT_EQ(record.links[0].mahalanobis_squared, 1.25);
   ASSERT_EQ(record.frame_edges.size(), 1u);
-  EXPECT_EQ(record.frame_edges[0].T_a_b.matrix(), message.records[0].frame_edges[0].T_a_b.matrix());
-  EXPECT_EQ(record.frame_edges[0].covariance, message.records[0].frame_edges[0].covariance);
+  EXPECT_EQ(record.frame_edges[0].T_a_b.matrix(), message.records[0]->frame_edges[0].T_a_b.matrix());
+  EXPECT_EQ(record.frame_edges[0].covariance, message.records[0]->frame_edges[0].covariance);
   EXPECT_EQ(record.frame_edges[0].round, 15);
 }
 

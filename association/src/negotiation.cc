@@ -69,13 +69,13 @@ std::size_t OwnerRecord::wire_size() const {
 std::size_t NegotiationMessage::wire_size() const {
   std::size_t size = 8;
   if (map) size += map->wire_size();
-  for (const OwnerRecord& record : records) size += record.wire_size();
+  for (const auto& record : records) size += record->wire_size();
   return size;
 }
 
 Negotiator::Negotiator(int robot, int start_frame, NegotiationOptions options)
     : robot_(robot), frame_(start_frame), options_(validated(options)) {
-  records_[robot_] = OwnerRecord{robot_, 0, {}, {}};
+  records_[robot_] = std::make_shared<const OwnerRecord>(OwnerRecord{robot_, 0, {}, {}});
 }
 
 void Negotiator::set_own_map(MapDescription map, int round) {
@@ -92,10 +92,10 @@ NegotiationMessage Negotiator::message_for(int neighbour, int round) {
   for (const auto& [owner, record] : records_) {
     if (owner == neighbour) continue;  // it knows its own decisions
     const auto it = sent.find(owner);
-    if (it != sent.end() && it->second >= record.version) continue;
-    if (record.version == 0) continue;  // nothing decided yet
+    if (it != sent.end() && it->second >= record->version) continue;
+    if (record->version == 0) continue;  // nothing decided yet
     message.records.push_back(record);
-    sent[owner] = record.version;
+    sent[owner] = record->version;
   }
   ++counters_.messages;
   counters_.bytes_sent += static_cast<long long>(message.wire_size());
@@ -106,18 +106,18 @@ NegotiationMessage Negotiator::message_for(int neighbour, int round) {
 void Negotiator::receive(const NegotiationMessage& message, int round) {
   neighbour_frames_[message.sender] = message.frame;
   if (message.map) neighbour_maps_[message.sender] = {round, message.map};
-  for (const OwnerRecord& record : message.records) {
-    if (record.owner == robot_) continue;  // its own decisions are authoritative here
-    auto it = records_.find(record.owner);
-    if (it == records_.end() || it->second.version < record.version) {
-      records_[record.owner] = record;
-      team_ids_.stage(record.owner, record.links);
+  for (const auto& record : message.records) {
+    if (!record || record->owner == robot_) continue;  // its own decisions are authoritative here
+    auto it = records_.find(record->owner);
+    if (it == records_.end() || it->second->version < record->version) {
+      records_[record->owner] = record;
+      team_ids_.stage(record->owner, record->links);
     }
   }
   // The sender has every record it sent, so it need not get them back.
   std::map<int, int>& sent = sent_versions_[message.sender];
-  for (const OwnerRecord& record : message.records) {
-    sent[record.owner] = std::max(sent[record.owner], record.version);
+  for (const auto& record : message.records) {
+    if (record) sent[record->owner] = std::max(sent[record->owner], record->version);
   }
 }
 
@@ -310,10 +310,11 @@ bool Negotiator::match_in_frame(PairState& pair, const MapDescription& theirs) {
 }
 
 void Negotiator::rebuild_own_record() {
-  OwnerRecord& record = records_[robot_];
+  // A new record (the old one may still be on its way in messages).
+  auto made = std::make_shared<OwnerRecord>();
+  OwnerRecord& record = *made;
   record.owner = robot_;
-  ++record.version;
-  record.links.clear();
+  record.version = records_.at(robot_)->version + 1;
   for (const auto& [neighbour, pair] : pairs_) {
     for (const auto& [ids, d2] : pair.accepted) {
       record.links.push_back(
@@ -326,13 +327,14 @@ void Negotiator::rebuild_own_record() {
   });
   record.frame_edges = own_frame_edges_;
   team_ids_.stage(robot_, record.links);
+  records_[robot_] = std::move(made);
 }
 
 Negotiator::FrameTarget Negotiator::team_frame_of(int frame) const {
   // Every known edge, in a canonical order (round, owner, frames).
   std::vector<const FrameEdge*> edges;
   for (const auto& [owner, record] : records_) {
-    for (const FrameEdge& edge : record.frame_edges) edges.push_back(&edge);
+    for (const FrameEdge& edge : record->frame_edges) edges.push_back(&edge);
   }
   std::sort(edges.begin(), edges.end(), [](const FrameEdge* x, const FrameEdge* y) {
     if (x->round != y->round) return x->round < y->round;
@@ -402,7 +404,7 @@ bool Negotiator::frames_connected(int a, int b) const {
   for (bool grown = true; grown;) {
     grown = false;
     for (const auto& [owner, record] : records_) {
-      for (const FrameEdge& edge : record.frame_edges) {
+      for (const FrameEdge& edge : record->frame_edges) {
         const bool has_a = component.contains(edge.frame_a);
         const bool has_b = component.contains(edge.frame_b);
         if (has_a != has_b) {

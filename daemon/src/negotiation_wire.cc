@@ -168,7 +168,9 @@ void to_wire(const association::NegotiationMessage& message, v1::Negotiation& ou
       add_upper<3>(object.local_covariance, *entry->mutable_local_covariance());
     }
   }
-  for (const association::OwnerRecord& record : message.records) {
+  for (const auto& shared : message.records) {
+    if (!shared) continue;
+    const association::OwnerRecord& record = *shared;
     v1::OwnerRecord* entry = out.add_records();
     entry->set_owner(static_cast<std::uint32_t>(record.owner));
     entry->set_version(static_cast<std::uint32_t>(record.version));
@@ -227,7 +229,7 @@ std::optional<association::NegotiationMessage> from_wire(const v1::Negotiation& 
       error = "negotiation: " + error;
       return std::nullopt;
     }
-    out.records.push_back(std::move(entry));
+    out.records.push_back(std::make_shared<const association::OwnerRecord>(std::move(entry)));
   }
   return out;
 }

@@ -82,8 +82,9 @@ struct NegotiationMessage {
   /// The sender's map, on its describing rounds (shared, not copied, between the messages of a
   /// round and their receivers: a description is never changed once made).
   std::shared_ptr<const MapDescription> map;
-  /// Owner records the neighbour has not had from the sender.
-  std::vector<OwnerRecord> records;
+  /// Owner records the neighbour has not had from the sender (shared like the map: a record is
+  /// never changed once made, a newer version is a new record).
+  std::vector<std::shared_ptr<const OwnerRecord>> records;
 
   /// 8 bytes of header plus the description and the records.
   std::size_t wire_size() const;
@@ -200,7 +201,7 @@ class Negotiator {
   std::map<int, int> neighbour_frames_;
   std::map<int, PairState> pairs_;
   /// Newest record of every owner heard of (including its own).
-  std::map<int, OwnerRecord> records_;
+  std::map<int, std::shared_ptr<const OwnerRecord>> records_;
   /// Per neighbour: version of each owner's record last sent to it.
   std::map<int, std::map<int, int>> sent_versions_;
   std::vector<FrameEdge> own_frame_edges_;
