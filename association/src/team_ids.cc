@@ -91,37 +91,50 @@ void TeamIdIndex::stage(int source, std::vector<ObjectLink> links) {
   }
 }
 
-TeamIdIndex::Edge& TeamIdIndex::edge(ObjectKey from, ObjectKey to) {
-  auto& edges = adjacent_.at(from);
-  return *std::find_if(edges.begin(), edges.end(), [&](const Edge& e) { return e.other == to; });
+TeamIdIndex::Edge* TeamIdIndex::edge(ObjectKey from, ObjectKey to) {
+  const auto edges = adjacent_.find(from);
+  if (edges == adjacent_.end()) return nullptr;
+  const auto it = std::find_if(edges->second.begin(), edges->second.end(),
+                               [&](const Edge& e) { return e.other == to; });
+  return it == edges->second.end() ? nullptr : &*it;
 }
 
-void TeamIdIndex::update_strength(const ObjectLink& link, double strongest) {
-  edge(link.a, link.b).strongest = strongest;
-  edge(link.b, link.a).strongest = strongest;
+namespace {
+
+double strongest_of(const std::vector<std::pair<int, double>>& sources) {
+  double strongest = sources.front().second;
+  for (const auto& [source, d2] : sources) strongest = std::min(strongest, d2);
+  return strongest;
 }
+
+}  // namespace
 
 void TeamIdIndex::add(int source, const ObjectLink& link) {
-  auto& strengths = links_[{link.a, link.b}];
-  if (strengths.empty()) {
-    adjacent_[link.a].push_back({link.b, link.mahalanobis_squared, false});
-    adjacent_[link.b].push_back({link.a, link.mahalanobis_squared, false});
+  Edge* forward = edge(link.a, link.b);
+  if (forward == nullptr) {
+    adjacent_[link.b].push_back({link.a, link.mahalanobis_squared, false, {}});
+    forward = &adjacent_[link.a].emplace_back(Edge{link.b, link.mahalanobis_squared, false, {}});
   }
-  strengths[source] = link.mahalanobis_squared;
-  double strongest = strengths.begin()->second;
-  for (const auto& [from, d2] : strengths) strongest = std::min(strongest, d2);
-  update_strength(link, strongest);
+  auto& sources = forward->sources;
+  const auto it = std::find_if(sources.begin(), sources.end(),
+                               [&](const auto& entry) { return entry.first == source; });
+  if (it == sources.end()) {
+    sources.emplace_back(source, link.mahalanobis_squared);
+  } else {
+    it->second = link.mahalanobis_squared;
+  }
+  forward->strongest = edge(link.b, link.a)->strongest = strongest_of(sources);
   touched_.push_back(link.a);
   touched_.push_back(link.b);
 }
 
 void TeamIdIndex::remove(int source, const ObjectLink& link) {
-  const auto it = links_.find({link.a, link.b});
-  if (it == links_.end()) return;
-  it->second.erase(source);
-  if (it->second.empty()) {
-    links_.erase(it);
-    if (edge(link.a, link.b).conflict) --conflicts_;
+  Edge* forward = edge(link.a, link.b);
+  if (forward == nullptr) return;
+  auto& sources = forward->sources;
+  std::erase_if(sources, [&](const auto& entry) { return entry.first == source; });
+  if (sources.empty()) {
+    if (forward->conflict) --conflicts_;
     for (const auto& [from, to] : {std::pair{link.a, link.b}, std::pair{link.b, link.a}}) {
       auto& edges = adjacent_.at(from);
       edges.erase(std::find_if(edges.begin(), edges.end(),
@@ -129,9 +142,7 @@ void TeamIdIndex::remove(int source, const ObjectLink& link) {
       if (edges.empty()) adjacent_.erase(from);
     }
   } else {
-    double strongest = it->second.begin()->second;
-    for (const auto& [from, d2] : it->second) strongest = std::min(strongest, d2);
-    update_strength(link, strongest);
+    forward->strongest = edge(link.b, link.a)->strongest = strongest_of(sources);
   }
   touched_.push_back(link.a);
   touched_.push_back(link.b);
@@ -209,7 +220,7 @@ bool TeamIdIndex::commit() {
       continue;
     }
     if (share_a_robot(robots(x), robots(y))) {
-      edge(link.a, link.b).conflict = true;
+      edge(link.a, link.b)->conflict = true;
       ++conflicts_;
       continue;
     }

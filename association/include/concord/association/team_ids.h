@@ -7,6 +7,7 @@
 /// distance, then by their keys), so every robot that knows the same links computes the same ids.
 
 #include <map>
+#include <unordered_map>
 #include <utility>
 #include <vector>
 
@@ -64,20 +65,20 @@ class TeamIdIndex {
   struct Edge {
     ObjectKey other = 0;
     double strongest = 0.0;  ///< the smallest squared distance any source gives it
-    bool conflict = false;   ///< left out by the union-find (kept on the smaller key's side)
+    /// On the smaller key's side: left out by the union-find, and the distance each source
+    /// gives the link.
+    bool conflict = false;
+    std::vector<std::pair<int, double>> sources;
   };
   void add(int source, const ObjectLink& link);
   void remove(int source, const ObjectLink& link);
-  /// Sets both sides' strength of a link from its sources.
-  void update_strength(const ObjectLink& link, double strongest);
-  Edge& edge(ObjectKey from, ObjectKey to);
+  /// The link's edge on key `from`'s side, or nullptr.
+  Edge* edge(ObjectKey from, ObjectKey to);
 
   /// Every source's links, ascending by (a, b), one per pair.
   std::map<int, std::vector<ObjectLink>> sources_;
-  /// Every link of the union: the squared distance each source gives it.
-  std::map<std::pair<ObjectKey, ObjectKey>, std::map<int, double>> links_;
-  /// The link graph: each key's links.
-  std::map<ObjectKey, std::vector<Edge>> adjacent_;
+  /// The link graph of the union of the sources' links: each key's links.
+  std::unordered_map<ObjectKey, std::vector<Edge>> adjacent_;
   /// Keys of links changed since the last commit.
   std::vector<ObjectKey> touched_;
   int conflicts_ = 0;
