@@ -61,17 +61,27 @@ class CliqueSearch {
   /// Greedy sequential colouring of `candidates` (in their order); returns them sorted by colour
   /// with the colour (1-based) of each.
   void colour(const std::vector<int>& candidates, std::vector<int>& ordered,
-              std::vector<int>& colours) const {
+              std::vector<int>& colours) {
+    // A vertex goes to the first class holding none of its neighbours: the test is one AND of its
+    // adjacency row with each class's member bits.
+    const std::size_t words = graph_.words();
     std::vector<std::vector<int>> classes;
+    class_bits_.clear();
     for (int v : candidates) {
+      const std::uint64_t* row = graph_.row(v);
       std::size_t c = 0;
       for (; c < classes.size(); ++c) {
-        const bool conflict = std::any_of(classes[c].begin(), classes[c].end(),
-                                          [&](int u) { return graph_.adjacent(u, v); });
+        const std::uint64_t* members = class_bits_.data() + c * words;
+        bool conflict = false;
+        for (std::size_t w = 0; w < words && !conflict; ++w) conflict = (row[w] & members[w]) != 0;
         if (!conflict) break;
       }
-      if (c == classes.size()) classes.emplace_back();
+      if (c == classes.size()) {
+        classes.emplace_back();
+        class_bits_.resize(class_bits_.size() + words, 0);
+      }
       classes[c].push_back(v);
+      class_bits_[c * words + (static_cast<std::size_t>(v) >> 6)] |= std::uint64_t{1} << (v & 63);
     }
     ordered.clear();
     colours.clear();
@@ -114,6 +124,8 @@ class CliqueSearch {
   long long expansions_ = 0;
   bool stopped_ = false;
   std::vector<int> best_;
+  /// colour()'s member bits of each class (words() words a class), reused between calls.
+  std::vector<std::uint64_t> class_bits_;
 };
 
 }  // namespace

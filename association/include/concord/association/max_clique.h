@@ -23,6 +23,11 @@ class ConsistencyGraph {
     return (rows_[static_cast<std::size_t>(a) * words_ + (b >> 6)] >> (b & 63)) & 1U;
   }
   int degree(int vertex) const;
+  /// The adjacency bits of a vertex: words() words, bit b of word w for vertex 64 w + b.
+  const std::uint64_t* row(int vertex) const {
+    return rows_.data() + static_cast<std::size_t>(vertex) * words_;
+  }
+  std::size_t words() const { return words_; }
   /// Number of edges.
   long long edges() const;
 
