@@ -155,6 +155,35 @@ TEST(MaxCliqueTest, EveryReturnedSetIsAClique) {
   }
 }
 
+TEST(MaxCliqueTest, AMinimumSizeFindsTheSameCliqueWithFewerExpansionsOrNone) {
+  std::mt19937 random(7);
+  int cut = 0;
+  for (int trial = 0; trial < 30; ++trial) {
+    const int n = 60;
+    ConsistencyGraph graph(n);
+    std::bernoulli_distribution edge(0.3);
+    for (int a = 0; a < n; ++a)
+      for (int b = a + 1; b < n; ++b)
+        if (edge(random)) graph.add_edge(a, b);
+    const CliqueResult full = maximum_clique(graph, 1'000'000);
+    ASSERT_TRUE(full.exact);
+    const int size = static_cast<int>(full.vertices.size());
+    for (const int minimum : {2, size - 1, size}) {
+      const CliqueResult bounded = maximum_clique(graph, 1'000'000, {}, minimum);
+      EXPECT_TRUE(bounded.exact);
+      EXPECT_EQ(bounded.vertices, full.vertices) << "trial " << trial << " minimum " << minimum;
+      EXPECT_LE(bounded.expansions, full.expansions);
+      cut += bounded.expansions < full.expansions;
+    }
+    // Asked for more than the graph has: nothing, and found out sooner.
+    const CliqueResult none = maximum_clique(graph, 1'000'000, {}, size + 1);
+    EXPECT_TRUE(none.exact);
+    EXPECT_TRUE(none.vertices.empty());
+    EXPECT_LT(none.expansions, full.expansions);
+  }
+  EXPECT_GT(cut, 0);  // the floor did cut branches
+}
+
 // ---- Alignment ----
 
 TEST(AlignmentTest, RecoversAKnownTransformWithAConsistentCovariance) {

@@ -38,8 +38,10 @@ namespace {
 /// colour of the candidate cannot beat the best.
 class CliqueSearch {
  public:
-  CliqueSearch(const ConsistencyGraph& graph, long long max_expansions)
-      : graph_(graph), max_expansions_(max_expansions) {}
+  CliqueSearch(const ConsistencyGraph& graph, long long max_expansions, int min_size)
+      : graph_(graph),
+        max_expansions_(max_expansions),
+        floor_(static_cast<std::size_t>(std::max(min_size - 1, 0))) {}
 
   CliqueResult run(std::vector<int> candidates) {
     // Initial order: degree descending, then index (deterministic).
@@ -102,7 +104,7 @@ class CliqueSearch {
     std::vector<int> ordered, colours;
     colour(candidates, ordered, colours);
     for (int i = static_cast<int>(ordered.size()) - 1; i >= 0; --i) {
-      if (clique.size() + static_cast<std::size_t>(colours[i]) <= best_.size()) return;
+      if (clique.size() + static_cast<std::size_t>(colours[i]) <= bound()) return;
       const int v = ordered[i];
       clique.push_back(v);
       std::vector<int> next;
@@ -110,7 +112,7 @@ class CliqueSearch {
         if (graph_.adjacent(v, ordered[j])) next.push_back(ordered[j]);
       }
       if (next.empty()) {
-        if (clique.size() > best_.size()) best_ = clique;
+        if (clique.size() > bound()) best_ = clique;
       } else {
         expand(clique, next);
       }
@@ -119,8 +121,12 @@ class CliqueSearch {
     }
   }
 
+  /// The size a new clique must beat: the best so far, or min_size - 1 before one that large.
+  std::size_t bound() const { return std::max(best_.size(), floor_); }
+
   const ConsistencyGraph& graph_;
   long long max_expansions_;
+  std::size_t floor_;
   long long expansions_ = 0;
   bool stopped_ = false;
   std::vector<int> best_;
@@ -131,13 +137,13 @@ class CliqueSearch {
 }  // namespace
 
 CliqueResult maximum_clique(const ConsistencyGraph& graph, long long max_expansions,
-                            const std::vector<bool>& allowed) {
+                            const std::vector<bool>& allowed, int min_size) {
   std::vector<int> candidates;
   for (int v = 0; v < graph.size(); ++v) {
     if (allowed.empty() || allowed[v]) candidates.push_back(v);
   }
   if (candidates.empty()) return {};
-  return CliqueSearch(graph, max_expansions).run(std::move(candidates));
+  return CliqueSearch(graph, max_expansions, min_size).run(std::move(candidates));
 }
 
 }  // namespace concord::association

@@ -462,7 +462,9 @@ PairAlignment align_maps(const MapDescription& full_a, const MapDescription& ful
   const auto find_hypothesis = [&](std::vector<bool> allowed, int minimum) {
     std::optional<Hypothesis> found;
     for (int attempt = 0; attempt < options.max_hypotheses && !found; ++attempt) {
-      const CliqueResult clique = maximum_clique(graph, options.max_clique_expansions, allowed);
+      // Smaller cliques are of no use here: the search cuts them from the start.
+      const CliqueResult clique =
+          maximum_clique(graph, options.max_clique_expansions, allowed, minimum);
       result.cliques_exact = result.cliques_exact && clique.exact;
       if (static_cast<int>(clique.vertices.size()) < minimum) break;
       std::vector<std::pair<int, int>> pairs;

@@ -49,8 +49,11 @@ struct CliqueResult {
 };
 
 /// A maximum clique of `graph` among the vertices with allowed[v] (all when allowed is empty),
-/// expanding at most max_expansions nodes.
+/// expanding at most max_expansions nodes. With min_size, a caller that has no use for a smaller
+/// clique says so: branches that cannot reach min_size vertices are cut from the start, and the
+/// result is empty when no clique has that many (a maximum clique of at least min_size vertices
+/// is the same one the search without it returns, found with fewer expansions).
 CliqueResult maximum_clique(const ConsistencyGraph& graph, long long max_expansions,
-                            const std::vector<bool>& allowed = {});
+                            const std::vector<bool>& allowed = {}, int min_size = 0);
 
 }  // namespace concord::association
