@@ -135,7 +135,8 @@ void TeamIdIndex::remove(int source, const ObjectLink& link) {
   std::erase_if(sources, [&](const auto& entry) { return entry.first == source; });
   if (sources.empty()) {
     if (forward->conflict) --conflicts_;
-    for (const auto& [from, to] : {std::pair{link.a, link.b}, std::pair{link.b, link.a}}) {
+    for (const auto& side : {std::pair{link.a, link.b}, std::pair{link.b, link.a}}) {
+      const ObjectKey from = side.first, to = side.second;
       auto& edges = adjacent_.at(from);
       edges.erase(std::find_if(edges.begin(), edges.end(),
                                [&](const Edge& e) { return e.other == to; }));
