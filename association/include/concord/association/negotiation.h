@@ -21,11 +21,11 @@
 ///          has a partner of that robot: a conflict, counted); an accepted one whose objects then
 ///          disagree beyond the split gate in `split_after` consecutive descriptions is undone
 ///          (a split, counted), and consensus keeps their marginals apart again.
-///      Then the team ids (assign_team_ids over every owner's links it knows), and the frame: the
-///      smallest frame id connected to its current frame by frame edges is the team frame (the
-///      start frame of the lowest robot of the team, or the world); if that is not its current
-///      frame, the robot must move its state by the returned Reanchoring (the composed transform
-///      and covariance along the edges).
+///      Then the team ids (a TeamIdIndex over every owner's links it knows, brought up to date
+///      with the records that came in), and the frame: the smallest frame id connected to its
+///      current frame by frame edges is the team frame (the start frame of the lowest robot of the
+///      team, or the world); if that is not its current frame, the robot must move its state by
+///      the returned Reanchoring (the composed transform and covariance along the edges).
 ///
 /// Owners: the robot with the lower index decides for a pair and publishes its decisions (links
 /// and frame edges) in its OwnerRecord, versioned; every robot keeps the newest record of every
