@@ -107,14 +107,20 @@ AssociationOptions test_options() {
 
 // ---- Maximum clique ----
 
-TEST(MaxCliqueTest, FindsAPlantedCliqueInARandomGraph) {
-  std::mt19937 random(3);
-  const int n = 120;
+/// A graph on n vertices with each edge present with the given probability.
+ConsistencyGraph random_graph(int n, double edge_probability, std::mt19937& random) {
   ConsistencyGraph graph(n);
-  std::bernoulli_distribution edge(0.1);
+  std::bernoulli_distribution edge(edge_probability);
   for (int a = 0; a < n; ++a)
     for (int b = a + 1; b < n; ++b)
       if (edge(random)) graph.add_edge(a, b);
+  return graph;
+}
+
+TEST(MaxCliqueTest, FindsAPlantedCliqueInARandomGraph) {
+  std::mt19937 random(3);
+  const int n = 120;
+  ConsistencyGraph graph = random_graph(n, 0.1, random);
   const std::vector<int> planted{4, 17, 33, 50, 51, 72, 90, 101, 118};
   for (std::size_t i = 0; i < planted.size(); ++i)
     for (std::size_t j = i + 1; j < planted.size(); ++j) graph.add_edge(planted[i], planted[j]);
@@ -135,11 +141,7 @@ TEST(MaxCliqueTest, EveryReturnedSetIsAClique) {
   std::mt19937 random(5);
   for (int trial = 0; trial < 20; ++trial) {
     const int n = 40;
-    ConsistencyGraph graph(n);
-    std::bernoulli_distribution edge(0.4);
-    for (int a = 0; a < n; ++a)
-      for (int b = a + 1; b < n; ++b)
-        if (edge(random)) graph.add_edge(a, b);
+    const ConsistencyGraph graph = random_graph(n, 0.4, random);
     const CliqueResult result = maximum_clique(graph, 1'000'000);
     ASSERT_TRUE(result.exact);
     for (std::size_t i = 0; i < result.vertices.size(); ++i)
@@ -159,12 +161,7 @@ TEST(MaxCliqueTest, AMinimumSizeFindsTheSameCliqueWithFewerExpansionsOrNone) {
   std::mt19937 random(7);
   int cut = 0;
   for (int trial = 0; trial < 30; ++trial) {
-    const int n = 60;
-    ConsistencyGraph graph(n);
-    std::bernoulli_distribution edge(0.3);
-    for (int a = 0; a < n; ++a)
-      for (int b = a + 1; b < n; ++b)
-        if (edge(random)) graph.add_edge(a, b);
+    const ConsistencyGraph graph = random_graph(60, 0.3, random);
     const CliqueResult full = maximum_clique(graph, 1'000'000);
     ASSERT_TRUE(full.exact);
     const int size = static_cast<int>(full.vertices.size());
