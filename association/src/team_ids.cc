@@ -64,7 +64,7 @@ void TeamIdIndex::stage(int source, std::vector<ObjectLink> links) {
   }
   links.erase(std::unique(links.begin(), links.end()), links.end());  // == compares a and b
   std::vector<ObjectLink>& before = sources_[source];
-  // The difference, both lists ascending by (a, b); a link whose strength changed goes and comes.
+  // The difference, both lists ascending by (a, b); add() also takes a new strength.
   const auto key_less = [](const ObjectLink& x, const ObjectLink& y) {
     return x.a != y.a ? x.a < y.a : x.b < y.b;
   };
@@ -76,10 +76,7 @@ void TeamIdIndex::stage(int source, std::vector<ObjectLink> links) {
     } else if (old_link == before.end() || key_less(*new_link, *old_link)) {
       add(source, *new_link++);
     } else {
-      if (old_link->mahalanobis_squared != new_link->mahalanobis_squared) {
-        remove(source, *old_link);
-        add(source, *new_link);
-      }
+      if (old_link->mahalanobis_squared != new_link->mahalanobis_squared) add(source, *new_link);
       ++old_link;
       ++new_link;
     }
@@ -123,7 +120,7 @@ void TeamIdIndex::add(int source, const ObjectLink& link) {
   } else {
     it->second = link.mahalanobis_squared;
   }
-  forward->strongest = edge(link.b, link.a)->strongest = strongest_of(sources);
+  forward->strongest = strongest_of(sources);
   touched_.push_back(link.a);
   touched_.push_back(link.b);
 }
@@ -143,7 +140,7 @@ void TeamIdIndex::remove(int source, const ObjectLink& link) {
       if (edges.empty()) adjacent_.erase(from);
     }
   } else {
-    forward->strongest = edge(link.b, link.a)->strongest = strongest_of(sources);
+    forward->strongest = strongest_of(sources);
   }
   touched_.push_back(link.a);
   touched_.push_back(link.b);

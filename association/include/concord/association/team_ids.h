@@ -64,9 +64,9 @@ class TeamIdIndex {
   /// A link as seen from one of its keys.
   struct Edge {
     ObjectKey other = 0;
-    double strongest = 0.0;  ///< the smallest squared distance any source gives it
-    /// On the smaller key's side: left out by the union-find, and the distance each source
-    /// gives the link.
+    /// Kept on the smaller key's side only: the smallest squared distance any source gives the
+    /// link, whether the union-find left it out, and the distance each source gives it.
+    double strongest = 0.0;
     bool conflict = false;
     std::vector<std::pair<int, double>> sources;
   };
