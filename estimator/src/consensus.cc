@@ -198,23 +198,33 @@ bool replace_gaussian_marginal(Eigen::VectorXd& mean, Eigen::MatrixXd& covarianc
 }
 
 /// Proposition 2 (see proposition_two) for one landmark, coordinates [c, c + 3) of P, with
-/// fixed-size algebra.
+/// fixed-size algebra. Reads and updates only the lower triangle of P (a sequence of these
+/// mirrors P once at its end: see mirror_lower).
 std::optional<Eigen::VectorXd> proposition_two_single(Eigen::MatrixXd& P, Eigen::Index c,
                                                       const Eigen::Vector3d& own_mean,
                                                       const Eigen::Vector3d& target_mean,
                                                       const Eigen::Matrix3d& target_covariance) {
-  const Eigen::Matrix3d own_covariance = P.block<3, 3>(c, c);
+  const Eigen::Index n = P.rows();
+  const Eigen::Matrix3d own_covariance = P.block<3, 3>(c, c).selfadjointView<Eigen::Lower>();
   const Eigen::LLT<Eigen::Matrix3d> llt(own_covariance);
   if (llt.info() != Eigen::Success) return std::nullopt;
-  const Eigen::Matrix<double, Eigen::Dynamic, 3> B = P.middleCols<3>(c);
+  // B = P[:, c:c+3]: rows above c from the lower triangle's rows c..c+2.
+  Eigen::Matrix<double, Eigen::Dynamic, 3> B(n, 3);
+  B.topRows(c) = P.block(c, 0, 3, c).transpose();
+  B.middleRows<3>(c) = own_covariance;
+  B.bottomRows(n - c - 3) = P.block(c + 3, c, n - c - 3, 3);
   Eigen::VectorXd correction = B * llt.solve(target_mean - own_mean);
   const Eigen::Matrix3d half = llt.solve(target_covariance - own_covariance);
   Eigen::Matrix3d M = llt.solve(half.transpose());
   M = 0.5 * (M + M.transpose()).eval();
   const Eigen::Matrix<double, Eigen::Dynamic, 3> BM = B * M;
   P.triangularView<Eigen::Lower>() += BM * B.transpose();
-  P.triangularView<Eigen::StrictlyUpper>() = P.transpose();
   return correction;
+}
+
+/// Copies the lower triangle of a square matrix onto its upper one.
+void mirror_lower(Eigen::MatrixXd& P) {
+  P.triangularView<Eigen::StrictlyUpper>() = P.transpose();
 }
 
 /// A landmark's holders: (position among the neighbour members, where it sits in that one's
@@ -490,6 +500,9 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
   }
   int union_fused = 0;
   int union_groups = 0;
+  // Single-landmark replacements update only U's lower triangle; it is mirrored before anything
+  // reads U whole.
+  bool union_lower_only = false;
   for (const auto& [key, positions] : groups) {
     const auto& [in_joint_state, members] = key;
     if (positions.size() == 1) {
@@ -508,8 +521,9 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
       const Eigen::Vector3d own_mean =
           in_joint_state ? Eigen::Vector3d(union_mean.segment<3>(c)) : archived->p_world;
       const Eigen::Matrix3d own_covariance =
-          in_joint_state ? Eigen::Matrix3d(union_covariance.block<3, 3>(c, c))
-                         : archived->covariance;
+          in_joint_state
+              ? Eigen::Matrix3d(union_covariance.block<3, 3>(c, c).selfadjointView<Eigen::Lower>())
+              : archived->covariance;
       const Eigen::LLT<Eigen::Matrix3d> own_llt(own_covariance);
       if (own_llt.info() != Eigen::Success) continue;
       Eigen::Matrix3d own_information = own_llt.solve(Eigen::Matrix3d::Identity());
@@ -534,6 +548,7 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
       const auto correction =
           proposition_two_single(union_covariance, c, own_mean, mean, covariance);
       if (!correction) continue;
+      union_lower_only = true;
       union_mean += *correction;
       ++union_fused;
       ++union_groups;
@@ -561,6 +576,10 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
     Eigen::VectorXd own_mean;
     Eigen::MatrixXd own_covariance;
     if (in_joint_state) {
+      if (union_lower_only) {
+        mirror_lower(union_covariance);
+        union_lower_only = false;
+      }
       for (int a : positions) {
         for (int k = 0; k < 3; ++k) indices.push_back(3 * union_position[a] + k);
       }
@@ -601,6 +620,7 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
     union_fused += static_cast<int>(ids.size());
     ++union_groups;
   }
+  if (union_lower_only) mirror_lower(union_covariance);
   if (union_groups > 0 && replace_marginal(state, union_slots, union_mean, union_covariance)) {
     report.landmarks_fused += union_fused;
     report.groups += union_groups;
