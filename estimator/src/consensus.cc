@@ -4,8 +4,9 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
-#include <map>
+#include <numeric>
 #include <optional>
+#include <span>
 
 #include "concord/estimator/marginal_sharing.h"
 #include "concord/estimator/state_helper.h"
@@ -229,7 +230,8 @@ void mirror_lower(Eigen::MatrixXd& P) {
 
 /// A landmark's holders: (position among the neighbour members, where it sits in that one's
 /// marginal).
-using Holders = std::vector<std::pair<int, const Location*>>;
+using Holder = std::pair<int, const Location*>;
+using Holders = std::span<const Holder>;
 
 /// The neighbours' part of one landmark's average (eq. 19) from their 3x3 marginals:
 /// sum_j w_j I_j and sum_j w_j I_j m_j, and the weight they take from the robot. A holder whose
@@ -328,6 +330,13 @@ void note_mean_shift(const Eigen::Ref<const Eigen::VectorXd>& own_mean,
   }
 }
 
+/// A group of landmarks averaged jointly (see Consensus::fuse, step 3).
+struct Group {
+  bool in_joint_state = false;
+  std::span<const std::pair<int, int>> members;  ///< (member, block); the robot is member -1
+  std::span<const int> positions;                ///< in `accepted`, ascending
+};
+
 }  // namespace
 
 Marginal Consensus::marginal(const State& state, const std::vector<LandmarkId>& ids) {
@@ -410,11 +419,12 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
   //    (a neighbour's mean beyond the chi-square bound under the sum of both covariances is
   //    refused: an outlier, a wrong association or a lie; not averaged in, counted).
   // (id, its holders: neighbour position and where the landmark sits in its marginal), by id.
-  std::vector<std::pair<LandmarkId, Holders>> accepted;
-  accepted.reserve(own->locations.size());
-  Holders holders;
+  // Every accepted landmark's holders lie in one buffer (no allocation per landmark).
+  std::vector<Holder> holder_buffer;
+  std::vector<std::pair<LandmarkId, std::pair<std::size_t, std::size_t>>> accepted_ranges;
+  accepted_ranges.reserve(own->locations.size());
   for (const auto& [id, own_at] : own->locations) {  // sorted by id
-    holders.clear();
+    const std::size_t first = holder_buffer.size();
     for (std::size_t j = 0; j < neighbour_members.size(); ++j) {
       const Member& neighbour = neighbour_members[j];
       const Location* found = neighbour.find(id);
@@ -431,9 +441,15 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
           continue;
         }
       }
-      holders.emplace_back(static_cast<int>(j), found);
+      holder_buffer.emplace_back(static_cast<int>(j), found);
     }
-    if (!holders.empty()) accepted.emplace_back(id, holders);
+    if (holder_buffer.size() > first) accepted_ranges.push_back({id, {first, holder_buffer.size()}});
+  }
+  std::vector<std::pair<LandmarkId, Holders>> accepted;
+  accepted.reserve(accepted_ranges.size());
+  for (const auto& [id, range] : accepted_ranges) {
+    accepted.emplace_back(
+        id, Holders(holder_buffer.data() + range.first, range.second - range.first));
   }
 
   // 2b. Event-triggered fusion (consensus.fuse_kl_threshold): a landmark whose average, from
@@ -472,21 +488,47 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
   //    being fused (U): replacing a group's marginal keeps the conditional of the rest given it,
   //    so p(rest of the state | U) never changes and the sequence of replacements equals one
   //    replacement of U's marginal at the end (Proposition 2 once, not per group).
-  using Key = std::pair<bool, std::vector<std::pair<int, int>>>;  // (member, block)
-  std::map<Key, std::vector<int>> groups;  // -> positions in accepted
+  //    A landmark's key: (in the joint state?, (member, block) of each holder and of the robot);
+  //    the groups are the runs of equal keys, in the keys' lexicographic order, each run's
+  //    landmarks in the order of `accepted` (a stable sort of flat keys: no allocation per
+  //    landmark).
+  std::vector<std::pair<int, int>> key_members;  // every landmark's (member, block), flat
+  std::vector<std::size_t> key_start(accepted.size() + 1, 0);
+  std::vector<unsigned char> key_joint(accepted.size(), 0);
+  key_members.reserve(holder_buffer.size() + accepted.size());
   for (std::size_t a = 0; a < accepted.size(); ++a) {
     const auto& [id, holders] = accepted[a];
-    std::vector<std::pair<int, int>> members;
-    members.reserve(holders.size() + 1);
-    for (const auto& [j, at] : holders) members.emplace_back(j, at->block);
-    members.emplace_back(-1, own->find(id)->block);
-    groups[{state.landmark_slot(id) >= 0, std::move(members)}].push_back(static_cast<int>(a));
+    key_start[a] = key_members.size();
+    for (const auto& [j, at] : holders) key_members.emplace_back(j, at->block);
+    key_members.emplace_back(-1, own->find(id)->block);
+    key_joint[a] = state.landmark_slot(id) >= 0 ? 1 : 0;
+  }
+  key_start[accepted.size()] = key_members.size();
+  const auto key_of = [&](int a) {
+    return std::span<const std::pair<int, int>>(key_members.data() + key_start[a],
+                                                key_start[a + 1] - key_start[a]);
+  };
+  const auto key_less = [&](int a, int b) {
+    if (key_joint[a] != key_joint[b]) return key_joint[a] < key_joint[b];
+    const auto x = key_of(a), y = key_of(b);
+    return std::lexicographical_compare(x.begin(), x.end(), y.begin(), y.end());
+  };
+  std::vector<int> order(accepted.size());
+  std::iota(order.begin(), order.end(), 0);
+  std::stable_sort(order.begin(), order.end(), key_less);
+  std::vector<Group> groups;
+  for (std::size_t begin = 0; begin < order.size();) {
+    std::size_t end = begin + 1;
+    while (end < order.size() && !key_less(order[begin], order[end])) ++end;
+    groups.push_back({key_joint[order[begin]] != 0, key_of(order[begin]),
+                      std::span<const int>(order.data() + begin, end - begin)});
+    begin = end;
   }
   std::vector<int> union_slots;
   std::vector<int> union_position(accepted.size(), -1);  // by position in accepted
-  for (const auto& [key, positions] : groups) {
-    if (!key.first) continue;
-    for (int a : positions) {
+  for (const Group& group : groups) {
+    if (!group.in_joint_state) continue;
+    for (int a : group.positions) {
       union_position[a] = static_cast<int>(union_slots.size());
       union_slots.push_back(state.landmark_slot(accepted[a].first));
     }
@@ -503,8 +545,10 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
   // Single-landmark replacements update only U's lower triangle; it is mirrored before anything
   // reads U whole.
   bool union_lower_only = false;
-  for (const auto& [key, positions] : groups) {
-    const auto& [in_joint_state, members] = key;
+  for (const Group& group : groups) {
+    const bool in_joint_state = group.in_joint_state;
+    const std::span<const std::pair<int, int>> members = group.members;
+    const std::span<const int> positions = group.positions;
     if (positions.size() == 1) {
       // Most groups: one landmark. The same average and replacement as below, with fixed-size
       // algebra and no allocation.
