@@ -343,6 +343,8 @@ Marginal Consensus::marginal(const State& state, const std::vector<LandmarkId>& 
   Marginal out;
   std::vector<int> slots;
   std::vector<const ObjectEstimate*> archived;
+  slots.reserve(ids.size());
+  archived.reserve(ids.size());
   for (LandmarkId id : ids) {
     // In-state objects, archived consider states among them, go in one joint block: averaging
     // correlated objects one by one and carrying each average into the state (Proposition 2)
@@ -355,6 +357,8 @@ Marginal Consensus::marginal(const State& state, const std::vector<LandmarkId>& 
     }
   }
   out = StateHelper::landmark_marginal(state, slots);
+  out.ids.reserve(out.ids.size() + archived.size());
+  out.blocks.reserve(out.blocks.size() + archived.size());
   const Eigen::Index joint = out.mean.size();
   out.mean.conservativeResize(joint + 3 * static_cast<Eigen::Index>(archived.size()));
   for (std::size_t i = 0; i < archived.size(); ++i) {

@@ -165,6 +165,7 @@ Marginal StateHelper::landmark_marginal(const State& state, const std::vector<in
   Marginal marginal;
   std::vector<int> indices;
   indices.reserve(3 * slots.size());
+  marginal.ids.reserve(slots.size());
   marginal.mean.resize(3 * static_cast<Eigen::Index>(slots.size()));
   for (std::size_t i = 0; i < slots.size(); ++i) {
     const int slot = slots[i];
@@ -172,7 +173,7 @@ Marginal StateHelper::landmark_marginal(const State& state, const std::vector<in
     marginal.mean.segment<3>(3 * static_cast<Eigen::Index>(i)) = state.landmarks[slot].p_world;
     for (int k = 0; k < 3; ++k) indices.push_back(state.landmark_index(slot) + k);
   }
-  if (!slots.empty()) marginal.blocks.assign(1, state.covariance(indices, indices));
+  if (!slots.empty()) marginal.blocks.emplace_back(state.covariance(indices, indices));
   return marginal;
 }
 
