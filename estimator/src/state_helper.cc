@@ -163,17 +163,26 @@ void StateHelper::remove_oldest_pose(State& state) {
 
 Marginal StateHelper::landmark_marginal(const State& state, const std::vector<int>& slots) {
   Marginal marginal;
-  std::vector<int> indices;
-  indices.reserve(3 * slots.size());
+  const auto count = static_cast<Eigen::Index>(slots.size());
+  std::vector<Eigen::Index> starts;  // first coordinate of each landmark in the state
+  starts.reserve(slots.size());
   marginal.ids.reserve(slots.size());
-  marginal.mean.resize(3 * static_cast<Eigen::Index>(slots.size()));
-  for (std::size_t i = 0; i < slots.size(); ++i) {
-    const int slot = slots[i];
+  marginal.mean.resize(3 * count);
+  for (Eigen::Index i = 0; i < count; ++i) {
+    const int slot = slots[static_cast<std::size_t>(i)];
     marginal.ids.push_back(state.landmarks[slot].id);
-    marginal.mean.segment<3>(3 * static_cast<Eigen::Index>(i)) = state.landmarks[slot].p_world;
-    for (int k = 0; k < 3; ++k) indices.push_back(state.landmark_index(slot) + k);
+    marginal.mean.segment<3>(3 * i) = state.landmarks[slot].p_world;
+    starts.push_back(state.landmark_index(slot));
   }
-  if (!slots.empty()) marginal.blocks.emplace_back(state.covariance(indices, indices));
+  if (count == 0) return marginal;
+  // A landmark's three coordinates are adjacent in the state: the joint block is gathered 3x3
+  // block by 3x3 block.
+  Eigen::MatrixXd& covariance = marginal.blocks.emplace_back(3 * count, 3 * count);
+  for (Eigen::Index j = 0; j < count; ++j) {
+    for (Eigen::Index i = 0; i < count; ++i) {
+      covariance.block<3, 3>(3 * i, 3 * j) = state.covariance.block<3, 3>(starts[i], starts[j]);
+    }
+  }
   return marginal;
 }
 
