@@ -124,6 +124,42 @@ void sub_gaussian(const Eigen::VectorXd& full_mean, const std::vector<Eigen::Mat
   }
 }
 
+/// A run of consecutive coordinates [start, start + length) of a matrix, found at `position`
+/// in an index list.
+struct Run {
+  Eigen::Index start = 0;
+  Eigen::Index length = 0;
+  Eigen::Index position = 0;
+};
+
+/// The runs of consecutive values of an ascending index list (a landmark's three coordinates
+/// are one run at least; the poses one long one).
+std::vector<Run> runs_of(const std::vector<int>& indices) {
+  std::vector<Run> runs;
+  for (std::size_t i = 0; i < indices.size(); ++i) {
+    if (!runs.empty() && runs.back().start + runs.back().length == indices[i]) {
+      ++runs.back().length;
+    } else {
+      runs.push_back({indices[i], 1, static_cast<Eigen::Index>(i)});
+    }
+  }
+  return runs;
+}
+
+/// P(rows, columns) for index lists given as runs, copied block by block.
+Eigen::MatrixXd gather(const Eigen::MatrixXd& P, const std::vector<Run>& rows,
+                       const std::vector<Run>& columns, Eigen::Index row_count,
+                       Eigen::Index column_count) {
+  Eigen::MatrixXd out(row_count, column_count);
+  for (const Run& column : columns) {
+    for (const Run& row : rows) {
+      out.block(row.position, column.position, row.length, column.length) =
+          P.block(row.start, column.start, row.length, column.length);
+    }
+  }
+  return out;
+}
+
 /// Proposition 2 on the covariance P of a Gaussian: replaces the marginal of the coordinates
 /// `indices` (y; currently own_mean, P_yy) by N(target_mean, target_covariance) and keeps the
 /// conditional of the other coordinates (x). With L = P_xy P_yy^-1 (eq. 14) and
@@ -142,7 +178,8 @@ std::optional<Eigen::VectorXd> proposition_two(Eigen::MatrixXd& P, const std::ve
                                                const Eigen::MatrixXd& target_covariance) {
   const Eigen::Index n = P.rows();
   const auto k = static_cast<Eigen::Index>(indices.size());
-  const Eigen::MatrixXd own_covariance = P(indices, indices);
+  const std::vector<Run> y_runs = runs_of(indices);
+  const Eigen::MatrixXd own_covariance = gather(P, y_runs, y_runs, k, k);
   const Eigen::LLT<Eigen::MatrixXd> llt(own_covariance);
   if (llt.info() != Eigen::Success) return std::nullopt;
   std::vector<unsigned char> in_y(static_cast<std::size_t>(n), 0);
@@ -159,28 +196,48 @@ std::optional<Eigen::VectorXd> proposition_two(Eigen::MatrixXd& P, const std::ve
 
   Eigen::VectorXd correction(n);
   for (Eigen::Index a = 0; a < k; ++a) correction(indices[a]) = step(a);
+  // x is most often the leading block of P (the poses, when every in-state landmark is fused):
+  // the products then go into P's block directly, and x's rows and columns are blocks.
+  const bool leading = m > 0 && others.back() == static_cast<int>(m) - 1;
   if (m > 0) {
-    const Eigen::MatrixXd gain_transpose = llt.solve(P(indices, others));  // L^T, k x m
+    const std::vector<Run> x_runs = runs_of(others);
+    const Eigen::MatrixXd gain_transpose = llt.solve(gather(P, y_runs, x_runs, k, m));  // L^T
     correction(others) = gain_transpose.transpose() * step;
     const Eigen::MatrixXd cross = D * gain_transpose;  // (L D)^T, k x m
-    Eigen::MatrixXd update(m, m);
-    update.triangularView<Eigen::Lower>() = gain_transpose.transpose() * cross;  // L D L^T
-    for (Eigen::Index c = 0; c < m; ++c) {
-      const Eigen::Index column = others[c];
-      for (Eigen::Index r = c; r < m; ++r) P(others[r], column) += update(r, c);
-      for (Eigen::Index a = 0; a < k; ++a) P(indices[a], column) += cross(a, c);
+    if (leading) {
+      P.topLeftCorner(m, m).triangularView<Eigen::Lower>() +=
+          gain_transpose.transpose() * cross;  // L D L^T
+      P.topLeftCorner(m, m).triangularView<Eigen::StrictlyUpper>() =
+          P.topLeftCorner(m, m).transpose();
+      for (Eigen::Index a = 0; a < k; ++a) {
+        P.row(indices[a]).head(m) += cross.row(a);
+        P.col(indices[a]).head(m) = P.row(indices[a]).head(m).transpose();
+      }
+    } else {
+      Eigen::MatrixXd update(m, m);
+      update.triangularView<Eigen::Lower>() = gain_transpose.transpose() * cross;  // L D L^T
+      for (Eigen::Index c = 0; c < m; ++c) {
+        const Eigen::Index column = others[c];
+        for (Eigen::Index r = c; r < m; ++r) P(others[r], column) += update(r, c);
+        for (Eigen::Index a = 0; a < k; ++a) P(indices[a], column) += cross(a, c);
+      }
+      // The lower triangle of P_xx and every P_yx entry were written: mirror them.
+      for (Eigen::Index c = 0; c < m; ++c) {
+        const Eigen::Index column = others[c];
+        for (Eigen::Index r = c + 1; r < m; ++r) P(column, others[r]) = P(others[r], column);
+        for (Eigen::Index a = 0; a < k; ++a) P(column, indices[a]) = P(indices[a], column);
+      }
     }
   }
-  for (Eigen::Index b = 0; b < k; ++b) {
-    for (Eigen::Index a = 0; a < k; ++a) {
-      P(indices[a], indices[b]) = 0.5 * (target_covariance(a, b) + target_covariance(b, a));
+  for (const Run& column : y_runs) {
+    for (const Run& row : y_runs) {
+      const auto block = target_covariance.block(row.position, column.position, row.length,
+                                                 column.length);
+      const auto mirrored = target_covariance.block(column.position, row.position,
+                                                    column.length, row.length);
+      P.block(row.start, column.start, row.length, column.length) =
+          0.5 * (block + mirrored.transpose());
     }
-  }
-  // The lower triangle of P_xx and every P_yx entry were written: mirror them.
-  for (Eigen::Index c = 0; c < m; ++c) {
-    const Eigen::Index column = others[c];
-    for (Eigen::Index r = c + 1; r < m; ++r) P(column, others[r]) = P(others[r], column);
-    for (Eigen::Index a = 0; a < k; ++a) P(column, indices[a]) = P(indices[a], column);
   }
   return correction;
 }
