@@ -54,6 +54,44 @@ TEST(Proposition2, KeepsTheConditionalAndSetsTheMarginal) {
   EXPECT_TRUE(state.landmarks[2].p_world.isApprox(new_mean.tail<3>(), 1e-12));
 }
 
+TEST(Proposition2, EveryLandmarkReplacedKeepsThePosesConditional) {
+  // y = every landmark: the other coordinates (the poses) are the covariance's leading block,
+  // which Proposition 2 updates in place; checked against brute-force conditioning as above.
+  std::mt19937 random(23);
+  State state = testing::random_state(3, 4, random);
+  const State before = state;
+  const std::vector<int> slots = {0, 1, 2, 3};
+  const Eigen::VectorXd new_mean =
+      StateHelper::landmark_marginal(state, slots).mean + testing::random_vector(12, random, 0.1);
+  const Eigen::MatrixXd new_covariance = testing::random_spd(12, random, 0.02, 0.3);
+  ASSERT_TRUE(Consensus::replace_marginal(state, slots, new_mean, new_covariance));
+
+  std::vector<int> y, x;
+  for (int slot : slots)
+    for (int k = 0; k < 3; ++k) y.push_back(before.landmark_index(slot) + k);
+  for (int i = 0; i < before.dimension(); ++i)
+    if (std::find(y.begin(), y.end(), i) == y.end()) x.push_back(i);
+  ASSERT_EQ(x.back(), static_cast<int>(x.size()) - 1);  // the leading block
+  const Eigen::MatrixXd& P = before.covariance;
+  const Eigen::MatrixXd A = P(x, y) * P(y, y).inverse();
+  const Eigen::MatrixXd conditional = P(x, x) - A * P(y, x);
+  const Eigen::MatrixXd& Q = state.covariance;
+  EXPECT_TRUE(Q(y, y).isApprox(new_covariance, 1e-10));
+  EXPECT_TRUE(Q(x, y).isApprox(A * new_covariance, 1e-10));
+  EXPECT_TRUE(Q.isApprox(Q.transpose(), 1e-14));
+  const Eigen::MatrixXd new_conditional = Q(x, x) - Q(x, y) * Q(y, y).inverse() * Q(y, x);
+  EXPECT_TRUE(new_conditional.isApprox(conditional, 1e-9));
+  const Eigen::VectorXd shift = A * (new_mean - StateHelper::landmark_marginal(before, slots).mean);
+  for (int pose = 0; pose < 3; ++pose) {
+    const Eigen::Isometry3d expected =
+        lie::se3_exp(shift.segment<6>(6 * pose)) * before.poses[pose].T_world_body;
+    EXPECT_TRUE(state.poses[pose].T_world_body.matrix().isApprox(expected.matrix(), 1e-10));
+  }
+  for (int slot = 0; slot < 4; ++slot) {
+    EXPECT_TRUE(state.landmarks[slot].p_world.isApprox(new_mean.segment<3>(3 * slot), 1e-12));
+  }
+}
+
 /// One pose and landmark 5 at the origin, all with unit covariance and no correlation.
 State single_landmark_state() {
   State state;
