@@ -257,27 +257,38 @@ bool replace_gaussian_marginal(Eigen::VectorXd& mean, Eigen::MatrixXd& covarianc
 
 /// Proposition 2 (see proposition_two) for one landmark, coordinates [c, c + 3) of P, with
 /// fixed-size algebra. Reads and updates only the lower triangle of P (a sequence of these
-/// mirrors P once at its end: see mirror_lower).
-std::optional<Eigen::VectorXd> proposition_two_single(Eigen::MatrixXd& P, Eigen::Index c,
-                                                      const Eigen::Vector3d& own_mean,
-                                                      const Eigen::Vector3d& target_mean,
-                                                      const Eigen::Matrix3d& target_covariance) {
+/// mirrors P once at its end: see mirror_lower). The mean's correction is left in
+/// scratch.correction; false (P unchanged) if the landmark's block is not positive definite.
+/// Buffers of proposition_two_single, kept across the landmarks of one consensus step (no
+/// allocation per landmark).
+struct SingleScratch {
+  Eigen::Matrix<double, Eigen::Dynamic, 3> B;
+  Eigen::Matrix<double, Eigen::Dynamic, 3> BM;
+  Eigen::VectorXd correction;
+};
+
+bool proposition_two_single(Eigen::MatrixXd& P, Eigen::Index c, const Eigen::Vector3d& own_mean,
+                            const Eigen::Vector3d& target_mean,
+                            const Eigen::Matrix3d& target_covariance, SingleScratch& scratch) {
   const Eigen::Index n = P.rows();
   const Eigen::Matrix3d own_covariance = P.block<3, 3>(c, c).selfadjointView<Eigen::Lower>();
   const Eigen::LLT<Eigen::Matrix3d> llt(own_covariance);
-  if (llt.info() != Eigen::Success) return std::nullopt;
+  if (llt.info() != Eigen::Success) return false;
   // B = P[:, c:c+3]: rows above c from the lower triangle's rows c..c+2.
-  Eigen::Matrix<double, Eigen::Dynamic, 3> B(n, 3);
+  Eigen::Matrix<double, Eigen::Dynamic, 3>& B = scratch.B;
+  B.resize(n, 3);
   B.topRows(c) = P.block(c, 0, 3, c).transpose();
   B.middleRows<3>(c) = own_covariance;
   B.bottomRows(n - c - 3) = P.block(c + 3, c, n - c - 3, 3);
-  Eigen::VectorXd correction = B * llt.solve(target_mean - own_mean);
+  scratch.correction.resize(n);
+  scratch.correction.noalias() = B * llt.solve(target_mean - own_mean);
   const Eigen::Matrix3d half = llt.solve(target_covariance - own_covariance);
   Eigen::Matrix3d M = llt.solve(half.transpose());
   M = 0.5 * (M + M.transpose()).eval();
-  const Eigen::Matrix<double, Eigen::Dynamic, 3> BM = B * M;
-  P.triangularView<Eigen::Lower>() += BM * B.transpose();
-  return correction;
+  scratch.BM.resize(n, 3);
+  scratch.BM.noalias() = B * M;
+  P.triangularView<Eigen::Lower>() += scratch.BM * B.transpose();
+  return true;
 }
 
 /// Copies the lower triangle of a square matrix onto its upper one.
@@ -606,6 +617,7 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
   // Single-landmark replacements update only U's lower triangle; it is mirrored before anything
   // reads U whole.
   bool union_lower_only = false;
+  SingleScratch scratch;
   for (const Group& group : groups) {
     const bool in_joint_state = group.in_joint_state;
     const std::span<const std::pair<int, int>> members = group.members;
@@ -650,11 +662,11 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
         ++report.groups;
         continue;
       }
-      const auto correction =
-          proposition_two_single(union_covariance, c, own_mean, mean, covariance);
-      if (!correction) continue;
+      if (!proposition_two_single(union_covariance, c, own_mean, mean, covariance, scratch)) {
+        continue;
+      }
       union_lower_only = true;
-      union_mean += *correction;
+      union_mean += scratch.correction;
       ++union_fused;
       ++union_groups;
       continue;
