@@ -15,81 +15,72 @@
 namespace concord {
 namespace {
 
-TEST(Proposition2, KeepsTheConditionalAndSetsTheMarginal) {
-  std::mt19937 random(21);
-  State state = testing::random_state(2, 3, random);
-  const State before = state;
-  const std::vector<int> slots = {0, 2};  // y = landmarks 0 and 2
-  const Eigen::VectorXd new_mean =
-      StateHelper::landmark_marginal(state, slots).mean + testing::random_vector(6, random, 0.1);
-  const Eigen::MatrixXd new_covariance = testing::random_spd(6, random, 0.02, 0.3);
-  ASSERT_TRUE(Consensus::replace_marginal(state, slots, new_mean, new_covariance));
+/// Replaces the marginal of `slots` of a random state with `poses` poses and `landmarks`
+/// landmarks by Proposition 2 and checks it against brute-force conditioning in the error-state
+/// coordinates (x = everything else, y = the chosen landmarks). Returns the state before and
+/// after and the shift A (mu_y_bar - mu_y) of x.
+struct Replaced {
+  State before, after;
+  Eigen::VectorXd shift;
+  std::vector<int> x;
+};
 
-  // Brute force in the error-state coordinates: x = everything else, y = the chosen landmarks.
-  std::vector<int> y, x;
+Replaced check_proposition_two(unsigned seed, int poses, int landmarks,
+                               const std::vector<int>& slots) {
+  std::mt19937 random(seed);
+  Replaced out;
+  out.before = testing::random_state(poses, landmarks, random);
+  out.after = out.before;
+  const auto k = static_cast<Eigen::Index>(3 * slots.size());
+  const Eigen::VectorXd old_mean = StateHelper::landmark_marginal(out.before, slots).mean;
+  const Eigen::VectorXd new_mean = old_mean + testing::random_vector(k, random, 0.1);
+  const Eigen::MatrixXd new_covariance = testing::random_spd(k, random, 0.02, 0.3);
+  EXPECT_TRUE(Consensus::replace_marginal(out.after, slots, new_mean, new_covariance));
+
+  std::vector<int> y;
   for (int slot : slots)
-    for (int k = 0; k < 3; ++k) y.push_back(before.landmark_index(slot) + k);
-  for (int i = 0; i < before.dimension(); ++i)
-    if (std::find(y.begin(), y.end(), i) == y.end()) x.push_back(i);
-  const Eigen::MatrixXd& P = before.covariance;
+    for (int c = 0; c < 3; ++c) y.push_back(out.before.landmark_index(slot) + c);
+  for (int i = 0; i < out.before.dimension(); ++i)
+    if (std::find(y.begin(), y.end(), i) == y.end()) out.x.push_back(i);
+  const std::vector<int>& x = out.x;
+  const Eigen::MatrixXd& P = out.before.covariance;
   const Eigen::MatrixXd A = P(x, y) * P(y, y).inverse();
   const Eigen::MatrixXd conditional = P(x, x) - A * P(y, x);
-  const Eigen::MatrixXd& Q = state.covariance;
+  const Eigen::MatrixXd& Q = out.after.covariance;
   // (14): the new marginal of y is exactly the given one ...
   EXPECT_TRUE(Q(y, y).isApprox(new_covariance, 1e-10));
   // ... the cross block is A Sigma_y_bar, and the conditional of x given y is unchanged.
   EXPECT_TRUE(Q(x, y).isApprox(A * new_covariance, 1e-10));
-  const Eigen::MatrixXd new_conditional = Q(x, x) - Q(x, y) * Q(y, y).inverse() * Q(y, x);
-  EXPECT_TRUE(new_conditional.isApprox(conditional, 1e-9));
-  // Mean: x shifts by A (mu_y_bar - mu_y); poses through exp (eq. 21, left perturbation).
-  const Eigen::VectorXd shift = A * (new_mean - StateHelper::landmark_marginal(before, slots).mean);
-  for (int slot = 0; slot < 2; ++slot) {
-    const Eigen::Isometry3d expected =
-        lie::se3_exp(shift.segment<6>(6 * slot)) * before.poses[slot].T_world_body;
-    EXPECT_TRUE(state.poses[slot].T_world_body.matrix().isApprox(expected.matrix(), 1e-10));
-  }
-  EXPECT_TRUE(
-      state.landmarks[1].p_world.isApprox(before.landmarks[1].p_world + shift.tail<3>(), 1e-10));
-  EXPECT_TRUE(state.landmarks[0].p_world.isApprox(new_mean.head<3>(), 1e-12));
-  EXPECT_TRUE(state.landmarks[2].p_world.isApprox(new_mean.tail<3>(), 1e-12));
-}
-
-TEST(Proposition2, EveryLandmarkReplacedKeepsThePosesConditional) {
-  // y = every landmark: the other coordinates (the poses) are the covariance's leading block,
-  // which Proposition 2 updates in place; checked against brute-force conditioning as above.
-  std::mt19937 random(23);
-  State state = testing::random_state(3, 4, random);
-  const State before = state;
-  const std::vector<int> slots = {0, 1, 2, 3};
-  const Eigen::VectorXd new_mean =
-      StateHelper::landmark_marginal(state, slots).mean + testing::random_vector(12, random, 0.1);
-  const Eigen::MatrixXd new_covariance = testing::random_spd(12, random, 0.02, 0.3);
-  ASSERT_TRUE(Consensus::replace_marginal(state, slots, new_mean, new_covariance));
-
-  std::vector<int> y, x;
-  for (int slot : slots)
-    for (int k = 0; k < 3; ++k) y.push_back(before.landmark_index(slot) + k);
-  for (int i = 0; i < before.dimension(); ++i)
-    if (std::find(y.begin(), y.end(), i) == y.end()) x.push_back(i);
-  ASSERT_EQ(x.back(), static_cast<int>(x.size()) - 1);  // the leading block
-  const Eigen::MatrixXd& P = before.covariance;
-  const Eigen::MatrixXd A = P(x, y) * P(y, y).inverse();
-  const Eigen::MatrixXd conditional = P(x, x) - A * P(y, x);
-  const Eigen::MatrixXd& Q = state.covariance;
-  EXPECT_TRUE(Q(y, y).isApprox(new_covariance, 1e-10));
-  EXPECT_TRUE(Q(x, y).isApprox(A * new_covariance, 1e-10));
   EXPECT_TRUE(Q.isApprox(Q.transpose(), 1e-14));
   const Eigen::MatrixXd new_conditional = Q(x, x) - Q(x, y) * Q(y, y).inverse() * Q(y, x);
   EXPECT_TRUE(new_conditional.isApprox(conditional, 1e-9));
-  const Eigen::VectorXd shift = A * (new_mean - StateHelper::landmark_marginal(before, slots).mean);
-  for (int pose = 0; pose < 3; ++pose) {
+  // Mean: x shifts by A (mu_y_bar - mu_y); poses through exp (eq. 21, left perturbation); the
+  // replaced landmarks take the new mean.
+  out.shift = A * (new_mean - old_mean);
+  for (int pose = 0; pose < poses; ++pose) {
     const Eigen::Isometry3d expected =
-        lie::se3_exp(shift.segment<6>(6 * pose)) * before.poses[pose].T_world_body;
-    EXPECT_TRUE(state.poses[pose].T_world_body.matrix().isApprox(expected.matrix(), 1e-10));
+        lie::se3_exp(out.shift.segment<6>(6 * pose)) * out.before.poses[pose].T_world_body;
+    EXPECT_TRUE(out.after.poses[pose].T_world_body.matrix().isApprox(expected.matrix(), 1e-10));
   }
-  for (int slot = 0; slot < 4; ++slot) {
-    EXPECT_TRUE(state.landmarks[slot].p_world.isApprox(new_mean.segment<3>(3 * slot), 1e-12));
+  for (std::size_t i = 0; i < slots.size(); ++i) {
+    EXPECT_TRUE(out.after.landmarks[slots[i]].p_world.isApprox(
+        new_mean.segment<3>(3 * static_cast<Eigen::Index>(i)), 1e-12));
   }
+  return out;
+}
+
+TEST(Proposition2, KeepsTheConditionalAndSetsTheMarginal) {
+  // y = landmarks 0 and 2: landmark 1 is in x, between them.
+  const Replaced r = check_proposition_two(21, 2, 3, {0, 2});
+  EXPECT_TRUE(r.after.landmarks[1].p_world.isApprox(
+      r.before.landmarks[1].p_world + r.shift.tail<3>(), 1e-10));
+}
+
+TEST(Proposition2, EveryLandmarkReplacedKeepsThePosesConditional) {
+  // y = every landmark: x (the poses) is the covariance's leading block, which Proposition 2
+  // updates in place.
+  const Replaced r = check_proposition_two(23, 3, 4, {0, 1, 2, 3});
+  EXPECT_EQ(r.x.back(), static_cast<int>(r.x.size()) - 1);
 }
 
 /// One pose and landmark 5 at the origin, all with unit covariance and no correlation.
