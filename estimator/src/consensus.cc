@@ -255,10 +255,6 @@ bool replace_gaussian_marginal(Eigen::VectorXd& mean, Eigen::MatrixXd& covarianc
   return true;
 }
 
-/// Proposition 2 (see proposition_two) for one landmark, coordinates [c, c + 3) of P, with
-/// fixed-size algebra. Reads and updates only the lower triangle of P (a sequence of these
-/// mirrors P once at its end: see mirror_lower). The mean's correction is left in
-/// scratch.correction; false (P unchanged) if the landmark's block is not positive definite.
 /// Buffers of proposition_two_single, kept across the landmarks of one consensus step (no
 /// allocation per landmark).
 struct SingleScratch {
@@ -267,6 +263,10 @@ struct SingleScratch {
   Eigen::VectorXd correction;
 };
 
+/// Proposition 2 (see proposition_two) for one landmark, coordinates [c, c + 3) of P, with
+/// fixed-size algebra. Reads and updates only the lower triangle of P (a sequence of these
+/// mirrors P once at its end: see mirror_lower). The mean's correction is left in
+/// scratch.correction; false (P unchanged) if the landmark's block is not positive definite.
 bool proposition_two_single(Eigen::MatrixXd& P, Eigen::Index c, const Eigen::Vector3d& own_mean,
                             const Eigen::Vector3d& target_mean,
                             const Eigen::Matrix3d& target_covariance, SingleScratch& scratch) {
