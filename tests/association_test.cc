@@ -17,6 +17,7 @@
 #include "concord/association/max_clique.h"
 #include "concord/association/negotiation.h"
 #include "concord/association/pairwise_association.h"
+#include "concord/association/relabelling.h"
 #include "concord/association/team_ids.h"
 #include "concord/estimator/lie.h"
 
@@ -864,6 +865,51 @@ TEST(NegotiationTest, OptionsAreValidatedNamingTheKey) {
   }
   EXPECT_EQ(start_up_vector("-y"), -Eigen::Vector3d::UnitY());
   EXPECT_TRUE(start_up_vector("unknown").isZero());
+}
+
+TEST(RelabellingTest, OnlyPairsBothViewsHoldAreRelabelledWithTheReceiversIds) {
+  // The sender's view, (sender id, receiver id), unsorted; the receiver's, (receiver id, sender
+  // id). Sender 4 -> receiver 40 both agree; 1 -> 10 both agree; 2: the receiver says 21, the
+  // sender 20; 3: only the sender; 7: only the receiver.
+  const std::vector<std::pair<LandmarkId, LandmarkId>> sent{{4, 40}, {2, 20}, {1, 10}, {3, 30}};
+  const std::vector<std::pair<LandmarkId, LandmarkId>> received{{10, 1}, {21, 2}, {40, 4}, {70, 7}};
+  const Labels labels = agreed_labels(sent, received);
+  const Labels expected{{1, 10}, {4, 40}};
+  EXPECT_EQ(labels, expected);
+
+  // A marginal over sender ids 4, 2 (one joint block) and 1, 3 (one block each): the kept
+  // landmarks keep their entries exactly, in the marginal's order, with the receiver's ids.
+  std::mt19937 random(5);
+  std::normal_distribution<double> normal;
+  const auto covariance = [&](int size) {
+    Eigen::MatrixXd A(size, size);
+    for (int r = 0; r < size; ++r)
+      for (int c = 0; c < size; ++c) A(r, c) = normal(random);
+    return Eigen::MatrixXd(A * A.transpose() + Eigen::MatrixXd::Identity(size, size));
+  };
+  Marginal marginal;
+  marginal.ids = {4, 2, 1, 3};
+  marginal.mean = Eigen::VectorXd::LinSpaced(12, 1.0, 12.0);
+  marginal.blocks = {covariance(6), covariance(3), covariance(3)};
+  ASSERT_TRUE(marginal.well_formed());
+  const Marginal out = relabel_marginal(marginal, labels);
+  ASSERT_TRUE(out.well_formed());
+  EXPECT_EQ(out.ids, (std::vector<LandmarkId>{40, 10}));
+  ASSERT_EQ(out.blocks.size(), 2u);
+  EXPECT_EQ(out.mean.head<3>(), marginal.mean.segment<3>(0));
+  EXPECT_EQ(out.mean.tail<3>(), marginal.mean.segment<3>(6));
+  EXPECT_EQ(out.blocks[0], marginal.blocks[0].topLeftCorner(3, 3));
+  EXPECT_EQ(out.blocks[1], marginal.blocks[1]);
+  // Every landmark of a block kept: the block whole.
+  const Marginal whole = relabel_marginal(marginal, Labels{{1, 10}, {2, 20}, {4, 40}});
+  EXPECT_EQ(whole.ids, (std::vector<LandmarkId>{40, 20, 10}));
+  ASSERT_EQ(whole.blocks.size(), 2u);
+  EXPECT_EQ(whole.blocks[0], marginal.blocks[0]);
+  // No agreed pair: nothing.
+  const Marginal none = relabel_marginal(marginal, agreed_labels(sent, {}));
+  EXPECT_TRUE(none.ids.empty());
+  EXPECT_TRUE(none.blocks.empty());
+  EXPECT_EQ(none.mean.size(), 0);
 }
 
 }  // namespace

@@ -4,6 +4,7 @@
 #include <bit>
 #include <cassert>
 #include <numeric>
+#include <utility>
 
 namespace concord::association {
 
@@ -49,7 +50,11 @@ class CliqueSearch {
     for (int v : candidates) degree[v] = graph_.degree(v);
     std::stable_sort(candidates.begin(), candidates.end(),
                      [&](int a, int b) { return degree[a] > degree[b]; });
+    // One set of buffers a depth (a clique holds at most every candidate), made once: the search
+    // allocates nothing per expansion.
+    levels_.resize(candidates.size() + 1);
     std::vector<int> clique;
+    clique.reserve(candidates.size());
     expand(clique, candidates);
     CliqueResult result;
     result.vertices = best_;
@@ -60,37 +65,54 @@ class CliqueSearch {
   }
 
  private:
+  /// The buffers of one depth of the search.
+  struct Level {
+    std::vector<int> ordered, colours, next;
+  };
+
   /// Greedy sequential colouring of `candidates` (in their order); returns them sorted by colour
-  /// with the colour (1-based) of each.
+  /// (in their order within a colour) with the colour (1-based) of each.
   void colour(const std::vector<int>& candidates, std::vector<int>& ordered,
               std::vector<int>& colours) {
     // A vertex goes to the first class holding none of its neighbours: the test is one AND of its
     // adjacency row with each class's member bits.
     const std::size_t words = graph_.words();
-    std::vector<std::vector<int>> classes;
+    std::size_t classes = 0;
     class_bits_.clear();
-    for (int v : candidates) {
+    class_sizes_.clear();
+    colours.resize(candidates.size());  // first the class of each candidate, in their order
+    for (std::size_t n = 0; n < candidates.size(); ++n) {
+      const int v = candidates[n];
       const std::uint64_t* row = graph_.row(v);
       std::size_t c = 0;
-      for (; c < classes.size(); ++c) {
+      for (; c < classes; ++c) {
         const std::uint64_t* members = class_bits_.data() + c * words;
         bool conflict = false;
         for (std::size_t w = 0; w < words && !conflict; ++w) conflict = (row[w] & members[w]) != 0;
         if (!conflict) break;
       }
-      if (c == classes.size()) {
-        classes.emplace_back();
+      if (c == classes) {
+        ++classes;
         class_bits_.resize(class_bits_.size() + words, 0);
+        class_sizes_.push_back(0);
       }
-      classes[c].push_back(v);
+      colours[n] = static_cast<int>(c);
+      ++class_sizes_[c];
       class_bits_[c * words + (static_cast<std::size_t>(v) >> 6)] |= std::uint64_t{1} << (v & 63);
     }
-    ordered.clear();
-    colours.clear();
-    for (std::size_t c = 0; c < classes.size(); ++c) {
-      for (int v : classes[c]) {
-        ordered.push_back(v);
-        colours.push_back(static_cast<int>(c) + 1);
+    // Counting sort by class, stable: class_sizes_ becomes each class's first position.
+    int position = 0;
+    for (int& size : class_sizes_) position += std::exchange(size, position);
+    ordered.resize(candidates.size());
+    for (std::size_t n = 0; n < candidates.size(); ++n) {
+      ordered[static_cast<std::size_t>(class_sizes_[static_cast<std::size_t>(colours[n])]++)] =
+          candidates[n];
+    }
+    // Colours in the sorted order: class c's members now end at class_sizes_[c].
+    std::size_t n = 0;
+    for (std::size_t c = 0; c < classes; ++c) {
+      for (; n < static_cast<std::size_t>(class_sizes_[c]); ++n) {
+        colours[n] = static_cast<int>(c) + 1;
       }
     }
   }
@@ -101,13 +123,16 @@ class CliqueSearch {
       stopped_ = true;
       return;
     }
-    std::vector<int> ordered, colours;
+    Level& level = levels_[clique.size()];
+    std::vector<int>& ordered = level.ordered;
+    std::vector<int>& colours = level.colours;
+    std::vector<int>& next = level.next;
     colour(candidates, ordered, colours);
     for (int i = static_cast<int>(ordered.size()) - 1; i >= 0; --i) {
       if (clique.size() + static_cast<std::size_t>(colours[i]) <= bound()) return;
       const int v = ordered[i];
       clique.push_back(v);
-      std::vector<int> next;
+      next.clear();
       for (int j = 0; j < i; ++j) {
         if (graph_.adjacent(v, ordered[j])) next.push_back(ordered[j]);
       }
@@ -130,8 +155,12 @@ class CliqueSearch {
   long long expansions_ = 0;
   bool stopped_ = false;
   std::vector<int> best_;
-  /// colour()'s member bits of each class (words() words a class), reused between calls.
+  /// colour()'s member bits of each class (words() words a class) and class sizes, reused
+  /// between calls.
   std::vector<std::uint64_t> class_bits_;
+  std::vector<int> class_sizes_;
+  /// levels_[d]: the buffers of the expansion of a clique of d vertices.
+  std::vector<Level> levels_;
 };
 
 }  // namespace

@@ -135,14 +135,15 @@ std::optional<Reanchoring> Negotiator::finish_round(int round) {
   // 2. Team ids over every known owner's links (kept up to date as records came in).
   if (team_ids_.commit()) {
     counters_.team_id_conflicts = team_ids_.ids().conflicts;
-    // Every neighbour's shared objects at once (one pass over the teams, not one a neighbour).
+    // Every neighbour's shared objects at once, from the teams of this robot's own objects (its
+    // keys are one range of team_of: the robot is a key's high bits).
     shared_.clear();
-    for (const auto& [team, members] : team_ids_.ids().members) {
-      const auto own = std::find_if(members.begin(), members.end(),
-                                    [&](ObjectKey key) { return robot_of(key) == robot_; });
-      if (own == members.end()) continue;
-      for (const ObjectKey key : members) {
-        if (key != *own) shared_[robot_of(key)].emplace_back(id_of(*own), id_of(key));
+    const TeamIds& ids = team_ids_.ids();
+    for (auto it = ids.team_of.lower_bound(object_key(robot_, 0));
+         it != ids.team_of.end() && robot_of(it->first) == robot_; ++it) {
+      const auto& [own, team] = *it;
+      for (const ObjectKey key : ids.members.at(team)) {
+        if (key != own) shared_[robot_of(key)].emplace_back(id_of(own), id_of(key));
       }
     }
     for (auto& [neighbour, pairs] : shared_) std::sort(pairs.begin(), pairs.end());

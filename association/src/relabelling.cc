@@ -1,42 +1,84 @@
 #include "concord/association/relabelling.h"
 
+#include <algorithm>
+
 namespace concord::association {
 
-std::map<LandmarkId, LandmarkId> agreed_labels(
-    const std::vector<std::pair<LandmarkId, LandmarkId>>& sent,
-    const std::vector<std::pair<LandmarkId, LandmarkId>>& received) {
-  std::map<LandmarkId, LandmarkId> receiver_view;  // sender id -> receiver id
-  for (const auto& [own, theirs] : received) receiver_view[theirs] = own;
-  std::map<LandmarkId, LandmarkId> labels;
-  for (const auto& [own, theirs] : sent) {
-    const auto it = receiver_view.find(own);
-    if (it != receiver_view.end() && it->second == theirs) labels[own] = theirs;
+namespace {
+
+bool first_less(const std::pair<LandmarkId, LandmarkId>& x,
+                const std::pair<LandmarkId, LandmarkId>& y) {
+  return x.first < y.first;
+}
+
+/// The entry of an ascending, first-unique list whose first is `key`, or nullptr.
+const LandmarkId* find_second(const Labels& labels, LandmarkId key) {
+  const auto it = std::lower_bound(labels.begin(), labels.end(), std::pair{key, LandmarkId{}},
+                                   first_less);
+  return it != labels.end() && it->first == key ? &it->second : nullptr;
+}
+
+}  // namespace
+
+Labels agreed_labels(const std::vector<std::pair<LandmarkId, LandmarkId>>& sent,
+                     const std::vector<std::pair<LandmarkId, LandmarkId>>& received) {
+  // The receiver's view by sender id (sender id -> receiver id); of repeated sender ids the last
+  // one counts.
+  Labels receiver_view;
+  receiver_view.reserve(received.size());
+  for (const auto& [own, theirs] : received) receiver_view.emplace_back(theirs, own);
+  std::stable_sort(receiver_view.begin(), receiver_view.end(), first_less);
+  Labels unique_view;
+  unique_view.reserve(receiver_view.size());
+  for (std::size_t i = 0; i < receiver_view.size(); ++i) {
+    if (i + 1 < receiver_view.size() && receiver_view[i + 1].first == receiver_view[i].first)
+      continue;
+    unique_view.push_back(receiver_view[i]);
   }
+  Labels labels;
+  labels.reserve(sent.size());
+  for (const auto& [own, theirs] : sent) {
+    const LandmarkId* view = find_second(unique_view, own);
+    if (view != nullptr && *view == theirs) labels.emplace_back(own, theirs);
+  }
+  // A sender id agrees with one receiver id at most, so equal firsts are equal entries.
+  std::sort(labels.begin(), labels.end(), first_less);
+  labels.erase(std::unique(labels.begin(), labels.end()), labels.end());
   return labels;
 }
 
-Marginal relabel_marginal(const Marginal& marginal,
-                          const std::map<LandmarkId, LandmarkId>& labels) {
+Marginal relabel_marginal(const Marginal& marginal, const Labels& labels) {
   Marginal out;
   std::vector<Eigen::Index> kept;  // landmark positions in `marginal`
+  kept.reserve(marginal.ids.size());
+  out.ids.reserve(marginal.ids.size());
   for (std::size_t i = 0; i < marginal.ids.size(); ++i) {
-    const auto it = labels.find(marginal.ids[i]);
-    if (it == labels.end()) continue;
-    out.ids.push_back(it->second);
+    const LandmarkId* label = find_second(labels, marginal.ids[i]);
+    if (label == nullptr) continue;
+    out.ids.push_back(*label);
     kept.push_back(static_cast<Eigen::Index>(i));
   }
   out.mean.resize(3 * static_cast<Eigen::Index>(kept.size()));
   for (std::size_t n = 0; n < kept.size(); ++n)
     out.mean.segment<3>(3 * static_cast<Eigen::Index>(n)) = marginal.mean.segment<3>(3 * kept[n]);
-  // Blocks cover consecutive landmarks: keep each block's rows and columns of kept landmarks.
+  // Blocks cover consecutive landmarks: keep each block's rows and columns of kept landmarks
+  // (the whole block when every one of its landmarks is kept).
   Eigen::Index first = 0;  // first landmark of the current block
   std::size_t next = 0;    // next entry of `kept`
+  std::vector<Eigen::Index> rows;
   for (const Eigen::MatrixXd& block : marginal.blocks) {
     const Eigen::Index landmarks = block.rows() / 3;
-    std::vector<Eigen::Index> rows;
-    for (; next < kept.size() && kept[next] < first + landmarks; ++next)
-      for (int k = 0; k < 3; ++k) rows.push_back(3 * (kept[next] - first) + k);
-    if (!rows.empty()) out.blocks.push_back(block(rows, rows));
+    const std::size_t begin = next;
+    while (next < kept.size() && kept[next] < first + landmarks) ++next;
+    const auto count = static_cast<Eigen::Index>(next - begin);
+    if (count == landmarks && landmarks > 0) {
+      out.blocks.push_back(block);
+    } else if (count > 0) {
+      rows.clear();
+      for (std::size_t n = begin; n < next; ++n)
+        for (int k = 0; k < 3; ++k) rows.push_back(3 * (kept[n] - first) + k);
+      out.blocks.push_back(block(rows, rows));
+    }
     first += landmarks;
   }
   return out;

@@ -5,7 +5,6 @@
 /// for a round (an owner's new decision reaches the other robot a round later): only the pairs
 /// both views hold are fused. One function for concord replay and the daemons.
 
-#include <map>
 #include <utility>
 #include <vector>
 
@@ -13,16 +12,19 @@
 
 namespace concord::association {
 
+/// (sender id, receiver id) pairs, ascending by sender id, one a sender id.
+using Labels = std::vector<std::pair<LandmarkId, LandmarkId>>;
+
 /// Sender id -> receiver id for the pairs both views agree on. `sent`: the sender's shared objects
-/// with the receiver, (sender id, receiver id); `received`: the receiver's with the sender,
-/// (receiver id, sender id).
-std::map<LandmarkId, LandmarkId> agreed_labels(
+/// with the receiver, (sender id, receiver id), in any order; `received`: the receiver's with the
+/// sender, (receiver id, sender id) (of two entries for one sender id, the later counts).
+Labels agreed_labels(
     const std::vector<std::pair<LandmarkId, LandmarkId>>& sent,
     const std::vector<std::pair<LandmarkId, LandmarkId>>& received);
 
 /// The part of `marginal` (the sender's ids) whose ids `labels` holds, relabelled with the
 /// receiver's ids; order and covariance entries kept exactly (a marginal of a subset is the
 /// submatrix of the marginal of a superset), blocks left empty dropped.
-Marginal relabel_marginal(const Marginal& marginal, const std::map<LandmarkId, LandmarkId>& labels);
+Marginal relabel_marginal(const Marginal& marginal, const Labels& labels);
 
 }  // namespace concord::association
