@@ -596,6 +596,9 @@ TEST(TeamIdsTest, AnIndexKeptUpToDateOneSourceAtATimeAgreesWithTheWholeUnionFind
   std::uniform_int_distribution<int> robot(0, 5), object(0, 9), source_of(0, 4);
   std::uniform_int_distribution<int> strength(0, 12), percent(0, 99);
   TeamIdIndex index;
+  // Robot 2's index: the ids of the parts of the link graph that hold robot 2's objects.
+  constexpr int kRobot = 2;
+  TeamIdIndex robot_index(kRobot);
   std::map<int, std::vector<ObjectLink>> sources;
   // A source's links as a set of pairs with their strongest distances.
   const auto canonical = [](const std::vector<ObjectLink>& list) {
@@ -606,7 +609,7 @@ TEST(TeamIdsTest, AnIndexKeptUpToDateOneSourceAtATimeAgreesWithTheWholeUnionFind
     }
     return strongest;
   };
-  int conflicted_steps = 0, merged_steps = 0, unchanged_steps = 0;
+  int conflicted_steps = 0, merged_steps = 0, unchanged_steps = 0, robot_parts_smaller = 0;
   for (int step = 0; step < 600; ++step) {
     const auto before = sources;
     for (int staged = 1 + percent(random) % 3; staged > 0; --staged) {
@@ -630,6 +633,7 @@ TEST(TeamIdsTest, AnIndexKeptUpToDateOneSourceAtATimeAgreesWithTheWholeUnionFind
       }
       std::shuffle(links.begin(), links.end(), random);
       index.stage(source, links);
+      robot_index.stage(source, links);
       sources[source] = links;
     }
     const bool changed = index.commit();
@@ -639,6 +643,32 @@ TEST(TeamIdsTest, AnIndexKeptUpToDateOneSourceAtATimeAgreesWithTheWholeUnionFind
     ASSERT_EQ(index.ids().team_of, expected.team_of) << "step " << step;
     ASSERT_EQ(index.ids().members, expected.members) << "step " << step;
     ASSERT_EQ(index.ids().conflicts, expected.conflicts) << "step " << step;
+    // Robot 2's index: the union-find over the links of the connected parts (every link counts
+    // for connection) that hold one of robot 2's objects.
+    ASSERT_EQ(robot_index.commit(), changed) << "step " << step;
+    std::set<ObjectKey> reached;
+    for (const ObjectLink& link : all) {
+      for (const ObjectKey key : {link.a, link.b})
+        if (robot_of(key) == kRobot) reached.insert(key);
+    }
+    for (bool grown = true; grown;) {
+      grown = false;
+      for (const ObjectLink& link : all) {
+        if (reached.contains(link.a) != reached.contains(link.b)) {
+          reached.insert(link.a);
+          reached.insert(link.b);
+          grown = true;
+        }
+      }
+    }
+    std::vector<ObjectLink> robot_links;
+    for (const ObjectLink& link : all)
+      if (reached.contains(link.a)) robot_links.push_back(link);
+    const TeamIds robot_expected = reference_team_ids(robot_links);
+    ASSERT_EQ(robot_index.ids().team_of, robot_expected.team_of) << "step " << step;
+    ASSERT_EQ(robot_index.ids().members, robot_expected.members) << "step " << step;
+    ASSERT_EQ(robot_index.ids().conflicts, robot_expected.conflicts) << "step " << step;
+    robot_parts_smaller += robot_expected.team_of.size() < expected.team_of.size();
     if (!changed) {
       // Nothing changed: every source holds the same links as before.
       ++unchanged_steps;
@@ -658,6 +688,8 @@ TEST(TeamIdsTest, AnIndexKeptUpToDateOneSourceAtATimeAgreesWithTheWholeUnionFind
   EXPECT_GT(conflicted_steps, 100);
   EXPECT_GT(merged_steps, 100);
   EXPECT_GT(unchanged_steps, 0);
+  // ... and robot 2's index left parts out.
+  EXPECT_GT(robot_parts_smaller, 100);
 }
 
 // ---- Negotiation ----
@@ -745,8 +777,15 @@ TEST(NegotiationTest, ThreeRobotsJoinRobotZerosFrameWithConsistentTeamIds) {
       const ObjectKey team_id = team.negotiators_[r].team_id(id);
       if (team_id < 0) continue;
       teams_of_truth[truth].insert(team_id);
+      // Every robot with an object in that team gives it that id (a robot keeps the ids of the
+      // teams that hold its own objects).
+      const auto& members = team.negotiators_[r].team_ids().members.at(team_id);
       for (int s = 0; s < 3; ++s) {
-        EXPECT_EQ(team.negotiators_[s].team_ids().team_id(object_key(r, id)), team_id);
+        const bool holds = std::any_of(members.begin(), members.end(),
+                                       [&](ObjectKey key) { return robot_of(key) == s; });
+        if (holds) {
+          EXPECT_EQ(team.negotiators_[s].team_ids().team_id(object_key(r, id)), team_id);
+        }
       }
     }
   }

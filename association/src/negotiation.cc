@@ -74,7 +74,7 @@ std::size_t NegotiationMessage::wire_size() const {
 }
 
 Negotiator::Negotiator(int robot, int start_frame, NegotiationOptions options)
-    : robot_(robot), frame_(start_frame), options_(validated(options)) {
+    : robot_(robot), frame_(start_frame), options_(validated(options)), team_ids_(robot) {
   records_[robot_] = std::make_shared<const OwnerRecord>(OwnerRecord{robot_, 0, {}, {}});
 }
 

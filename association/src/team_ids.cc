@@ -154,12 +154,43 @@ bool TeamIdIndex::commit() {
   std::vector<ObjectKey> keys;
   keys.swap(touched_);
   std::unordered_set<ObjectKey> region(keys.begin(), keys.end());
-  keys.assign(region.begin(), region.end());
-  for (std::size_t next = 0; next < keys.size(); ++next) {
-    const auto edges = adjacent_.find(keys[next]);
+  const std::vector<ObjectKey> starts(region.begin(), region.end());
+  std::unordered_set<ObjectKey> seen;
+  keys.clear();
+  // Part by part (breadth first from each touched key not reached yet); with a robot, the keys of
+  // parts without its objects lose their old teams and get none.
+  std::vector<ObjectKey> part, unworked;
+  for (const ObjectKey start : starts) {
+    if (!seen.insert(start).second) continue;
+    part.assign(1, start);
+    bool holds_robot = robot_ < 0 || robot_of(start) == robot_;
+    for (std::size_t next = 0; next < part.size(); ++next) {
+      const auto edges = adjacent_.find(part[next]);
+      if (edges == adjacent_.end()) continue;
+      for (const Edge& e : edges->second) {
+        if (!seen.insert(e.other).second) continue;
+        part.push_back(e.other);
+        holds_robot = holds_robot || robot_of(e.other) == robot_;
+      }
+    }
+    std::vector<ObjectKey>& into = holds_robot ? keys : unworked;
+    into.insert(into.end(), part.begin(), part.end());
+  }
+  for (const ObjectKey key : unworked) {
+    const auto team = ids_.team_of.find(key);
+    if (team == ids_.team_of.end()) continue;
+    ids_.members.erase(team->second);
+    ids_.team_of.erase(team);
+  }
+  // Conflicts of unworked parts are not counted (the union-find's marks of their links go).
+  for (const ObjectKey key : unworked) {
+    const auto edges = adjacent_.find(key);
     if (edges == adjacent_.end()) continue;
-    for (const Edge& e : edges->second) {
-      if (region.insert(e.other).second) keys.push_back(e.other);
+    for (Edge& e : edges->second) {
+      if (e.other > key && e.conflict) {
+        e.conflict = false;
+        --conflicts_;
+      }
     }
   }
   std::sort(keys.begin(), keys.end());

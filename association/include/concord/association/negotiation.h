@@ -110,7 +110,8 @@ struct NegotiationCounters {
   long long links_accepted = 0;     ///< correspondences accepted (as owner)
   long long links_split = 0;        ///< accepted correspondences undone (as owner)
   long long link_conflicts = 0;     ///< correspondences refused: an object already linked
-  int team_id_conflicts = 0;        ///< links left out by the union-find (current)
+  /// Links left out by the union-find (current), in the parts that hold the robot's objects.
+  int team_id_conflicts = 0;
   long long messages = 0;           ///< messages produced
   long long bytes_sent = 0;         ///< their wire sizes
   long long description_bytes = 0;  ///< of which map descriptions
@@ -147,6 +148,8 @@ class Negotiator {
   ObjectKey team_id(LandmarkId own_id) const {
     return team_ids_.ids().team_id(object_key(robot_, own_id));
   }
+  /// Team ids of the parts of the link graph that hold this robot's objects (others' objects
+  /// linked only among themselves are absent).
   const TeamIds& team_ids() const { return team_ids_.ids(); }
   /// The frame a neighbour last said it is in (nullopt before its first message).
   std::optional<int> frame_of(int neighbour) const;
@@ -205,7 +208,8 @@ class Negotiator {
   /// Per neighbour: version of each owner's record last sent to it.
   std::map<int, std::map<int, int>> sent_versions_;
   std::vector<FrameEdge> own_frame_edges_;
-  /// Team ids over the links of every record in records_.
+  /// Team ids over the links of every record in records_, of the parts of the link graph that
+  /// hold this robot's objects (TeamIdIndex(robot)).
   TeamIdIndex team_ids_;
   /// shared_objects of every neighbour, rebuilt with the team ids.
   std::map<int, std::vector<std::pair<LandmarkId, LandmarkId>>> shared_;

@@ -51,6 +51,15 @@ TeamIds assign_team_ids(std::vector<ObjectLink> links);
 /// touches: a robot that hears of one owner's new record does not redo the whole team.
 class TeamIdIndex {
  public:
+  /// An index of the whole link graph's team ids.
+  TeamIdIndex() = default;
+  /// An index for one robot: ids() holds the team ids of the connected parts of the link graph
+  /// that hold an object of `robot` (equal there to the whole union-find's; the union-find's
+  /// decisions in a part depend on that part's links only), and `conflicts` counts the links
+  /// left out in those parts. Parts without the robot's objects are linked but not worked out:
+  /// a robot needs the ids of its own objects, and at many robots most parts are others'.
+  explicit TeamIdIndex(int robot) : robot_(robot) {}
+
   /// Replaces the links of `source` (duplicates: the strongest copy counts; a link may come from
   /// several sources, the strongest counts). ids() follows at the next commit().
   void stage(int source, std::vector<ObjectLink> links);
@@ -75,6 +84,8 @@ class TeamIdIndex {
   /// The link's edge on key `from`'s side, or nullptr.
   Edge* edge(ObjectKey from, ObjectKey to);
 
+  /// The robot whose parts are worked out, or -1 for all.
+  int robot_ = -1;
   /// Every source's links, ascending by (a, b), one per pair.
   std::map<int, std::vector<ObjectLink>> sources_;
   /// The link graph of the union of the sources' links: each key's links.
