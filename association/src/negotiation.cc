@@ -74,7 +74,11 @@ std::size_t NegotiationMessage::wire_size() const {
 }
 
 Negotiator::Negotiator(int robot, int start_frame, NegotiationOptions options)
-    : robot_(robot), frame_(start_frame), options_(validated(options)), team_ids_(robot) {
+    : robot_(robot),
+      frame_(start_frame),
+      options_(validated(options)),
+      split_bound_(UpdaterHelper::chi2_quantile(options_.split_chi2_probability, 3)),
+      team_ids_(robot) {
   records_[robot_] = std::make_shared<const OwnerRecord>(OwnerRecord{robot_, 0, {}, {}});
 }
 
@@ -261,7 +265,7 @@ bool Negotiator::match_in_frame(PairState& pair, const MapDescription& theirs) {
   const MapDescription& own = *own_map_;
   bool changed = false;
   // 1. Accepted correspondences whose objects now disagree are undone after split_after times.
-  const double split_bound = UpdaterHelper::chi2_quantile(options_.split_chi2_probability, 3);
+  const double split_bound = split_bound_;
   for (auto it = pair.accepted.begin(); it != pair.accepted.end();) {
     const ObjectDescription* mine = find_object(own, it->first.first);
     const ObjectDescription* other = find_object(theirs, it->first.second);
@@ -281,11 +285,21 @@ bool Negotiator::match_in_frame(PairState& pair, const MapDescription& theirs) {
   // 2. New correspondences, confirmed over consecutive descriptions.
   const std::vector<Match> matches =
       match_with_transform(own, theirs, Eigen::Isometry3d::Identity(), false, options_.association);
-  std::set<LandmarkId> own_linked, their_linked;
+  // The objects already linked on either side, ascending (`accepted` is ordered by own id).
+  std::vector<LandmarkId> own_linked, their_linked;
+  own_linked.reserve(pair.accepted.size());
+  their_linked.reserve(pair.accepted.size());
   for (const auto& [ids, d2] : pair.accepted) {
-    own_linked.insert(ids.first);
-    their_linked.insert(ids.second);
+    own_linked.push_back(ids.first);
+    their_linked.push_back(ids.second);
   }
+  std::sort(their_linked.begin(), their_linked.end());
+  const auto holds = [](const std::vector<LandmarkId>& sorted, LandmarkId id) {
+    return std::binary_search(sorted.begin(), sorted.end(), id);
+  };
+  const auto insert = [](std::vector<LandmarkId>& sorted, LandmarkId id) {
+    sorted.insert(std::lower_bound(sorted.begin(), sorted.end(), id), id);
+  };
   std::map<std::pair<LandmarkId, LandmarkId>, int> streaks;
   for (const Match& match : matches) {
     const std::pair<LandmarkId, LandmarkId> ids{match.id_a, match.id_b};
@@ -296,13 +310,13 @@ bool Negotiator::match_in_frame(PairState& pair, const MapDescription& theirs) {
       streaks[ids] = streak;
       continue;
     }
-    if (own_linked.contains(ids.first) || their_linked.contains(ids.second)) {
+    if (holds(own_linked, ids.first) || holds(their_linked, ids.second)) {
       ++counters_.link_conflicts;
       continue;
     }
     pair.accepted[ids] = match.mahalanobis_squared;
-    own_linked.insert(ids.first);
-    their_linked.insert(ids.second);
+    insert(own_linked, ids.first);
+    insert(their_linked, ids.second);
     ++counters_.links_accepted;
     changed = true;
   }

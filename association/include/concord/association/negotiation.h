@@ -198,6 +198,8 @@ class Negotiator {
   int robot_;
   int frame_;
   NegotiationOptions options_;
+  /// The split gate: the chi-square quantile of split_chi2_probability, 3 degrees of freedom.
+  double split_bound_;
   std::shared_ptr<const MapDescription> own_map_;
   int own_map_round_ = -1;
   std::map<int, NeighbourMap> neighbour_maps_;
