@@ -28,17 +28,15 @@ Labels agreed_labels(const std::vector<std::pair<LandmarkId, LandmarkId>>& sent,
   receiver_view.reserve(received.size());
   for (const auto& [own, theirs] : received) receiver_view.emplace_back(theirs, own);
   std::stable_sort(receiver_view.begin(), receiver_view.end(), first_less);
-  Labels unique_view;
-  unique_view.reserve(receiver_view.size());
-  for (std::size_t i = 0; i < receiver_view.size(); ++i) {
-    if (i + 1 < receiver_view.size() && receiver_view[i + 1].first == receiver_view[i].first)
-      continue;
-    unique_view.push_back(receiver_view[i]);
-  }
+  // Keep the last of each run of equal sender ids (unique keeps the first: run it backwards).
+  receiver_view.erase(receiver_view.begin(),
+                      std::unique(receiver_view.rbegin(), receiver_view.rend(),
+                                  [](const auto& x, const auto& y) { return x.first == y.first; })
+                          .base());
   Labels labels;
   labels.reserve(sent.size());
   for (const auto& [own, theirs] : sent) {
-    const LandmarkId* view = find_second(unique_view, own);
+    const LandmarkId* view = find_second(receiver_view, own);
     if (view != nullptr && *view == theirs) labels.emplace_back(own, theirs);
   }
   // A sender id agrees with one receiver id at most, so equal firsts are equal entries.

@@ -151,15 +151,12 @@ bool TeamIdIndex::commit() {
   // The connected parts of the link graph that hold the touched keys, as they are now. They hold
   // every old team of their keys too: a key of an old part reaches a touched key without a
   // removed link.
-  std::vector<ObjectKey> keys;
-  keys.swap(touched_);
-  std::unordered_set<ObjectKey> region(keys.begin(), keys.end());
-  const std::vector<ObjectKey> starts(region.begin(), region.end());
+  std::vector<ObjectKey> starts;
+  starts.swap(touched_);
   std::unordered_set<ObjectKey> seen;
-  keys.clear();
   // Part by part (breadth first from each touched key not reached yet); with a robot, the keys of
   // parts without its objects lose their old teams and get none.
-  std::vector<ObjectKey> part, unworked;
+  std::vector<ObjectKey> keys, part, unworked;
   for (const ObjectKey start : starts) {
     if (!seen.insert(start).second) continue;
     part.assign(1, start);
