@@ -7,6 +7,7 @@
 #include <limits>
 #include <random>
 
+#include "allocation_counter.h"
 #include "concord/estimator/lie.h"
 #include "concord/estimator/state_helper.h"
 #include "replay/team_replay.h"
@@ -97,6 +98,77 @@ ConsensusOptions no_safeguards() {
   ConsensusOptions options;
   options.neighbour_chi2_probability = 0.0;
   return options;
+}
+
+/// A state with 6 in-state landmarks (ids 100-105) and 2 archived objects (40, 41), and three
+/// neighbours: one holds everything (a joint block of 6 and the archived ones as blocks of their
+/// own), one the landmarks 100-102 and object 40, and one landmark 100 far away (refused by the
+/// chi-square test). Landmarks 100-102 and 103-105 are averaged as groups of three; the archived
+/// objects one by one.
+struct WorkspaceCase {
+  State state;
+  std::vector<WeightedMarginal> neighbours;
+};
+
+WorkspaceCase workspace_case() {
+  std::mt19937 random(31);
+  WorkspaceCase out;
+  out.state = testing::random_state(3, 6, random);
+  out.state.archived[40] = {40, Eigen::Vector3d(1, 2, 3), 0.5 * Eigen::Matrix3d::Identity()};
+  out.state.archived[41] = {41, Eigen::Vector3d(4, 5, 6), 0.7 * Eigen::Matrix3d::Identity()};
+  Marginal everything = Consensus::marginal(out.state, out.state.object_ids());
+  everything.mean += testing::random_vector(everything.mean.size(), random, 0.05);
+  Marginal some = Consensus::marginal(out.state, {100, 101, 102, 40});
+  some.mean += testing::random_vector(some.mean.size(), random, 0.05);
+  Marginal far = Consensus::marginal(out.state, {100});
+  far.mean += Eigen::Vector3d(100, 0, 0);
+  out.neighbours = {{0.25, everything}, {0.25, some}, {0.25, far}};
+  return out;
+}
+
+TEST(ConsensusWorkspace, ARoundOfAShapeSeenBeforeAllocatesNothing) {
+  if (!testing::counting_allocations()) {
+    GTEST_SKIP() << "a sanitizer build: allocations are not counted";
+  }
+  const WorkspaceCase c = workspace_case();
+  for (const double kl_threshold : {0.0, 1e-9}) {
+    ConsensusOptions options;
+    options.fuse_kl_threshold = kl_threshold;
+    // The answer without a workspace (fresh buffers).
+    State expected = c.state;
+    const ConsensusReport expected_report = Consensus::fuse(expected, c.neighbours, options);
+    ASSERT_EQ(expected_report.landmarks_refused, 1);
+    ASSERT_EQ(expected_report.landmarks_fused, 8);
+    ASSERT_EQ(expected_report.groups, 4);  // two groups of three landmarks, two archived objects
+
+    // Rounds of two shapes: every neighbour, and one neighbour holding half the landmarks
+    // (Proposition 2 then moves the other landmarks too, a state not led by x).
+    const std::vector<WeightedMarginal> one{c.neighbours[1]};
+    ConsensusWorkspace workspace;
+    State first = c.state;
+    Consensus::fuse(first, c.neighbours, options, workspace);  // sizes the buffers
+    State first_one = c.state;
+    Consensus::fuse(first_one, one, options, workspace);
+    const std::size_t before_copy = testing::allocations();
+    State second = c.state;
+    State second_one = c.state;
+    const std::size_t before = testing::allocations();
+    EXPECT_GT(before, before_copy);  // the counter sees allocations (the copies')
+    const ConsensusReport& report = Consensus::fuse(second, c.neighbours, options, workspace);
+    EXPECT_EQ(testing::allocations(), before) << "kl threshold " << kl_threshold;
+    EXPECT_EQ(report.landmarks_fused, expected_report.landmarks_fused);
+    EXPECT_EQ(report.refused_per_neighbour, expected_report.refused_per_neighbour);
+    const int fused_one = Consensus::fuse(second_one, one, options, workspace).landmarks_fused;
+    EXPECT_EQ(testing::allocations(), before) << "kl threshold " << kl_threshold;
+    EXPECT_EQ(fused_one, 4);
+    // The same numbers as with fresh buffers, to the bit.
+    EXPECT_EQ(second.covariance, expected.covariance);
+    for (int slot = 0; slot < second.num_landmarks(); ++slot) {
+      EXPECT_EQ(second.landmarks[slot].p_world, expected.landmarks[slot].p_world);
+    }
+    EXPECT_EQ(second.archived.at(40).covariance, expected.archived.at(40).covariance);
+    EXPECT_EQ(second_one.covariance, first_one.covariance);
+  }
 }
 
 TEST(ConsensusAverage, IdenticalMarginalsAreANoOp) {

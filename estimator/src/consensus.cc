@@ -14,21 +14,63 @@
 
 namespace concord {
 
-namespace {
+// Helpers of this file. A named namespace, not an anonymous one: ConsensusWorkspace::Buffers
+// (declared in the header) holds them.
+namespace consensus_internal {
 
-/// Where a landmark sits in a block-diagonal marginal.
-struct Location {
-  int position = 0;  ///< index in ids
-  int block = 0;     ///< index in blocks
-  int offset = 0;    ///< row of its first coordinate in that block
+using MatrixMap = Eigen::Map<Eigen::MatrixXd>;
+using VectorMap = Eigen::Map<Eigen::VectorXd>;
+
+/// Storage for a dynamic-size matrix or vector that grows to the largest size asked for and is
+/// then reused: once the sizes of a round have been seen, its views allocate nothing (issue 13:
+/// no heap churn a consensus round). A view is valid until the next call on the same scratch.
+class Scratch {
+ public:
+  template <typename Matrix = Eigen::MatrixXd>
+  Eigen::Map<Matrix> matrix(Eigen::Index rows, Eigen::Index cols) {
+    reserve(rows * cols);
+    return {storage_.data(), rows, cols};
+  }
+  VectorMap vector(Eigen::Index size) {
+    reserve(size);
+    return {storage_.data(), size};
+  }
+
+ private:
+  void reserve(Eigen::Index size) {
+    // std::vector grows geometrically: a run that grows its map reallocates O(log) times.
+    if (storage_.size() < static_cast<std::size_t>(size)) {
+      storage_.resize(static_cast<std::size_t>(size));
+    }
+  }
+  std::vector<double> storage_;
 };
 
-/// (id, location) of every landmark of a block-diagonal Gaussian, sorted by id; nullopt when an
-/// id repeats.
-std::optional<std::vector<std::pair<LandmarkId, Location>>> locate(
-    const std::vector<LandmarkId>& ids, const std::vector<Eigen::MatrixXd>& blocks) {
-  std::vector<std::pair<LandmarkId, Location>> locations;
-  locations.reserve(ids.size());
+/// Makes a square matrix symmetric in place, 0.5 (A + A^T), element pair by element pair.
+void symmetrize(Eigen::Ref<Eigen::MatrixXd> A) {
+  for (Eigen::Index c = 0; c < A.cols(); ++c) {
+    for (Eigen::Index r = c + 1; r < A.rows(); ++r) {
+      const double mean = 0.5 * (A(r, c) + A(c, r));
+      A(r, c) = mean;
+      A(c, r) = mean;
+    }
+  }
+}
+
+/// Where a landmark sits in a block-diagonal marginal (or, for the robot itself, in its state).
+struct Location {
+  int position = 0;  ///< index in ids (the robot: slot in the state, or index among archived)
+  int block = 0;     ///< index in blocks (the robot: 0 for the joint state, 1 + i archived)
+  int offset = 0;    ///< row of its first coordinate in that block (the robot: in the state)
+};
+
+using Locations = std::vector<std::pair<LandmarkId, Location>>;
+
+/// Fills `locations` with (id, location) of every landmark of a block-diagonal Gaussian, sorted
+/// by id; false when an id repeats.
+bool locate(const std::vector<LandmarkId>& ids, const std::vector<Eigen::MatrixXd>& blocks,
+            Locations& locations) {
+  locations.clear();
   int position = 0;
   for (std::size_t b = 0; b < blocks.size(); ++b) {
     for (Eigen::Index offset = 0; offset < blocks[b].rows(); offset += 3) {
@@ -40,55 +82,89 @@ std::optional<std::vector<std::pair<LandmarkId, Location>>> locate(
             [](const auto& a, const auto& b) { return a.first < b.first; });
   const auto repeated = std::adjacent_find(
       locations.begin(), locations.end(), [](const auto& a, const auto& b) { return a.first == b.first; });
-  if (repeated != locations.end()) return std::nullopt;
-  return locations;
+  return repeated == locations.end();
 }
 
-const Location* find_location(const std::vector<std::pair<LandmarkId, Location>>& locations,
-                              LandmarkId id) {
+const Location* find_location(const Locations& locations, LandmarkId id) {
   const auto it = std::lower_bound(
       locations.begin(), locations.end(), id,
       [](const std::pair<LandmarkId, Location>& entry, LandmarkId key) { return entry.first < key; });
   return it != locations.end() && it->first == id ? &it->second : nullptr;
 }
 
-/// A member of an average: the robot itself or a neighbour, its marginal checked once, with
-/// its weight and where each id sits in it.
+/// A member of an average: a neighbour (its marginal checked once) or the robot itself (read
+/// from its state: the in-state objects one joint block, each archived object a block of its
+/// own, as Consensus::marginal would give them), with its weight and where each id sits.
 struct Member {
   int index = -1;  ///< position in the neighbours given to fuse(), -1 for the robot itself
   double weight = 0.0;
-  const Marginal* marginal = nullptr;
-  std::vector<std::pair<LandmarkId, Location>> locations;
+  const Marginal* marginal = nullptr;  ///< a neighbour's
+  const State* state = nullptr;        ///< the robot's
+  const std::vector<const ObjectEstimate*>* archived = nullptr;  ///< the robot's, by position
+  Locations locations;
 
   const Location* find(LandmarkId id) const { return find_location(locations, id); }
   Eigen::Vector3d mean(const Location& at) const {
-    return marginal->mean.segment<3>(3 * at.position);
+    if (marginal != nullptr) return marginal->mean.segment<3>(3 * at.position);
+    return at.block == 0 ? state->landmarks[at.position].p_world : (*archived)[at.position]->p_world;
   }
   Eigen::Matrix3d covariance(const Location& at) const {
-    return marginal->blocks[at.block].block<3, 3>(at.offset, at.offset);
+    if (marginal != nullptr) return marginal->blocks[at.block].block<3, 3>(at.offset, at.offset);
+    return at.block == 0 ? Eigen::Matrix3d(state->covariance.block<3, 3>(at.offset, at.offset))
+                         : (*archived)[at.position]->covariance;
   }
 };
 
-/// Checks a marginal (shapes, finite values, no repeated id); nullopt when malformed.
-std::optional<Member> check(const Marginal& marginal, int index, double weight) {
-  if (!marginal.well_formed()) return std::nullopt;
-  auto locations = locate(marginal.ids, marginal.blocks);
-  if (!locations) return std::nullopt;
-  return Member{index, weight, &marginal, std::move(*locations)};
+/// Checks a neighbour's marginal (shapes, finite values, no repeated id) into `member`; false
+/// when malformed.
+bool check(const Marginal& marginal, int index, double weight, Member& member) {
+  if (!marginal.well_formed()) return false;
+  if (!locate(marginal.ids, marginal.blocks, member.locations)) return false;
+  member.index = index;
+  member.weight = weight;
+  member.marginal = &marginal;
+  member.state = nullptr;
+  member.archived = nullptr;
+  return true;
 }
 
-/// The inverse (symmetrised) of a covariance if it is positive definite and its 1-norm condition
-/// number ||P||_1 ||P^-1||_1, exact from the inverse, is at most max_condition_number.
-template <typename Matrix>
-std::optional<Matrix> checked_inverse(const Matrix& covariance, double max_condition_number) {
-  const Eigen::LLT<Matrix> llt(covariance);
-  if (llt.info() != Eigen::Success) return std::nullopt;
-  Matrix inverse = llt.solve(Matrix::Identity(covariance.rows(), covariance.cols()));
-  inverse = 0.5 * (inverse + inverse.transpose()).eval();
+/// The robot itself as a member: every object it holds, in its state or archived.
+void own_member(const State& state, double weight, std::vector<const ObjectEstimate*>& archived,
+                Member& member) {
+  member.index = -1;
+  member.weight = weight;
+  member.marginal = nullptr;
+  member.state = &state;
+  member.archived = &archived;
+  member.locations.clear();
+  archived.clear();
+  for (int slot = 0; slot < state.num_landmarks(); ++slot) {
+    member.locations.push_back({state.landmarks[slot].id, {slot, 0, state.landmark_index(slot)}});
+  }
+  for (const auto& [id, estimate] : state.archived) {
+    const auto position = static_cast<int>(archived.size());
+    member.locations.push_back({id, {position, 1 + position, 0}});
+    archived.push_back(&estimate);
+  }
+  std::sort(member.locations.begin(), member.locations.end(),
+            [](const auto& a, const auto& b) { return a.first < b.first; });
+}
+
+/// The inverse of a covariance, into `inverse` (symmetrised), if the covariance is positive
+/// definite and its 1-norm condition number ||P||_1 ||P^-1||_1, exact from the inverse, is at
+/// most max_condition_number. `factor` is a buffer of the covariance's size.
+bool checked_inverse(const Eigen::Ref<const Eigen::MatrixXd>& covariance,
+                     double max_condition_number, Eigen::Ref<Eigen::MatrixXd> factor,
+                     Eigen::Ref<Eigen::MatrixXd> inverse) {
+  factor = covariance;
+  const Eigen::LLT<Eigen::Ref<Eigen::MatrixXd>> llt(factor);  // in place
+  if (llt.info() != Eigen::Success) return false;
+  inverse.setIdentity();
+  llt.solveInPlace(inverse);
+  symmetrize(inverse);
   const double condition = covariance.cwiseAbs().colwise().sum().maxCoeff() *
                            inverse.cwiseAbs().colwise().sum().maxCoeff();
-  if (!(condition <= max_condition_number)) return std::nullopt;
-  return inverse;
+  return condition <= max_condition_number;
 }
 
 /// checked_inverse for one landmark's 3x3 covariance, in closed form: positive definite when its
@@ -108,16 +184,14 @@ std::optional<Eigen::Matrix3d> checked_inverse3(const Eigen::Matrix3d& covarianc
   return inverse;
 }
 
-/// Mean and covariance of the landmarks at `at` (all in one block) of a block-diagonal Gaussian.
-void sub_gaussian(const Eigen::VectorXd& full_mean, const std::vector<Eigen::MatrixXd>& blocks,
-                  const std::vector<Location>& at, Eigen::VectorXd& mean,
-                  Eigen::MatrixXd& covariance) {
+/// Mean and covariance of the landmarks at `at` (all in one block) of a neighbour's
+/// block-diagonal marginal, into buffers of size 3k and 3k x 3k.
+void sub_gaussian(const Marginal& marginal, const std::vector<Location>& at,
+                  Eigen::Ref<Eigen::VectorXd> mean, Eigen::Ref<Eigen::MatrixXd> covariance) {
   const auto k = static_cast<Eigen::Index>(at.size());
-  mean.resize(3 * k);
-  covariance.resize(3 * k, 3 * k);
   for (Eigen::Index a = 0; a < k; ++a) {
-    mean.segment<3>(3 * a) = full_mean.segment<3>(3 * at[a].position);
-    const Eigen::MatrixXd& block = blocks[at[a].block];
+    mean.segment<3>(3 * a) = marginal.mean.segment<3>(3 * at[a].position);
+    const Eigen::MatrixXd& block = marginal.blocks[at[a].block];
     for (Eigen::Index b = 0; b < k; ++b) {
       covariance.block<3, 3>(3 * a, 3 * b) = block.block<3, 3>(at[a].offset, at[b].offset);
     }
@@ -133,9 +207,9 @@ struct Run {
 };
 
 /// The runs of consecutive values of an ascending index list (a landmark's three coordinates
-/// are one run at least; the poses one long one).
-std::vector<Run> runs_of(const std::vector<int>& indices) {
-  std::vector<Run> runs;
+/// are one run at least; the poses one long one), into `runs`.
+void runs_of(const std::vector<int>& indices, std::vector<Run>& runs) {
+  runs.clear();
   for (std::size_t i = 0; i < indices.size(); ++i) {
     if (!runs.empty() && runs.back().start + runs.back().length == indices[i]) {
       ++runs.back().length;
@@ -143,22 +217,28 @@ std::vector<Run> runs_of(const std::vector<int>& indices) {
       runs.push_back({indices[i], 1, static_cast<Eigen::Index>(i)});
     }
   }
-  return runs;
 }
 
-/// P(rows, columns) for index lists given as runs, copied block by block.
-Eigen::MatrixXd gather(const Eigen::MatrixXd& P, const std::vector<Run>& rows,
-                       const std::vector<Run>& columns, Eigen::Index row_count,
-                       Eigen::Index column_count) {
-  Eigen::MatrixXd out(row_count, column_count);
+/// P(rows, columns) for index lists given as runs, copied block by block into `out`.
+void gather(const Eigen::Ref<const Eigen::MatrixXd>& P, const std::vector<Run>& rows,
+            const std::vector<Run>& columns, Eigen::Ref<Eigen::MatrixXd> out) {
   for (const Run& column : columns) {
     for (const Run& row : rows) {
       out.block(row.position, column.position, row.length, column.length) =
           P.block(row.start, column.start, row.length, column.length);
     }
   }
-  return out;
 }
+
+/// Buffers of proposition_two, kept across calls.
+struct PropositionTwoScratch {
+  std::vector<Run> y_runs;
+  std::vector<Run> x_runs;
+  std::vector<unsigned char> in_y;
+  std::vector<int> others;
+  Scratch own_covariance, factor, step, difference, correction, gain_transpose, cross, update,
+      x_correction;
+};
 
 /// Proposition 2 on the covariance P of a Gaussian: replaces the marginal of the coordinates
 /// `indices` (y; currently own_mean, P_yy) by N(target_mean, target_covariance) and keeps the
@@ -170,40 +250,52 @@ Eigen::MatrixXd gather(const Eigen::MatrixXd& P, const std::vector<Run>& rows,
 /// are P_yy itself, so they need no product. With m = |x| and k = |y| it costs
 /// k^3 / 6 + 2 m k^2 + m^2 k / 2 multiply-adds (the product over all of B:
 /// k^3 / 6 + k^3 + n k^2 + n^2 k / 2, n = m + k); a consensus round fuses most in-state
-/// landmarks, so k is a good part of n. Returns the correction, or std::nullopt (P unchanged) if
-/// P_yy is not positive definite.
-std::optional<Eigen::VectorXd> proposition_two(Eigen::MatrixXd& P, const std::vector<int>& indices,
-                                               const Eigen::VectorXd& own_mean,
-                                               const Eigen::VectorXd& target_mean,
-                                               const Eigen::MatrixXd& target_covariance) {
+/// landmarks, so k is a good part of n. Returns false (P unchanged) if P_yy is not positive
+/// definite; otherwise the mean's correction is scratch.correction.vector(n).
+bool proposition_two(Eigen::Ref<Eigen::MatrixXd> P, const std::vector<int>& indices,
+                     const Eigen::Ref<const Eigen::VectorXd>& own_mean,
+                     const Eigen::Ref<const Eigen::VectorXd>& target_mean,
+                     const Eigen::Ref<const Eigen::MatrixXd>& target_covariance,
+                     PropositionTwoScratch& scratch) {
   const Eigen::Index n = P.rows();
   const auto k = static_cast<Eigen::Index>(indices.size());
-  const std::vector<Run> y_runs = runs_of(indices);
-  const Eigen::MatrixXd own_covariance = gather(P, y_runs, y_runs, k, k);
-  const Eigen::LLT<Eigen::MatrixXd> llt(own_covariance);
-  if (llt.info() != Eigen::Success) return std::nullopt;
-  std::vector<unsigned char> in_y(static_cast<std::size_t>(n), 0);
-  for (int i : indices) in_y[static_cast<std::size_t>(i)] = 1;
-  std::vector<int> others;  // x, ascending
-  others.reserve(static_cast<std::size_t>(n - k));
+  std::vector<Run>& y_runs = scratch.y_runs;
+  runs_of(indices, y_runs);
+  MatrixMap own_covariance = scratch.own_covariance.matrix(k, k);
+  gather(P, y_runs, y_runs, own_covariance);
+  MatrixMap factor = scratch.factor.matrix(k, k);
+  factor = own_covariance;
+  const Eigen::LLT<Eigen::Ref<Eigen::MatrixXd>> llt(factor);  // in place
+  if (llt.info() != Eigen::Success) return false;
+  scratch.in_y.assign(static_cast<std::size_t>(n), 0);
+  for (int i : indices) scratch.in_y[static_cast<std::size_t>(i)] = 1;
+  std::vector<int>& others = scratch.others;  // x, ascending
+  others.clear();
   for (int i = 0; i < static_cast<int>(n); ++i) {
-    if (!in_y[static_cast<std::size_t>(i)]) others.push_back(i);
+    if (!scratch.in_y[static_cast<std::size_t>(i)]) others.push_back(i);
   }
   const auto m = static_cast<Eigen::Index>(others.size());
-  const Eigen::VectorXd step = target_mean - own_mean;
-  Eigen::MatrixXd D = target_covariance - own_covariance;
-  D = 0.5 * (D + D.transpose()).eval();
+  VectorMap step = scratch.step.vector(k);
+  step = target_mean - own_mean;
+  MatrixMap D = scratch.difference.matrix(k, k);
+  D = target_covariance - own_covariance;
+  symmetrize(D);
 
-  Eigen::VectorXd correction(n);
+  VectorMap correction = scratch.correction.vector(n);
   for (Eigen::Index a = 0; a < k; ++a) correction(indices[a]) = step(a);
   // x is most often the leading block of P (the poses, when every in-state landmark is fused):
   // the products then go into P's block directly, and x's rows and columns are blocks.
   const bool leading = m > 0 && others.back() == static_cast<int>(m) - 1;
   if (m > 0) {
-    const std::vector<Run> x_runs = runs_of(others);
-    const Eigen::MatrixXd gain_transpose = llt.solve(gather(P, y_runs, x_runs, k, m));  // L^T
-    correction(others) = gain_transpose.transpose() * step;
-    const Eigen::MatrixXd cross = D * gain_transpose;  // (L D)^T, k x m
+    runs_of(others, scratch.x_runs);
+    MatrixMap gain_transpose = scratch.gain_transpose.matrix(k, m);  // L^T
+    gather(P, y_runs, scratch.x_runs, gain_transpose);
+    llt.solveInPlace(gain_transpose);
+    VectorMap x_correction = scratch.x_correction.vector(m);
+    x_correction.noalias() = gain_transpose.transpose() * step;
+    for (Eigen::Index c = 0; c < m; ++c) correction(others[c]) = x_correction(c);
+    MatrixMap cross = scratch.cross.matrix(k, m);  // (L D)^T
+    cross.noalias() = D * gain_transpose;
     if (leading) {
       P.topLeftCorner(m, m).triangularView<Eigen::Lower>() +=
           gain_transpose.transpose() * cross;  // L D L^T
@@ -214,7 +306,7 @@ std::optional<Eigen::VectorXd> proposition_two(Eigen::MatrixXd& P, const std::ve
         P.col(indices[a]).head(m) = P.row(indices[a]).head(m).transpose();
       }
     } else {
-      Eigen::MatrixXd update(m, m);
+      MatrixMap update = scratch.update.matrix(m, m);
       update.triangularView<Eigen::Lower>() = gain_transpose.transpose() * cross;  // L D L^T
       for (Eigen::Index c = 0; c < m; ++c) {
         const Eigen::Index column = others[c];
@@ -239,60 +331,48 @@ std::optional<Eigen::VectorXd> proposition_two(Eigen::MatrixXd& P, const std::ve
           0.5 * (block + mirrored.transpose());
     }
   }
-  return correction;
-}
-
-/// Proposition 2 on a Gaussian N(mean, covariance) (see proposition_two).
-bool replace_gaussian_marginal(Eigen::VectorXd& mean, Eigen::MatrixXd& covariance,
-                               const std::vector<int>& indices,
-                               const Eigen::VectorXd& target_mean,
-                               const Eigen::MatrixXd& target_covariance) {
-  const Eigen::VectorXd own_mean = mean(indices);
-  const auto correction =
-      proposition_two(covariance, indices, own_mean, target_mean, target_covariance);
-  if (!correction) return false;
-  mean += *correction;
   return true;
 }
 
-/// Buffers of proposition_two_single, kept across the landmarks of one consensus step (no
-/// allocation per landmark).
+/// Buffers of proposition_two_single, kept across the landmarks of one consensus step and
+/// across steps.
 struct SingleScratch {
-  Eigen::Matrix<double, Eigen::Dynamic, 3> B;
-  Eigen::Matrix<double, Eigen::Dynamic, 3> BM;
-  Eigen::VectorXd correction;
+  Scratch B;
+  Scratch BM;
+  Scratch correction;
 };
 
 /// Proposition 2 (see proposition_two) for one landmark, coordinates [c, c + 3) of P, with
 /// fixed-size algebra. Reads and updates only the lower triangle of P (a sequence of these
 /// mirrors P once at its end: see mirror_lower). The mean's correction is left in
-/// scratch.correction; false (P unchanged) if the landmark's block is not positive definite.
-bool proposition_two_single(Eigen::MatrixXd& P, Eigen::Index c, const Eigen::Vector3d& own_mean,
-                            const Eigen::Vector3d& target_mean,
+/// scratch.correction.vector(n); false (P unchanged) if the landmark's block is not positive
+/// definite.
+bool proposition_two_single(Eigen::Ref<Eigen::MatrixXd> P, Eigen::Index c,
+                            const Eigen::Vector3d& own_mean, const Eigen::Vector3d& target_mean,
                             const Eigen::Matrix3d& target_covariance, SingleScratch& scratch) {
+  using Columns3 = Eigen::Matrix<double, Eigen::Dynamic, 3>;
   const Eigen::Index n = P.rows();
   const Eigen::Matrix3d own_covariance = P.block<3, 3>(c, c).selfadjointView<Eigen::Lower>();
   const Eigen::LLT<Eigen::Matrix3d> llt(own_covariance);
   if (llt.info() != Eigen::Success) return false;
   // B = P[:, c:c+3]: rows above c from the lower triangle's rows c..c+2.
-  Eigen::Matrix<double, Eigen::Dynamic, 3>& B = scratch.B;
-  B.resize(n, 3);
+  Eigen::Map<Columns3> B = scratch.B.matrix<Columns3>(n, 3);
   B.topRows(c) = P.block(c, 0, 3, c).transpose();
   B.middleRows<3>(c) = own_covariance;
   B.bottomRows(n - c - 3) = P.block(c + 3, c, n - c - 3, 3);
-  scratch.correction.resize(n);
-  scratch.correction.noalias() = B * llt.solve(target_mean - own_mean);
+  VectorMap correction = scratch.correction.vector(n);
+  correction.noalias() = B * llt.solve(target_mean - own_mean);
   const Eigen::Matrix3d half = llt.solve(target_covariance - own_covariance);
   Eigen::Matrix3d M = llt.solve(half.transpose());
   M = 0.5 * (M + M.transpose()).eval();
-  scratch.BM.resize(n, 3);
-  scratch.BM.noalias() = B * M;
-  P.triangularView<Eigen::Lower>() += scratch.BM * B.transpose();
+  Eigen::Map<Columns3> BM = scratch.BM.matrix<Columns3>(n, 3);
+  BM.noalias() = B * M;
+  P.triangularView<Eigen::Lower>() += BM * B.transpose();
   return true;
 }
 
 /// Copies the lower triangle of a square matrix onto its upper one.
-void mirror_lower(Eigen::MatrixXd& P) {
+void mirror_lower(Eigen::Ref<Eigen::MatrixXd> P) {
   P.triangularView<Eigen::StrictlyUpper>() = P.transpose();
 }
 
@@ -313,7 +393,7 @@ struct NeighbourShare {
   int skipped = 0;
 };
 
-NeighbourShare neighbour_share(const std::vector<Member>& members, const Holders& holders,
+NeighbourShare neighbour_share(std::span<const Member> members, const Holders& holders,
                                double max_condition_number) {
   NeighbourShare share;
   for (const auto& [j, location] : holders) {
@@ -332,63 +412,6 @@ NeighbourShare neighbour_share(const std::vector<Member>& members, const Holders
   return share;
 }
 
-/// A Gaussian over a group of landmarks in information form (matrix, vector = matrix * mean).
-struct Information {
-  Eigen::MatrixXd matrix;
-  Eigen::VectorXd vector;
-};
-
-/// A member's marginal of `ids` (all in one block of it) in information form; nullopt when its
-/// covariance is not positive definite or ill-conditioned.
-std::optional<Information> information_of(const Member& member, const std::vector<LandmarkId>& ids,
-                                          double max_condition_number) {
-  if (ids.size() == 1) {  // most groups: one landmark, with fixed-size (allocation-free) algebra
-    const Location& at = *member.find(ids.front());
-    const auto matrix = checked_inverse3(member.covariance(at), max_condition_number);
-    if (!matrix) return std::nullopt;
-    return Information{*matrix, *matrix * member.mean(at)};
-  }
-  std::vector<Location> at;
-  at.reserve(ids.size());
-  for (LandmarkId id : ids) at.push_back(*member.find(id));
-  Eigen::VectorXd mean;
-  Eigen::MatrixXd covariance;
-  sub_gaussian(member.marginal->mean, member.marginal->blocks, at, mean, covariance);
-  auto matrix = checked_inverse(covariance, max_condition_number);
-  if (!matrix) return std::nullopt;
-  Information out;
-  out.vector = *matrix * mean;
-  out.matrix = std::move(*matrix);
-  return out;
-}
-
-/// The weighted average of eq. (19) in information form (a geometric mean of Gaussians:
-/// consistent whatever the correlation between the members, if each is). Returns false when the
-/// result is not positive definite.
-bool information_average(const std::vector<std::pair<double, Information>>& members,
-                         Eigen::VectorXd& mean, Eigen::MatrixXd& covariance) {
-  const Eigen::Index d = members.front().second.vector.size();
-  double total_weight = 0.0;
-  for (const auto& [weight, information] : members) {
-    if (information.matrix.diagonal().maxCoeff() > 0.0) total_weight += weight;
-  }
-  if (!(total_weight > 0.0)) return false;
-  Eigen::MatrixXd matrix = Eigen::MatrixXd::Zero(d, d);
-  Eigen::VectorXd vector = Eigen::VectorXd::Zero(d);
-  for (const auto& [weight, information] : members) {
-    if (!(information.matrix.diagonal().maxCoeff() > 0.0)) continue;
-    matrix += (weight / total_weight) * information.matrix;
-    vector += (weight / total_weight) * information.vector;
-  }
-  matrix = 0.5 * (matrix + matrix.transpose()).eval();
-  const Eigen::LLT<Eigen::MatrixXd> llt(matrix);
-  if (llt.info() != Eigen::Success) return false;
-  covariance = llt.solve(Eigen::MatrixXd::Identity(d, d));
-  covariance = 0.5 * (covariance + covariance.transpose()).eval();
-  mean = covariance * vector;
-  return mean.allFinite() && covariance.allFinite();
-}
-
 /// Records the longest landmark step of an average.
 void note_mean_shift(const Eigen::Ref<const Eigen::VectorXd>& own_mean,
                      const Eigen::Ref<const Eigen::VectorXd>& mean, ConsensusReport& report) {
@@ -404,6 +427,124 @@ struct Group {
   std::span<const std::pair<int, int>> members;  ///< (member, block); the robot is member -1
   std::span<const int> positions;                ///< in `accepted`, ascending
 };
+
+/// The members' marginals of a group of d coordinates in information form, stacked: share s is
+/// matrices columns [s d, (s + 1) d) and vectors rows [s d, (s + 1) d), with its weight.
+struct GroupShares {
+  std::vector<double> weights;
+  Scratch matrices;
+  Scratch vectors;
+  double* matrix_data = nullptr;
+  double* vector_data = nullptr;
+  Eigen::Index d = 0;
+
+  /// Room for `count` shares of d coordinates (the views of earlier shares stay valid).
+  void prepare(std::size_t count, Eigen::Index dimension) {
+    d = dimension;
+    const auto n = static_cast<Eigen::Index>(count);
+    matrix_data = matrices.matrix(d, d * n).data();
+    vector_data = vectors.vector(d * n).data();
+    weights.clear();
+  }
+  MatrixMap matrix(std::size_t s) const {
+    return {matrix_data + d * d * static_cast<Eigen::Index>(s), d, d};
+  }
+  VectorMap vector(std::size_t s) const {
+    return {vector_data + d * static_cast<Eigen::Index>(s), d};
+  }
+};
+
+}  // namespace consensus_internal
+
+using namespace consensus_internal;
+
+/// Everything Consensus::fuse needs besides its inputs, kept from one round to the next.
+struct ConsensusWorkspace::Buffers {
+  ConsensusReport report;
+  // The members.
+  std::vector<const ObjectEstimate*> own_archived;
+  Member own;
+  std::vector<Member> neighbour_members;  // the first neighbour_count hold this round's
+  std::size_t neighbour_count = 0;
+  // The landmarks accepted for averaging and their holders.
+  std::vector<Holder> holder_buffer;
+  std::vector<std::pair<LandmarkId, std::pair<std::size_t, std::size_t>>> accepted_ranges;
+  std::vector<std::pair<LandmarkId, Holders>> accepted;
+  // Groups.
+  std::vector<std::pair<int, int>> key_members;
+  std::vector<std::size_t> key_start;
+  std::vector<unsigned char> key_joint;
+  std::vector<int> order;
+  std::vector<Group> groups;
+  // U, the joint marginal of the in-state landmarks fused.
+  std::vector<int> union_slots;
+  std::vector<int> union_position;
+  Scratch union_mean;
+  Scratch union_covariance;
+  SingleScratch single;
+  // Groups of several landmarks.
+  std::vector<LandmarkId> ids;
+  std::vector<Location> at;
+  std::vector<int> indices;
+  GroupShares shares;
+  Scratch member_mean, factor, own_mean, own_covariance, average, average_vector, mean,
+      covariance;
+  // Proposition 2 on U and on the state.
+  PropositionTwoScratch proposition;
+  std::vector<int> state_indices;
+  Scratch state_own_mean;
+};
+
+ConsensusWorkspace::ConsensusWorkspace() : buffers_(std::make_unique<Buffers>()) {}
+ConsensusWorkspace::~ConsensusWorkspace() = default;
+ConsensusWorkspace::ConsensusWorkspace(const ConsensusWorkspace&)
+    : buffers_(std::make_unique<Buffers>()) {}
+ConsensusWorkspace& ConsensusWorkspace::operator=(const ConsensusWorkspace&) { return *this; }
+ConsensusWorkspace::ConsensusWorkspace(ConsensusWorkspace&&) noexcept = default;
+ConsensusWorkspace& ConsensusWorkspace::operator=(ConsensusWorkspace&&) noexcept = default;
+
+namespace {
+
+/// Proposition 2 on a Gaussian N(mean, covariance) (see proposition_two).
+bool replace_gaussian_marginal(Eigen::Ref<Eigen::VectorXd> mean,
+                               Eigen::Ref<Eigen::MatrixXd> covariance,
+                               const std::vector<int>& indices,
+                               const Eigen::Ref<const Eigen::VectorXd>& target_mean,
+                               const Eigen::Ref<const Eigen::MatrixXd>& target_covariance,
+                               Scratch& own_mean_scratch, PropositionTwoScratch& scratch) {
+  VectorMap own_mean = own_mean_scratch.vector(static_cast<Eigen::Index>(indices.size()));
+  for (std::size_t i = 0; i < indices.size(); ++i) {
+    own_mean(static_cast<Eigen::Index>(i)) = mean(indices[i]);
+  }
+  if (!proposition_two(covariance, indices, own_mean, target_mean, target_covariance, scratch)) {
+    return false;
+  }
+  mean += scratch.correction.vector(mean.size());
+  return true;
+}
+
+/// Consensus::replace_marginal with the workspace's buffers.
+bool replace_state_marginal(State& state, const std::vector<int>& slots,
+                            const Eigen::Ref<const Eigen::VectorXd>& mean,
+                            const Eigen::Ref<const Eigen::MatrixXd>& covariance,
+                            ConsensusWorkspace::Buffers& buffers) {
+  std::vector<int>& indices = buffers.state_indices;
+  indices.clear();
+  VectorMap own_mean =
+      buffers.state_own_mean.vector(3 * static_cast<Eigen::Index>(slots.size()));
+  for (std::size_t i = 0; i < slots.size(); ++i) {
+    own_mean.segment<3>(3 * static_cast<Eigen::Index>(i)) = state.landmarks[slots[i]].p_world;
+    for (int k = 0; k < 3; ++k) indices.push_back(state.landmark_index(slots[i]) + k);
+  }
+  if (!proposition_two(state.covariance, indices, own_mean, mean, covariance,
+                       buffers.proposition)) {
+    return false;
+  }
+  // eq. (21): poses move by the correction (left perturbation, see State); landmarks additively.
+  StateHelper::apply_correction(state,
+                                buffers.proposition.correction.vector(state.covariance.rows()));
+  return true;
+}
 
 }  // namespace
 
@@ -440,48 +581,56 @@ Marginal Consensus::marginal(const State& state, const std::vector<LandmarkId>& 
 
 bool Consensus::replace_marginal(State& state, const std::vector<int>& slots,
                                  const Eigen::VectorXd& mean, const Eigen::MatrixXd& covariance) {
-  std::vector<int> indices;
-  indices.reserve(3 * slots.size());
-  Eigen::VectorXd own_mean(3 * slots.size());
-  for (std::size_t i = 0; i < slots.size(); ++i) {
-    own_mean.segment<3>(3 * static_cast<Eigen::Index>(i)) = state.landmarks[slots[i]].p_world;
-    for (int k = 0; k < 3; ++k) indices.push_back(state.landmark_index(slots[i]) + k);
-  }
-  const auto correction = proposition_two(state.covariance, indices, own_mean, mean, covariance);
-  if (!correction) return false;
-  // eq. (21): poses move by the correction (left perturbation, see State); landmarks additively.
-  StateHelper::apply_correction(state, *correction);
-  return true;
+  ConsensusWorkspace workspace;
+  return replace_state_marginal(state, slots, mean, covariance, *workspace.buffers_);
 }
 
 ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal>& neighbours,
                                 const ConsensusOptions& options) {
-  ConsensusReport report;
+  ConsensusWorkspace workspace;
+  return fuse(state, neighbours, options, workspace);
+}
+
+const ConsensusReport& Consensus::fuse(State& state,
+                                       const std::vector<WeightedMarginal>& neighbours,
+                                       const ConsensusOptions& options,
+                                       ConsensusWorkspace& workspace) {
+  ConsensusWorkspace::Buffers& w = *workspace.buffers_;
+  ConsensusReport& report = w.report;
+  report.landmarks_fused = 0;
+  report.groups = 0;
+  report.neighbours_skipped = 0;
+  report.landmarks_refused = 0;
   report.refused_per_neighbour.assign(neighbours.size(), 0);
   report.tested_per_neighbour.assign(neighbours.size(), 0);
+  report.landmarks_settled = 0;
+  report.largest_mean_shift = 0.0;
 
-  // 1. The robot's own marginal of everything it holds, and every neighbour's marginal checked
-  //    once.
-  const Marginal own_marginal = marginal(state, state.object_ids());
-  std::vector<Member> neighbour_members;
+  // 1. The robot's own marginal of everything it holds (read from its state), and every
+  //    neighbour's marginal checked once.
+  if (w.neighbour_members.size() < neighbours.size()) w.neighbour_members.resize(neighbours.size());
+  w.neighbour_count = 0;
   for (std::size_t j = 0; j < neighbours.size(); ++j) {
     const Marginal& m = neighbours[j].marginal;
     if (m.ids.empty()) continue;
     // Positive definiteness and conditioning are checked per averaged group, below.
-    std::optional<Member> member;
-    if (neighbours[j].weight > 0.0 && neighbours[j].weight < 1.0) {
-      member = check(m, static_cast<int>(j), neighbours[j].weight);
-    }
-    if (!member) {
+    const bool usable = neighbours[j].weight > 0.0 && neighbours[j].weight < 1.0 &&
+                        check(m, static_cast<int>(j), neighbours[j].weight,
+                              w.neighbour_members[w.neighbour_count]);
+    if (!usable) {
       ++report.neighbours_skipped;
       continue;
     }
-    neighbour_members.push_back(std::move(*member));
+    ++w.neighbour_count;
   }
+  const std::span<const Member> neighbour_members(w.neighbour_members.data(), w.neighbour_count);
   double neighbour_weight = 0.0;
   for (const Member& member : neighbour_members) neighbour_weight += member.weight;
-  const std::optional<Member> own = check(own_marginal, -1, 1.0 - neighbour_weight);
-  if (neighbour_members.empty() || own_marginal.ids.empty() || !own) return report;
+  if (neighbour_members.empty() || (state.landmarks.empty() && state.archived.empty())) {
+    return report;
+  }
+  own_member(state, 1.0 - neighbour_weight, w.own_archived, w.own);
+  const Member* const own = &w.own;
   const double refusal_bound =
       options.neighbour_chi2_probability > 0.0
           ? UpdaterHelper::chi2_quantile(options.neighbour_chi2_probability, 3)
@@ -492,9 +641,9 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
   //    refused: an outlier, a wrong association or a lie; not averaged in, counted).
   // (id, its holders: neighbour position and where the landmark sits in its marginal), by id.
   // Every accepted landmark's holders lie in one buffer (no allocation per landmark).
-  std::vector<Holder> holder_buffer;
-  std::vector<std::pair<LandmarkId, std::pair<std::size_t, std::size_t>>> accepted_ranges;
-  accepted_ranges.reserve(own->locations.size());
+  std::vector<Holder>& holder_buffer = w.holder_buffer;
+  holder_buffer.clear();
+  w.accepted_ranges.clear();
   for (const auto& [id, own_at] : own->locations) {  // sorted by id
     const std::size_t first = holder_buffer.size();
     for (std::size_t j = 0; j < neighbour_members.size(); ++j) {
@@ -515,11 +664,13 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
       }
       holder_buffer.emplace_back(static_cast<int>(j), found);
     }
-    if (holder_buffer.size() > first) accepted_ranges.push_back({id, {first, holder_buffer.size()}});
+    if (holder_buffer.size() > first) {
+      w.accepted_ranges.push_back({id, {first, holder_buffer.size()}});
+    }
   }
-  std::vector<std::pair<LandmarkId, Holders>> accepted;
-  accepted.reserve(accepted_ranges.size());
-  for (const auto& [id, range] : accepted_ranges) {
+  std::vector<std::pair<LandmarkId, Holders>>& accepted = w.accepted;
+  accepted.clear();
+  for (const auto& [id, range] : w.accepted_ranges) {
     accepted.emplace_back(
         id, Holders(holder_buffer.data() + range.first, range.second - range.first));
   }
@@ -551,80 +702,92 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
   }
 
   // 3. The weighted average (eq. 19) of landmarks grouped by (in joint state?, and for the
-  //    robot and each holder the block of its marginal that holds the landmark). A marginal claims nothing about
-  //    the correlation of landmarks in different blocks (archived objects lost theirs), so only
-  //    landmarks that share a block in every member's contribution are averaged jointly;
-  //    averaging them jointly as if independent would credit the member with information it
-  //    does not have (e.g. on their common offset) and make the robot overconfident. In-state
-  //    groups are replaced one after another on the joint marginal of all in-state landmarks
-  //    being fused (U): replacing a group's marginal keeps the conditional of the rest given it,
-  //    so p(rest of the state | U) never changes and the sequence of replacements equals one
-  //    replacement of U's marginal at the end (Proposition 2 once, not per group).
+  //    robot and each holder the block of its marginal that holds the landmark). A marginal
+  //    claims nothing about the correlation of landmarks in different blocks (archived objects
+  //    lost theirs), so only landmarks that share a block in every member's contribution are
+  //    averaged jointly; averaging them jointly as if independent would credit the member with
+  //    information it does not have (e.g. on their common offset) and make the robot
+  //    overconfident. In-state groups are replaced one after another on the joint marginal of
+  //    all in-state landmarks being fused (U): replacing a group's marginal keeps the
+  //    conditional of the rest given it, so p(rest of the state | U) never changes and the
+  //    sequence of replacements equals one replacement of U's marginal at the end
+  //    (Proposition 2 once, not per group).
   //    A landmark's key: (in the joint state?, (member, block) of each holder and of the robot);
   //    the groups are the runs of equal keys, in the keys' lexicographic order, each run's
-  //    landmarks in the order of `accepted` (a stable sort of flat keys: no allocation per
-  //    landmark).
-  std::vector<std::pair<int, int>> key_members;  // every landmark's (member, block), flat
-  std::vector<std::size_t> key_start(accepted.size() + 1, 0);
-  std::vector<unsigned char> key_joint(accepted.size(), 0);
-  key_members.reserve(holder_buffer.size() + accepted.size());
+  //    landmarks in the order of `accepted` (flat keys sorted with the position as the last
+  //    criterion: the order of a stable sort, without its buffer).
+  std::vector<std::pair<int, int>>& key_members = w.key_members;  // (member, block), flat
+  key_members.clear();
+  w.key_start.assign(accepted.size() + 1, 0);
+  w.key_joint.assign(accepted.size(), 0);
   for (std::size_t a = 0; a < accepted.size(); ++a) {
     const auto& [id, holders] = accepted[a];
-    key_start[a] = key_members.size();
+    w.key_start[a] = key_members.size();
     for (const auto& [j, at] : holders) key_members.emplace_back(j, at->block);
     key_members.emplace_back(-1, own->find(id)->block);
-    key_joint[a] = state.landmark_slot(id) >= 0 ? 1 : 0;
+    w.key_joint[a] = state.landmark_slot(id) >= 0 ? 1 : 0;
   }
-  key_start[accepted.size()] = key_members.size();
+  w.key_start[accepted.size()] = key_members.size();
   const auto key_of = [&](int a) {
-    return std::span<const std::pair<int, int>>(key_members.data() + key_start[a],
-                                                key_start[a + 1] - key_start[a]);
+    return std::span<const std::pair<int, int>>(key_members.data() + w.key_start[a],
+                                                w.key_start[a + 1] - w.key_start[a]);
   };
   const auto key_less = [&](int a, int b) {
-    if (key_joint[a] != key_joint[b]) return key_joint[a] < key_joint[b];
+    if (w.key_joint[a] != w.key_joint[b]) return w.key_joint[a] < w.key_joint[b];
     const auto x = key_of(a), y = key_of(b);
     return std::lexicographical_compare(x.begin(), x.end(), y.begin(), y.end());
   };
-  std::vector<int> order(accepted.size());
+  std::vector<int>& order = w.order;
+  order.resize(accepted.size());
   std::iota(order.begin(), order.end(), 0);
-  std::stable_sort(order.begin(), order.end(), key_less);
-  std::vector<Group> groups;
+  std::sort(order.begin(), order.end(), [&](int a, int b) {
+    if (key_less(a, b)) return true;
+    if (key_less(b, a)) return false;
+    return a < b;
+  });
+  std::vector<Group>& groups = w.groups;
+  groups.clear();
   for (std::size_t begin = 0; begin < order.size();) {
     std::size_t end = begin + 1;
     while (end < order.size() && !key_less(order[begin], order[end])) ++end;
-    groups.push_back({key_joint[order[begin]] != 0, key_of(order[begin]),
+    groups.push_back({w.key_joint[order[begin]] != 0, key_of(order[begin]),
                       std::span<const int>(order.data() + begin, end - begin)});
     begin = end;
   }
-  std::vector<int> union_slots;
-  std::vector<int> union_position(accepted.size(), -1);  // by position in accepted
+  std::vector<int>& union_slots = w.union_slots;
+  union_slots.clear();
+  w.union_position.assign(accepted.size(), -1);  // by position in accepted
   for (const Group& group : groups) {
     if (!group.in_joint_state) continue;
     for (int a : group.positions) {
-      union_position[a] = static_cast<int>(union_slots.size());
+      w.union_position[a] = static_cast<int>(union_slots.size());
       union_slots.push_back(state.landmark_slot(accepted[a].first));
     }
   }
-  Eigen::VectorXd union_mean;
-  Eigen::MatrixXd union_covariance;
-  if (!union_slots.empty()) {
-    Marginal own_union = StateHelper::landmark_marginal(state, union_slots);
-    union_mean = std::move(own_union.mean);
-    union_covariance = std::move(own_union.blocks.front());
+  const auto union_size = 3 * static_cast<Eigen::Index>(union_slots.size());
+  VectorMap union_mean = w.union_mean.vector(union_size);
+  MatrixMap union_covariance = w.union_covariance.matrix(union_size, union_size);
+  for (std::size_t j = 0; j < union_slots.size(); ++j) {  // 3x3 block by 3x3 block
+    const auto column = static_cast<Eigen::Index>(j);
+    const int start_j = state.landmark_index(union_slots[j]);
+    union_mean.segment<3>(3 * column) = state.landmarks[union_slots[j]].p_world;
+    for (std::size_t i = 0; i < union_slots.size(); ++i) {
+      union_covariance.block<3, 3>(3 * static_cast<Eigen::Index>(i), 3 * column) =
+          state.covariance.block<3, 3>(state.landmark_index(union_slots[i]), start_j);
+    }
   }
   int union_fused = 0;
   int union_groups = 0;
   // Single-landmark replacements update only U's lower triangle; it is mirrored before anything
   // reads U whole.
   bool union_lower_only = false;
-  SingleScratch scratch;
   for (const Group& group : groups) {
     const bool in_joint_state = group.in_joint_state;
     const std::span<const std::pair<int, int>> members = group.members;
     const std::span<const int> positions = group.positions;
     if (positions.size() == 1) {
       // Most groups: one landmark. The same average and replacement as below, with fixed-size
-      // algebra and no allocation.
+      // algebra.
       const auto& [id, holders] = accepted[positions.front()];
       const NeighbourShare share =
           neighbour_share(neighbour_members, holders, options.max_condition_number);
@@ -633,7 +796,7 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
       Eigen::Matrix3d matrix = share.matrix;
       Eigen::Vector3d vector = share.vector;
       const double own_weight = 1.0 - share.weight;
-      const Eigen::Index c = in_joint_state ? 3 * union_position[positions.front()] : 0;
+      const Eigen::Index c = in_joint_state ? 3 * w.union_position[positions.front()] : 0;
       ObjectEstimate* archived = in_joint_state ? nullptr : &state.archived.at(id);
       const Eigen::Vector3d own_mean =
           in_joint_state ? Eigen::Vector3d(union_mean.segment<3>(c)) : archived->p_world;
@@ -662,83 +825,111 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
         ++report.groups;
         continue;
       }
-      if (!proposition_two_single(union_covariance, c, own_mean, mean, covariance, scratch)) {
+      if (!proposition_two_single(union_covariance, c, own_mean, mean, covariance, w.single)) {
         continue;
       }
       union_lower_only = true;
-      union_mean += scratch.correction;
+      union_mean += w.single.correction.vector(union_size);
       ++union_fused;
       ++union_groups;
       continue;
     }
-    std::vector<LandmarkId> ids;
-    ids.reserve(positions.size());
+    // Several landmarks, in the joint state (an archived object is a block of its own).
+    std::vector<LandmarkId>& ids = w.ids;
+    ids.clear();
     for (int a : positions) ids.push_back(accepted[a].first);
-    std::vector<std::pair<double, Information>> shares;
+    const auto d = 3 * static_cast<Eigen::Index>(ids.size());
+    // The members' information: the neighbours that hold the group (in its key), then the robot.
+    GroupShares& shares = w.shares;
+    shares.prepare(members.size(), d);
     double own_weight = 1.0;
     for (const auto& [j, block] : members) {
       if (j < 0) continue;
       const Member& neighbour = neighbour_members[j];
-      if (auto information = information_of(neighbour, ids, options.max_condition_number)) {
-        own_weight -= neighbour.weight;
-        shares.emplace_back(neighbour.weight, std::move(*information));
-      } else {
+      w.at.clear();
+      for (LandmarkId id : ids) w.at.push_back(*neighbour.find(id));
+      VectorMap member_mean = w.member_mean.vector(d);
+      MatrixMap member_covariance = w.own_covariance.matrix(d, d);
+      sub_gaussian(*neighbour.marginal, w.at, member_mean, member_covariance);
+      const std::size_t s = shares.weights.size();
+      MatrixMap information = shares.matrix(s);
+      if (!checked_inverse(member_covariance, options.max_condition_number,
+                           w.factor.matrix(d, d), information)) {
         ++report.neighbours_skipped;  // its weight stays with the robot
+        continue;
       }
+      shares.vector(s).noalias() = information * member_mean;
+      own_weight -= neighbour.weight;
+      shares.weights.push_back(neighbour.weight);
     }
-    if (shares.empty()) continue;  // no usable neighbour: nothing to average
+    if (shares.weights.empty()) continue;  // no usable neighbour: nothing to average
     // The robot's own marginal as it is now: after the groups replaced before this one (the
     // replacements are sequential Bayesian steps; see above).
-    std::vector<int> indices;  // coordinates of an in-state group in U
-    Eigen::VectorXd own_mean;
-    Eigen::MatrixXd own_covariance;
-    if (in_joint_state) {
-      if (union_lower_only) {
-        mirror_lower(union_covariance);
-        union_lower_only = false;
-      }
-      for (int a : positions) {
-        for (int k = 0; k < 3; ++k) indices.push_back(3 * union_position[a] + k);
-      }
-      own_mean = union_mean(indices);
-      own_covariance = union_covariance(indices, indices);
-    } else {
-      const ObjectEstimate& estimate = state.archived.at(ids.front());
-      own_mean = estimate.p_world;
-      own_covariance = estimate.covariance;
+    if (union_lower_only) {
+      mirror_lower(union_covariance);
+      union_lower_only = false;
     }
-    const Eigen::LLT<Eigen::MatrixXd> own_llt(own_covariance);
-    if (own_llt.info() != Eigen::Success) continue;
-    Information own_information;
-    own_information.matrix =
-        own_llt.solve(Eigen::MatrixXd::Identity(own_covariance.rows(), own_covariance.rows()));
-    own_information.matrix =
-        0.5 * (own_information.matrix + own_information.matrix.transpose()).eval();
-    own_information.vector = own_information.matrix * own_mean;
-    shares.emplace_back(own_weight, std::move(own_information));
-    Eigen::VectorXd mean;
-    Eigen::MatrixXd covariance;
-    if (!information_average(shares, mean, covariance)) continue;
-
-    if (!in_joint_state) {
-      // An archived object (each is its own group): independent of the state, set directly.
-      ObjectEstimate& estimate = state.archived.at(ids.front());
-      note_mean_shift(estimate.p_world, mean, report);
-      estimate.p_world = mean;
-      estimate.covariance = covariance;
-      ++report.landmarks_fused;
-      ++report.groups;
-      continue;
+    std::vector<int>& indices = w.indices;  // coordinates of the group in U
+    indices.clear();
+    for (int a : positions) {
+      for (int k = 0; k < 3; ++k) indices.push_back(3 * w.union_position[a] + k);
     }
+    VectorMap own_mean = w.own_mean.vector(d);
+    MatrixMap own_covariance = w.own_covariance.matrix(d, d);
+    for (Eigen::Index c = 0; c < d; ++c) {
+      own_mean(c) = union_mean(indices[c]);
+      for (Eigen::Index r = 0; r < d; ++r) own_covariance(r, c) = union_covariance(indices[r], indices[c]);
+    }
+    {
+      MatrixMap factor = w.factor.matrix(d, d);
+      factor = own_covariance;
+      const Eigen::LLT<Eigen::Ref<Eigen::MatrixXd>> own_llt(factor);  // in place
+      if (own_llt.info() != Eigen::Success) continue;
+      const std::size_t s = shares.weights.size();
+      MatrixMap information = shares.matrix(s);
+      information.setIdentity();
+      own_llt.solveInPlace(information);
+      symmetrize(information);
+      shares.vector(s).noalias() = information * own_mean;
+      shares.weights.push_back(own_weight);
+    }
+    // The weighted average of eq. (19) in information form (a geometric mean of Gaussians:
+    // consistent whatever the correlation between the members, if each is).
+    double total_weight = 0.0;
+    for (std::size_t s = 0; s < shares.weights.size(); ++s) {
+      if (shares.matrix(s).diagonal().maxCoeff() > 0.0) total_weight += shares.weights[s];
+    }
+    if (!(total_weight > 0.0)) continue;
+    MatrixMap matrix = w.average.matrix(d, d);
+    VectorMap vector = w.average_vector.vector(d);
+    matrix.setZero();
+    vector.setZero();
+    for (std::size_t s = 0; s < shares.weights.size(); ++s) {
+      if (!(shares.matrix(s).diagonal().maxCoeff() > 0.0)) continue;
+      matrix += (shares.weights[s] / total_weight) * shares.matrix(s);
+      vector += (shares.weights[s] / total_weight) * shares.vector(s);
+    }
+    symmetrize(matrix);
+    const Eigen::LLT<Eigen::Ref<Eigen::MatrixXd>> llt(matrix);  // in place
+    if (llt.info() != Eigen::Success) continue;
+    MatrixMap covariance = w.covariance.matrix(d, d);
+    covariance.setIdentity();
+    llt.solveInPlace(covariance);
+    symmetrize(covariance);
+    VectorMap mean = w.mean.vector(d);
+    mean.noalias() = covariance * vector;
+    if (!mean.allFinite() || !covariance.allFinite()) continue;
     note_mean_shift(own_mean, mean, report);
-    if (!replace_gaussian_marginal(union_mean, union_covariance, indices, mean, covariance)) {
+    if (!replace_gaussian_marginal(union_mean, union_covariance, indices, mean, covariance,
+                                   w.own_mean, w.proposition)) {
       continue;
     }
     union_fused += static_cast<int>(ids.size());
     ++union_groups;
   }
   if (union_lower_only) mirror_lower(union_covariance);
-  if (union_groups > 0 && replace_marginal(state, union_slots, union_mean, union_covariance)) {
+  if (union_groups > 0 &&
+      replace_state_marginal(state, union_slots, union_mean, union_covariance, w)) {
     report.landmarks_fused += union_fused;
     report.groups += union_groups;
   }

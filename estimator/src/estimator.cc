@@ -130,8 +130,8 @@ Marginal Estimator::marginal(const std::vector<LandmarkId>& ids) const {
   return Consensus::marginal(state_, ids);
 }
 
-ConsensusReport Estimator::fuse(const std::vector<WeightedMarginal>& neighbours) {
-  return Consensus::fuse(state_, neighbours, options_.consensus);
+const ConsensusReport& Estimator::fuse(const std::vector<WeightedMarginal>& neighbours) {
+  return Consensus::fuse(state_, neighbours, options_.consensus, consensus_workspace_);
 }
 
 void Estimator::reanchor(const Eigen::Isometry3d& T_new_old,

@@ -42,7 +42,8 @@ std::vector<int> complement(const std::vector<int>& indices, int n) {
 
 }  // namespace
 
-void StateHelper::apply_correction(State& state, const Eigen::VectorXd& correction) {
+void StateHelper::apply_correction(State& state,
+                                   const Eigen::Ref<const Eigen::VectorXd>& correction) {
   for (int slot = 0; slot < state.num_poses(); ++slot) {
     auto& pose = state.poses[slot].T_world_body;
     pose = lie::orthonormalized(

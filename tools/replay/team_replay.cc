@@ -336,7 +336,7 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
       // 4. Every robot fuses.
       for (int i = 0; i < robots; ++i) {
         if (inbox[i].empty()) continue;
-        const ConsensusReport report = estimators[i].fuse(inbox[i]);
+        const ConsensusReport& report = estimators[i].fuse(inbox[i]);
         ++statistics.consensus_robot_steps;
         statistics.landmarks_fused += report.landmarks_fused;
         statistics.landmarks_settled += report.landmarks_settled;

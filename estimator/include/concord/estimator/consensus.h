@@ -10,6 +10,7 @@
 /// jointly (the full joint marginal over the group), groups one after another. Archived objects
 /// (outside the joint state) are averaged one by one.
 
+#include <memory>
 #include <optional>
 #include <vector>
 
@@ -39,6 +40,26 @@ struct ConsensusReport {
   double largest_mean_shift = 0.0;  ///< metres, the longest step of a landmark mean
 };
 
+/// The buffers of Consensus::fuse, kept from one round to the next by the robot that fuses
+/// (one per robot, used by one thread at a time). A round whose landmarks and neighbours are no
+/// more than those of an earlier round allocates nothing on the heap (issue 13); a copy is a
+/// fresh, empty workspace.
+class ConsensusWorkspace {
+ public:
+  ConsensusWorkspace();
+  ~ConsensusWorkspace();
+  ConsensusWorkspace(const ConsensusWorkspace&);
+  ConsensusWorkspace& operator=(const ConsensusWorkspace&);
+  ConsensusWorkspace(ConsensusWorkspace&&) noexcept;
+  ConsensusWorkspace& operator=(ConsensusWorkspace&&) noexcept;
+
+  struct Buffers;  ///< defined in consensus.cc
+
+ private:
+  friend class Consensus;
+  std::unique_ptr<Buffers> buffers_;
+};
+
 class Consensus {
  public:
   /// Joint marginal of any subset of the objects the robot holds (in-state block of the joint
@@ -50,6 +71,11 @@ class Consensus {
   /// 1 - sum of its neighbours' weights.
   static ConsensusReport fuse(State& state, const std::vector<WeightedMarginal>& neighbours,
                               const ConsensusOptions& options);
+  /// The same with the buffers of earlier rounds; the report is the workspace's, valid until
+  /// its next use.
+  static const ConsensusReport& fuse(State& state, const std::vector<WeightedMarginal>& neighbours,
+                                     const ConsensusOptions& options,
+                                     ConsensusWorkspace& workspace);
 
   /// Proposition 2: replaces the marginal of in-state landmarks (slots) by N(mean, covariance),
   /// keeping the conditional of the rest of the state, and corrects poses by eq. (21).

@@ -52,8 +52,9 @@ class Estimator {
   std::vector<LandmarkId> object_ids() const { return state_.object_ids(); }
   /// Joint marginal of the given objects (unknown ids skipped): what a robot sends.
   Marginal marginal(const std::vector<LandmarkId>& ids) const;
-  /// Consensus step with neighbours' marginals and weights A_ij (eq. 19-21).
-  ConsensusReport fuse(const std::vector<WeightedMarginal>& neighbours);
+  /// Consensus step with neighbours' marginals and weights A_ij (eq. 19-21). The report is
+  /// valid until the next call (the buffers are kept from round to round).
+  const ConsensusReport& fuse(const std::vector<WeightedMarginal>& neighbours);
   /// Moves the state into another frame, p_new = T_new_old p_old, with the transform's covariance
   /// (left perturbation in the new frame) folded in (StateHelper::reanchor).
   void reanchor(const Eigen::Isometry3d& T_new_old, const Eigen::Matrix<double, 6, 6>& covariance);
@@ -74,6 +75,7 @@ class Estimator {
   Propagator propagator_;
   ObjectUpdater object_updater_;
   FeatureUpdater feature_updater_;
+  ConsensusWorkspace consensus_workspace_;
   bool started_ = false;
 };
 

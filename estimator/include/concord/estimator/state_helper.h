@@ -17,7 +17,7 @@ class StateHelper {
  public:
   /// Applies an error-state correction: T <- exp(dx_pose^) T (eq. 21, 28, with the state's left
   /// perturbation), p <- p + dx_landmark.
-  static void apply_correction(State& state, const Eigen::VectorXd& correction);
+  static void apply_correction(State& state, const Eigen::Ref<const Eigen::VectorXd>& correction);
 
   /// Kalman update with residual r = H x~ + v, v ~ N(0, noise), and optional correlation
   /// S = E[w v^T] (n x m; nullptr for none):
