@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include "concord/daemon/wire.h"
+#include "concord/net/frame_codec.h"
 #include "concord/v1/concord.pb.h"
 #include "link_budget.h"
 
@@ -46,7 +47,7 @@ TEST(LinkBudget, EstimatedSizeBoundsTheEncodedMarginal) {
     envelope.set_round(123456);
     envelope.set_team("a-team-name");
     envelope.set_sender(7);
-    envelope.set_protocol_version(2);
+    envelope.set_protocol_version(net::kProtocolVersion);
     to_wire(make_marginal(in_state, archived), *envelope.mutable_marginal());
     envelope.mutable_marginal()->set_round(123456);
     envelope.mutable_marginal()->set_degree(9);

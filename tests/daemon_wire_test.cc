@@ -43,7 +43,45 @@ TEST(DaemonWire, MarginalRoundTripIsExact) {
         original.blocks[b].triangularView<Eigen::StrictlyUpper>().toDenseMatrix().transpose();
     EXPECT_EQ(back->blocks[b], symmetric);
   }
-  EXPECT_EQ(parsed.blocks(0).packed_upper_size(), 21);
+  // The double form's blocks travel in the flat fields: no message a block.
+  EXPECT_EQ(parsed.blocks_size(), 0);
+  EXPECT_EQ(std::vector<std::uint32_t>(parsed.block_landmarks().begin(), parsed.block_landmarks().end()),
+            (std::vector<std::uint32_t>{2, 1, 1}));
+  EXPECT_EQ(parsed.packed_upper_size(), 21 + 6 + 6);
+}
+
+TEST(DaemonWire, MarginalBlocksAsMessagesAreStillRead) {
+  // The same marginal with a CovarianceBlock message a block (the float32 form's layout, and
+  // what a sender may use for doubles too) reads back to the same numbers.
+  std::mt19937 random(3);
+  const Marginal original = block_marginal(random);
+  v1::Marginal flat;
+  to_wire(original, flat);
+  v1::Marginal messages;
+  messages.mutable_landmark_ids()->CopyFrom(flat.landmark_ids());
+  messages.mutable_mean()->CopyFrom(flat.mean());
+  int offset = 0;
+  for (const std::uint32_t landmarks : flat.block_landmarks()) {
+    v1::CovarianceBlock* block = messages.add_blocks();
+    block->set_landmarks(landmarks);
+    const int values = static_cast<int>(3 * landmarks * (3 * landmarks + 1) / 2);
+    for (int i = 0; i < values; ++i) block->add_packed_upper(flat.packed_upper(offset + i));
+    offset += values;
+  }
+  std::string error;
+  const auto from_flat = from_wire(flat, error);
+  const auto from_messages = from_wire(messages, error);
+  ASSERT_TRUE(from_flat && from_messages) << error;
+  ASSERT_EQ(from_messages->blocks.size(), from_flat->blocks.size());
+  for (std::size_t b = 0; b < from_flat->blocks.size(); ++b) {
+    EXPECT_EQ(from_messages->blocks[b], from_flat->blocks[b]);
+  }
+  // Both forms at once are refused.
+  v1::Marginal both = messages;
+  both.mutable_block_landmarks()->CopyFrom(flat.block_landmarks());
+  both.mutable_packed_upper()->CopyFrom(flat.packed_upper());
+  EXPECT_FALSE(from_wire(both, error));
+  EXPECT_NE(error.find("both"), std::string::npos);
 }
 
 TEST(DaemonWire, MalformedMarginalsAreRejectedWithAReason) {
@@ -58,17 +96,32 @@ TEST(DaemonWire, MalformedMarginalsAreRejectedWithAReason) {
   EXPECT_NE(error.find("mean"), std::string::npos);
 
   v1::Marginal short_block = good;
-  short_block.mutable_blocks(1)->mutable_packed_upper()->RemoveLast();
+  short_block.mutable_packed_upper()->RemoveLast();
   EXPECT_FALSE(from_wire(short_block, error));
   EXPECT_NE(error.find("packed"), std::string::npos);
 
-  v1::Marginal missing_block = good;
-  missing_block.mutable_blocks()->RemoveLast();
+  v1::Marginal extra_values = good;
+  extra_values.add_packed_upper(1.0);
+  EXPECT_FALSE(from_wire(extra_values, error));
+  EXPECT_NE(error.find("beyond"), std::string::npos);
+
+  v1::Marginal missing_block = good;  // the last block and its values gone
+  missing_block.mutable_block_landmarks()->RemoveLast();
+  for (int i = 0; i < 6; ++i) missing_block.mutable_packed_upper()->RemoveLast();
   EXPECT_FALSE(from_wire(missing_block, error));
+  EXPECT_NE(error.find("cover"), std::string::npos);
 
   v1::Marginal too_many = good;
-  too_many.mutable_blocks(0)->set_landmarks(40);
+  too_many.set_block_landmarks(0, 40);
   EXPECT_FALSE(from_wire(too_many, error));
+
+  v1::Marginal empty_block = good;
+  empty_block.set_block_landmarks(1, 0);
+  EXPECT_FALSE(from_wire(empty_block, error));
+
+  v1::Marginal values_only = good;  // values and no block sizes
+  values_only.clear_block_landmarks();
+  EXPECT_FALSE(from_wire(values_only, error));
 
   v1::Marginal not_finite = good;
   not_finite.set_mean(2, std::numeric_limits<double>::quiet_NaN());

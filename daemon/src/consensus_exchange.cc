@@ -288,7 +288,7 @@ void ConsensusExchange::on_message(int robot, const v1::Envelope& envelope) {
         // replaces is dropped (the peer went on without us in that round).
         if (peer.deferred) ++counters_.future_dropped;
         peer.deferred = Peer::Deferred{message.round(), std::move(ids), std::move(negotiation)};
-        changed_.notify_all();
+        notify_waiter();
         return;
       }
       if (negotiation) peer.negotiations[message.round()] = std::move(*negotiation);
@@ -302,7 +302,7 @@ void ConsensusExchange::on_message(int robot, const v1::Envelope& envelope) {
         ++counters_.future_dropped;
         peer.last_round =
             std::max<std::int64_t>(peer.last_round, static_cast<std::int64_t>(message.round()));
-        changed_.notify_all();
+        notify_waiter();
         return;
       }
       std::string error;
@@ -323,7 +323,7 @@ void ConsensusExchange::on_message(int robot, const v1::Envelope& envelope) {
           Peer::Received rejected;
           rejected.rejected = true;
           peer.marginals[message.round()] = std::move(rejected);
-          changed_.notify_all();
+          notify_waiter();
         }
         return;
       }
@@ -364,7 +364,23 @@ void ConsensusExchange::on_message(int robot, const v1::Envelope& envelope) {
     default:
       return;
   }
-  changed_.notify_all();
+  notify_waiter();
+}
+
+void ConsensusExchange::notify_waiter() {
+  if (wake_condition_.holds == nullptr || wake_condition_.holds(wake_condition_.context)) {
+    changed_.notify_all();
+  }
+}
+
+template <typename Ready>
+void ConsensusExchange::wait_for_round(std::unique_lock<std::mutex>& lock,
+                                       std::chrono::steady_clock::time_point deadline,
+                                       const Ready& ready) {
+  wake_condition_ = {[](const void* context) { return (*static_cast<const Ready*>(context))(); },
+                     &ready};
+  changed_.wait_until(lock, deadline, ready);
+  wake_condition_ = {};
 }
 
 int ConsensusExchange::wait_for_peers(int count, std::chrono::milliseconds timeout) {
@@ -610,9 +626,10 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
       return !peer.up || peer.goodbye || peer.landmark_sets.count(round) > 0 ||
              peer.last_round > k || peer.last_round < linked_before;
     };
-    changed_.wait_until(lock, start + config_.round_deadline, [&] {
+    const auto ready = [&] {
       return stopped_ || std::all_of(waited.begin(), waited.end(), settled);
-    });
+    };
+    wait_for_round(lock, start + config_.round_deadline, ready);
     for (int robot : candidates) {
       const Peer& peer = *peers_.at(robot);
       const auto it = peer.landmark_sets.find(round);
@@ -648,11 +665,12 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
       return !peer.up || peer.goodbye || peer.marginals.count(round) > 0 || peer.last_round > k;
     };
     const auto phase_start = Clock::now();
-    changed_.wait_until(lock, phase_start + config_.round_deadline, [&] {
+    const auto ready = [&] {
       return stopped_ || std::all_of(neighbours.begin(), neighbours.end(), [&](int robot) {
                return !waited.count(robot) || settled(robot);
              });
-    });
+    };
+    wait_for_round(lock, phase_start + config_.round_deadline, ready);
     for (int robot : neighbours) {
       Peer& peer = *peers_.at(robot);
       const auto it = peer.marginals.find(round);

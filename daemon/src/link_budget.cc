@@ -10,9 +10,12 @@ std::size_t estimated_marginal_bytes(std::size_t in_state, std::size_t archived)
   constexpr std::size_t kOverhead = 80;
   const std::size_t landmarks = in_state + archived;
   std::size_t bytes = kOverhead + 5 * landmarks + 8 * 3 * landmarks;  // ids (varints), means
+  bytes += 12;  // the headers of the flat block fields (block_landmarks, packed_upper)
   const std::size_t dense = 3 * in_state;
-  if (in_state > 0) bytes += 8 + 8 * dense * (dense + 1) / 2;  // packed upper triangle
-  bytes += archived * (8 + 8 * 6);                             // 3x3 blocks
+  if (in_state > 0) {  // its size (a varint), its packed upper triangle
+    bytes += (in_state < 128 ? 1 : 3) + 8 * dense * (dense + 1) / 2;
+  }
+  bytes += archived * (1 + 8 * 6);                             // 3x3 blocks
   return bytes;
 }
 

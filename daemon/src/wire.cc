@@ -39,14 +39,17 @@ bool from_wire(const google::protobuf::RepeatedPtrField<v1::StereoObservation>& 
 void to_wire(const Marginal& marginal, v1::Marginal& out) {
   out.mutable_landmark_ids()->Assign(marginal.ids.begin(), marginal.ids.end());
   out.mutable_mean()->Assign(marginal.mean.data(), marginal.mean.data() + marginal.mean.size());
+  auto* sizes = out.mutable_block_landmarks();
+  auto* packed = out.mutable_packed_upper();
+  Eigen::Index values = 0;
+  for (const Eigen::MatrixXd& block : marginal.blocks) values += block.rows() * (block.rows() + 1) / 2;
+  sizes->Reserve(static_cast<int>(marginal.blocks.size()));
+  packed->Reserve(static_cast<int>(values));
   for (const Eigen::MatrixXd& block : marginal.blocks) {
-    v1::CovarianceBlock* message = out.add_blocks();
-    message->set_landmarks(static_cast<std::uint32_t>(block.rows() / 3));
-    auto* packed = message->mutable_packed_upper();
-    packed->Reserve(static_cast<int>(block.rows() * (block.rows() + 1) / 2));
+    sizes->AddAlreadyReserved(static_cast<std::uint32_t>(block.rows() / 3));
     for (Eigen::Index row = 0; row < block.rows(); ++row) {
       for (Eigen::Index column = row; column < block.cols(); ++column) {
-        packed->Add(block(row, column));
+        packed->AddAlreadyReserved(block(row, column));
       }
     }
   }
@@ -86,6 +89,10 @@ bool blocks_cover(std::size_t covered, std::size_t k, std::string& error) {
 /// read, then expanded; the reconstructed marginal must be finite and well formed.
 std::optional<Marginal> compact_from_wire(const v1::Marginal& message, std::string& error) {
   const auto k = static_cast<std::size_t>(message.landmark_ids_size());
+  if (message.block_landmarks_size() != 0 || message.packed_upper_size() != 0) {
+    error = "marginal (float32): covariance blocks in both forms";
+    return std::nullopt;
+  }
   if (message.origin_size() != 3 || static_cast<std::size_t>(message.mean_offsets_size()) != 3 * k ||
       message.mean_size() != 0) {
     error = "marginal (float32): " + std::to_string(message.origin_size()) + " origin and " +
@@ -143,26 +150,57 @@ std::optional<Marginal> from_wire(const v1::Marginal& message, std::string& erro
   marginal.ids.assign(message.landmark_ids().begin(), message.landmark_ids().end());
   marginal.mean = Eigen::Map<const Eigen::VectorXd>(message.mean().data(), message.mean_size());
   std::size_t covered = 0;
-  for (const v1::CovarianceBlock& block : message.blocks()) {
-    const std::size_t landmarks = block.landmarks();
-    if (!block_fits(landmarks, covered, k, error)) return std::nullopt;
+  const bool flat = message.block_landmarks_size() > 0 || message.packed_upper_size() > 0;
+  if (flat && message.blocks_size() > 0) {
+    error = "marginal: covariance blocks in both forms";
+    return std::nullopt;
+  }
+  // Every block's size is checked against the landmarks and the values left before it is read.
+  const auto read_block = [&](std::size_t landmarks, const double* values, std::size_t available,
+                              std::size_t& used) {
+    if (!block_fits(landmarks, covered, k, error)) return false;
     const auto d = static_cast<Eigen::Index>(3 * landmarks);
-    if (static_cast<std::size_t>(block.packed_upper_size()) !=
-        static_cast<std::size_t>(d * (d + 1) / 2)) {
+    const auto needed = static_cast<std::size_t>(d * (d + 1) / 2);
+    if (available != needed && !(flat && available > needed)) {
       error = "marginal: a block of " + std::to_string(landmarks) + " landmarks needs " +
-              std::to_string(d * (d + 1) / 2) + " packed values, got " +
-              std::to_string(block.packed_upper_size());
-      return std::nullopt;
+              std::to_string(needed) + " packed values, got " + std::to_string(available);
+      return false;
     }
-    Eigen::MatrixXd covariance(d, d);
-    int index = 0;
+    Eigen::MatrixXd& covariance = marginal.blocks.emplace_back(d, d);
+    std::size_t index = 0;
     for (Eigen::Index row = 0; row < d; ++row) {
       for (Eigen::Index column = row; column < d; ++column) {
-        covariance(row, column) = covariance(column, row) = block.packed_upper(index++);
+        covariance(row, column) = covariance(column, row) = values[index++];
       }
     }
-    marginal.blocks.push_back(std::move(covariance));
+    used = needed;
     covered += landmarks;
+    return true;
+  };
+  if (flat) {
+    const auto total = static_cast<std::size_t>(message.packed_upper_size());
+    std::size_t offset = 0;
+    marginal.blocks.reserve(static_cast<std::size_t>(message.block_landmarks_size()));
+    for (const std::uint32_t landmarks : message.block_landmarks()) {
+      std::size_t used = 0;
+      if (!read_block(landmarks, message.packed_upper().data() + offset, total - offset, used)) {
+        return std::nullopt;
+      }
+      offset += used;
+    }
+    if (offset != total) {
+      error = "marginal: " + std::to_string(total - offset) +
+              " packed values beyond the covariance blocks";
+      return std::nullopt;
+    }
+  } else {
+    for (const v1::CovarianceBlock& block : message.blocks()) {
+      std::size_t used = 0;
+      if (!read_block(block.landmarks(), block.packed_upper().data(),
+                      static_cast<std::size_t>(block.packed_upper_size()), used)) {
+        return std::nullopt;
+      }
+    }
   }
   if (!blocks_cover(covered, k, error)) return std::nullopt;
   if (!marginal.well_formed()) {

@@ -238,6 +238,19 @@ class ConsensusExchange {
   std::unique_ptr<net::LogLimiter> log_limiter_;
   mutable std::mutex mutex_;
   std::condition_variable changed_;
+  /// While run_round waits for its neighbours, the condition it waits for (guarded by mutex_):
+  /// a message wakes it only when the condition holds, not once for every neighbour's message.
+  struct WakeCondition {
+    bool (*holds)(const void* context) = nullptr;
+    const void* context = nullptr;
+  };
+  WakeCondition wake_condition_;
+  /// Wakes the waiter for a message that arrived (mutex_ held): see wake_condition_.
+  void notify_waiter();
+  /// changed_.wait_until(lock, deadline, ready) with ready registered as wake_condition_.
+  template <typename Ready>
+  void wait_for_round(std::unique_lock<std::mutex>& lock,
+                      std::chrono::steady_clock::time_point deadline, const Ready& ready);
   std::map<int, std::unique_ptr<Peer>> peers_;
   bool stopped_ = false;
   /// Rounds up to this one are over: their messages are dropped on arrival (lockstep).

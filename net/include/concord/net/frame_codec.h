@@ -21,9 +21,10 @@ class Envelope;
 
 namespace concord::net {
 
-/// `Envelope.protocol_version`: 2 since peer connections run in the authenticated channel of
-/// secure_channel.h (the concord.v1 messages are unchanged); receivers reject any other value.
-inline constexpr std::uint32_t kProtocolVersion = 2;
+/// `Envelope.protocol_version`, receivers reject any other value. 2: peer connections run in
+/// the authenticated channel of secure_channel.h; 3: a Marginal's double covariance blocks travel
+/// in its flat fields (block_landmarks, packed_upper), which a version-2 daemon does not read.
+inline constexpr std::uint32_t kProtocolVersion = 3;
 /// Size of the big-endian length prefix.
 inline constexpr std::size_t kFrameHeaderBytes = 4;
 /// Default hard maximum of one frame's payload.
