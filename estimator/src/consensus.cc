@@ -487,8 +487,8 @@ struct ConsensusWorkspace::Buffers {
   std::vector<Location> at;
   std::vector<int> indices;
   GroupShares shares;
-  Scratch member_mean, factor, own_mean, own_covariance, average, average_vector, mean,
-      covariance;
+  Scratch member_mean, member_covariance, factor, own_mean, own_covariance, average,
+      average_vector, mean, covariance;
   // Proposition 2 on U and on the state.
   PropositionTwoScratch proposition;
   std::vector<int> state_indices;
@@ -504,24 +504,6 @@ ConsensusWorkspace::ConsensusWorkspace(ConsensusWorkspace&&) noexcept = default;
 ConsensusWorkspace& ConsensusWorkspace::operator=(ConsensusWorkspace&&) noexcept = default;
 
 namespace {
-
-/// Proposition 2 on a Gaussian N(mean, covariance) (see proposition_two).
-bool replace_gaussian_marginal(Eigen::Ref<Eigen::VectorXd> mean,
-                               Eigen::Ref<Eigen::MatrixXd> covariance,
-                               const std::vector<int>& indices,
-                               const Eigen::Ref<const Eigen::VectorXd>& target_mean,
-                               const Eigen::Ref<const Eigen::MatrixXd>& target_covariance,
-                               Scratch& own_mean_scratch, PropositionTwoScratch& scratch) {
-  VectorMap own_mean = own_mean_scratch.vector(static_cast<Eigen::Index>(indices.size()));
-  for (std::size_t i = 0; i < indices.size(); ++i) {
-    own_mean(static_cast<Eigen::Index>(i)) = mean(indices[i]);
-  }
-  if (!proposition_two(covariance, indices, own_mean, target_mean, target_covariance, scratch)) {
-    return false;
-  }
-  mean += scratch.correction.vector(mean.size());
-  return true;
-}
 
 /// Consensus::replace_marginal with the workspace's buffers.
 bool replace_state_marginal(State& state, const std::vector<int>& slots,
@@ -849,7 +831,7 @@ const ConsensusReport& Consensus::fuse(State& state,
       w.at.clear();
       for (LandmarkId id : ids) w.at.push_back(*neighbour.find(id));
       VectorMap member_mean = w.member_mean.vector(d);
-      MatrixMap member_covariance = w.own_covariance.matrix(d, d);
+      MatrixMap member_covariance = w.member_covariance.matrix(d, d);
       sub_gaussian(*neighbour.marginal, w.at, member_mean, member_covariance);
       const std::size_t s = shares.weights.size();
       MatrixMap information = shares.matrix(s);
@@ -920,10 +902,11 @@ const ConsensusReport& Consensus::fuse(State& state,
     mean.noalias() = covariance * vector;
     if (!mean.allFinite() || !covariance.allFinite()) continue;
     note_mean_shift(own_mean, mean, report);
-    if (!replace_gaussian_marginal(union_mean, union_covariance, indices, mean, covariance,
-                                   w.own_mean, w.proposition)) {
+    // Proposition 2 on U (own_mean is U's mean at `indices`, gathered above).
+    if (!proposition_two(union_covariance, indices, own_mean, mean, covariance, w.proposition)) {
       continue;
     }
+    union_mean += w.proposition.correction.vector(union_size);
     union_fused += static_cast<int>(ids.size());
     ++union_groups;
   }
