@@ -171,6 +171,43 @@ TEST(ConsensusWorkspace, ARoundOfAShapeSeenBeforeAllocatesNothing) {
   }
 }
 
+TEST(ConsensusMarginal, IntoAMarginalOfTheSameShapeTheArchivedBlocksAllocateNothing) {
+  std::mt19937 random(37);
+  State state = testing::random_state(2, 4, random);
+  for (LandmarkId id = 40; id < 60; ++id) {
+    state.archived[id] = {id, Eigen::Vector3d::Constant(static_cast<double>(id)),
+                          (1.0 + 0.01 * static_cast<double>(id)) * Eigen::Matrix3d::Identity()};
+  }
+  // In-state and archived ids mixed, one unknown: in-state first, then archived, in this order.
+  std::vector<LandmarkId> ids{45, 101, 41, 999, 100};
+  for (LandmarkId id = 50; id < 60; ++id) ids.push_back(id);
+  const Marginal fresh = Consensus::marginal(state, ids);
+  ASSERT_EQ(fresh.ids.size(), 14u);
+  EXPECT_EQ(fresh.ids[0], 101u);
+  EXPECT_EQ(fresh.ids[1], 100u);
+  EXPECT_EQ(fresh.ids[2], 45u);
+  ASSERT_EQ(fresh.blocks.size(), 13u);  // the joint block, then a 3x3 an archived object
+  EXPECT_EQ(fresh.blocks[0].rows(), 6);
+  EXPECT_EQ(fresh.blocks[1], state.archived.at(45).covariance);
+  EXPECT_EQ(fresh.mean.segment<3>(3), state.landmarks[state.landmark_slot(100)].p_world);
+
+  Marginal reused;
+  Consensus::marginal(state, ids, reused);
+  const std::size_t before = testing::allocations();
+  Consensus::marginal(state, ids, reused);
+  // At most one: the in-state landmarks' places in the state (12 archived blocks reused).
+  if (testing::counting_allocations()) EXPECT_LE(testing::allocations() - before, 1u);
+  EXPECT_EQ(reused.ids, fresh.ids);
+  EXPECT_EQ(reused.mean, fresh.mean);
+  EXPECT_TRUE(testing::same_blocks(reused.blocks, fresh.blocks));
+  // Fewer landmarks into the same storage: nothing left over.
+  Consensus::marginal(state, {41, 100}, reused);
+  EXPECT_EQ(reused.ids, (std::vector<LandmarkId>{100, 41}));
+  ASSERT_EQ(reused.blocks.size(), 2u);
+  EXPECT_EQ(reused.mean.size(), 6);
+  EXPECT_EQ(reused.blocks[1], state.archived.at(41).covariance);
+}
+
 TEST(ConsensusAverage, IdenticalMarginalsAreANoOp) {
   std::mt19937 random(22);
   State state = testing::random_state(2, 3, random);

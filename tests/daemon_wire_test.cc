@@ -5,6 +5,7 @@
 #include <cmath>
 #include <random>
 
+#include "allocation_counter.h"
 #include "checkpoint.h"
 #include "concord/daemon/wire.h"
 #include "concord/v1/concord.pb.h"
@@ -48,6 +49,40 @@ TEST(DaemonWire, MarginalRoundTripIsExact) {
   EXPECT_EQ(std::vector<std::uint32_t>(parsed.block_landmarks().begin(), parsed.block_landmarks().end()),
             (std::vector<std::uint32_t>{2, 1, 1}));
   EXPECT_EQ(parsed.packed_upper_size(), 21 + 6 + 6);
+}
+
+TEST(DaemonWire, AMarginalReadIntoOneOfTheSameShapeReusesItsStorage) {
+  std::mt19937 random(5);
+  const Marginal first = block_marginal(random);
+  Marginal second = block_marginal(random);
+  second.mean *= 2.0;
+  v1::Marginal first_message, second_message;
+  to_wire(first, first_message);
+  to_wire(second, second_message);
+  std::string error;
+  Marginal reused;
+  ASSERT_TRUE(from_wire(first_message, error, reused)) << error;
+  const std::size_t before = testing::allocations();
+  ASSERT_TRUE(from_wire(second_message, error, reused)) << error;
+  if (testing::counting_allocations()) EXPECT_EQ(testing::allocations(), before);
+  // The same marginal as read into a fresh one, to the bit.
+  const auto fresh = from_wire(second_message, error);
+  ASSERT_TRUE(fresh) << error;
+  EXPECT_EQ(reused.ids, fresh->ids);
+  EXPECT_EQ(reused.mean, fresh->mean);
+  EXPECT_TRUE(testing::same_blocks(reused.blocks, fresh->blocks));
+  // A smaller marginal into the same storage: its own blocks only, nothing left over.
+  Marginal small;
+  small.ids = {4};
+  small.mean = Eigen::Vector3d(1, 2, 3);
+  small.blocks = {testing::random_spd(3, random)};
+  v1::Marginal small_message;
+  to_wire(small, small_message);
+  ASSERT_TRUE(from_wire(small_message, error, reused)) << error;
+  EXPECT_EQ(reused.ids, small.ids);
+  EXPECT_EQ(reused.mean, small.mean);
+  ASSERT_EQ(reused.blocks.size(), 1u);
+  EXPECT_EQ(reused.blocks[0], from_wire(small_message, error)->blocks[0]);
 }
 
 TEST(DaemonWire, MarginalBlocksAsMessagesAreStillRead) {

@@ -3,6 +3,7 @@
 
 #include <Eigen/Core>
 #include <random>
+#include <vector>
 
 #include "concord/estimator/state.h"
 #include "concord/estimator/types.h"
@@ -58,6 +59,16 @@ inline State random_state(int poses, int landmarks, std::mt19937& random) {
   state.rebuild_landmark_index();
   state.covariance = random_spd(state.dimension(), random, 0.05, 1.0);
   return state;
+}
+
+/// Whether two lists of matrices have the same shapes and the same values, bit for bit.
+inline bool same_blocks(const std::vector<Eigen::MatrixXd>& a,
+                        const std::vector<Eigen::MatrixXd>& b) {
+  if (a.size() != b.size()) return false;
+  for (std::size_t i = 0; i < a.size(); ++i) {
+    if (a[i].rows() != b[i].rows() || a[i].cols() != b[i].cols() || a[i] != b[i]) return false;
+  }
+  return true;
 }
 
 }  // namespace concord::testing

@@ -306,15 +306,20 @@ void ConsensusExchange::on_message(int robot, const v1::Envelope& envelope) {
         return;
       }
       std::string error;
-      std::optional<Marginal> marginal;
+      Marginal marginal;  // read into a spare's storage when there is one
+      if (!spare_marginals_.empty()) {
+        marginal = std::move(spare_marginals_.back());
+        spare_marginals_.pop_back();
+      }
+      bool read = false;
       if (message.landmark_ids_size() > config_.max_marginal_landmarks)
         error = "marginal of " + std::to_string(message.landmark_ids_size()) +
                 " landmarks, above the limit of " + std::to_string(config_.max_marginal_landmarks);
       else
-        marginal = from_wire(message, error);
+        read = from_wire(message, error, marginal);
       peer.last_round =
           std::max<std::int64_t>(peer.last_round, static_cast<std::int64_t>(message.round()));
-      if (!marginal) {
+      if (!read) {
         ++counters_.malformed;
         warn_limited(*log_limiter_, robot, "marginal", "consensus: robot {} round {}: {}", robot,
                      message.round(), error);
@@ -328,9 +333,9 @@ void ConsensusExchange::on_message(int robot, const v1::Envelope& envelope) {
         return;
       }
       // Every marginal that arrives is what the sender counts as delivered, fused or not.
-      if (sharing()) peer.receiver.ingest(*marginal);
+      if (sharing()) peer.receiver.ingest(marginal);
       if (config_.mode == ConsensusMode::kAsync) {
-        peer.latest = Peer::Received{std::move(*marginal), static_cast<int>(message.degree()), false, false, std::nullopt};
+        peer.latest = Peer::Received{std::move(marginal), static_cast<int>(message.degree()), false, false, std::nullopt};
         peer.latest_received_at = current_round_;
         break;
       }
@@ -338,7 +343,7 @@ void ConsensusExchange::on_message(int robot, const v1::Envelope& envelope) {
         ++counters_.stale_dropped;
         break;
       }
-      Peer::Received received{std::move(*marginal), static_cast<int>(message.degree()), false, false, std::nullopt};
+      Peer::Received received{std::move(marginal), static_cast<int>(message.degree()), false, false, std::nullopt};
       if (association_) {
         const auto& relabelling = message.relabelling();
         if (message.has_relabelling() &&
@@ -541,7 +546,10 @@ void ConsensusExchange::send_marginal(int robot, std::uint64_t round, const Esti
       for (const LandmarkId id : common) last_sent_[robot][id] = round;
     }
     if (!sharing()) {
-      if (!common.empty()) to_wire(estimator.marginal(common), *message);
+      if (!common.empty()) {
+        estimator.marginal(common, outgoing_);
+        to_wire(outgoing_, *message);
+      }
     } else {
       // Event-triggered and compact: the landmarks that moved since this connection last
       // carried them; recorded as delivered once the message is handed to the connection.
@@ -727,9 +735,16 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
     report.consensus = estimator.fuse(inbox);
     report.fused = static_cast<int>(inbox.size());
     judge(round, senders, report.consensus);
+    recycle(inbox);
   }
   forget_rounds_up_to(round);
   return report;
+}
+
+void ConsensusExchange::recycle(std::vector<WeightedMarginal>& inbox) {
+  std::lock_guard lock(mutex_);
+  spare_marginals_.clear();
+  for (WeightedMarginal& used : inbox) spare_marginals_.push_back(std::move(used.marginal));
 }
 
 RoundReport ConsensusExchange::async_round(std::uint64_t round, Estimator& estimator) {
@@ -790,6 +805,7 @@ RoundReport ConsensusExchange::async_round(std::uint64_t round, Estimator& estim
     report.consensus = estimator.fuse(inbox);
     report.fused = static_cast<int>(inbox.size());
     judge(round, senders, report.consensus);
+    recycle(inbox);
   }
   return report;
 }

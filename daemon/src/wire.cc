@@ -137,15 +137,23 @@ std::optional<Marginal> compact_from_wire(const v1::Marginal& message, std::stri
 }  // namespace
 
 std::optional<Marginal> from_wire(const v1::Marginal& message, std::string& error) {
-  if (message.origin_size() > 0 || message.mean_offsets_size() > 0) {
-    return compact_from_wire(message, error);
-  }
   Marginal marginal;
+  if (!from_wire(message, error, marginal)) return std::nullopt;
+  return marginal;
+}
+
+bool from_wire(const v1::Marginal& message, std::string& error, Marginal& marginal) {
+  if (message.origin_size() > 0 || message.mean_offsets_size() > 0) {
+    std::optional<Marginal> compact = compact_from_wire(message, error);
+    if (!compact) return false;
+    marginal = std::move(*compact);
+    return true;
+  }
   const auto k = static_cast<std::size_t>(message.landmark_ids_size());
   if (static_cast<std::size_t>(message.mean_size()) != 3 * k) {
     error = "marginal: " + std::to_string(message.mean_size()) + " mean values for " +
             std::to_string(k) + " landmarks";
-    return std::nullopt;
+    return false;
   }
   marginal.ids.assign(message.landmark_ids().begin(), message.landmark_ids().end());
   marginal.mean = Eigen::Map<const Eigen::VectorXd>(message.mean().data(), message.mean_size());
@@ -153,8 +161,9 @@ std::optional<Marginal> from_wire(const v1::Marginal& message, std::string& erro
   const bool flat = message.block_landmarks_size() > 0 || message.packed_upper_size() > 0;
   if (flat && message.blocks_size() > 0) {
     error = "marginal: covariance blocks in both forms";
-    return std::nullopt;
+    return false;
   }
+  std::size_t blocks_used = 0;
   // Every block's size is checked against the landmarks and the values left before it is read.
   const auto read_block = [&](std::size_t landmarks, const double* values, std::size_t available,
                               std::size_t& used) {
@@ -166,7 +175,9 @@ std::optional<Marginal> from_wire(const v1::Marginal& message, std::string& erro
               std::to_string(needed) + " packed values, got " + std::to_string(available);
       return false;
     }
-    Eigen::MatrixXd& covariance = marginal.blocks.emplace_back(d, d);
+    if (blocks_used == marginal.blocks.size()) marginal.blocks.emplace_back();
+    Eigen::MatrixXd& covariance = marginal.blocks[blocks_used++];  // storage reused
+    if (covariance.rows() != d || covariance.cols() != d) covariance.resize(d, d);
     std::size_t index = 0;
     for (Eigen::Index row = 0; row < d; ++row) {
       for (Eigen::Index column = row; column < d; ++column) {
@@ -180,34 +191,34 @@ std::optional<Marginal> from_wire(const v1::Marginal& message, std::string& erro
   if (flat) {
     const auto total = static_cast<std::size_t>(message.packed_upper_size());
     std::size_t offset = 0;
-    marginal.blocks.reserve(static_cast<std::size_t>(message.block_landmarks_size()));
     for (const std::uint32_t landmarks : message.block_landmarks()) {
       std::size_t used = 0;
       if (!read_block(landmarks, message.packed_upper().data() + offset, total - offset, used)) {
-        return std::nullopt;
+        return false;
       }
       offset += used;
     }
     if (offset != total) {
       error = "marginal: " + std::to_string(total - offset) +
               " packed values beyond the covariance blocks";
-      return std::nullopt;
+      return false;
     }
   } else {
     for (const v1::CovarianceBlock& block : message.blocks()) {
       std::size_t used = 0;
       if (!read_block(block.landmarks(), block.packed_upper().data(),
                       static_cast<std::size_t>(block.packed_upper_size()), used)) {
-        return std::nullopt;
+        return false;
       }
     }
   }
-  if (!blocks_cover(covered, k, error)) return std::nullopt;
+  marginal.blocks.resize(blocks_used);
+  if (!blocks_cover(covered, k, error)) return false;
   if (!marginal.well_formed()) {
     error = "marginal: non-finite mean or covariance";
-    return std::nullopt;
+    return false;
   }
-  return marginal;
+  return true;
 }
 
 void to_wire(const Eigen::Isometry3d& pose, v1::Pose& out) {

@@ -532,33 +532,54 @@ bool replace_state_marginal(State& state, const std::vector<int>& slots,
 
 Marginal Consensus::marginal(const State& state, const std::vector<LandmarkId>& ids) {
   Marginal out;
-  std::vector<int> slots;
-  std::vector<const ObjectEstimate*> archived;
-  slots.reserve(ids.size());
-  archived.reserve(ids.size());
+  marginal(state, ids, out);
+  return out;
+}
+
+void Consensus::marginal(const State& state, const std::vector<LandmarkId>& ids, Marginal& out) {
+  // In-state objects, archived consider states among them, go in one joint block: averaging
+  // correlated objects one by one and carrying each average into the state (Proposition 2)
+  // was measured to cost accuracy (docs/estimator.md, "Archiving"). Each archived object is a
+  // 3x3 block of its own, after the joint block.
+  out.ids.clear();
   for (LandmarkId id : ids) {
-    // In-state objects, archived consider states among them, go in one joint block: averaging
-    // correlated objects one by one and carrying each average into the state (Proposition 2)
-    // was measured to cost accuracy (docs/estimator.md, "Archiving").
-    const int slot = state.landmark_slot(id);
-    if (slot >= 0) {
-      slots.push_back(slot);
-    } else if (auto it = state.archived.find(id); it != state.archived.end()) {
-      archived.push_back(&it->second);
+    if (state.landmark_slot(id) >= 0) out.ids.push_back(id);
+  }
+  const auto joint = static_cast<Eigen::Index>(out.ids.size());
+  for (LandmarkId id : ids) {
+    if (state.landmark_slot(id) < 0 && state.archived.count(id) > 0) out.ids.push_back(id);
+  }
+  const auto count = static_cast<Eigen::Index>(out.ids.size());
+  if (out.mean.size() != 3 * count) out.mean.resize(3 * count);
+  const std::size_t blocks = (joint > 0 ? 1 : 0) + static_cast<std::size_t>(count - joint);
+  out.blocks.resize(blocks);  // kept blocks keep their storage
+  if (joint > 0) {
+    Eigen::MatrixXd& covariance = out.blocks.front();
+    if (covariance.rows() != 3 * joint || covariance.cols() != 3 * joint)
+      covariance.resize(3 * joint, 3 * joint);
+    std::vector<Eigen::Index> starts(static_cast<std::size_t>(joint));  // in the state
+    for (Eigen::Index j = 0; j < joint; ++j) {
+      const int slot = state.landmark_slot(out.ids[static_cast<std::size_t>(j)]);
+      starts[static_cast<std::size_t>(j)] = state.landmark_index(slot);
+      out.mean.segment<3>(3 * j) = state.landmarks[slot].p_world;
+    }
+    // A landmark's three coordinates are adjacent in the state: the joint block is gathered
+    // 3x3 block by 3x3 block.
+    for (Eigen::Index j = 0; j < joint; ++j) {
+      for (Eigen::Index i = 0; i < joint; ++i) {
+        covariance.block<3, 3>(3 * i, 3 * j) = state.covariance.block<3, 3>(
+            starts[static_cast<std::size_t>(i)], starts[static_cast<std::size_t>(j)]);
+      }
     }
   }
-  out = StateHelper::landmark_marginal(state, slots);
-  out.ids.reserve(out.ids.size() + archived.size());
-  out.blocks.reserve(out.blocks.size() + archived.size());
-  const Eigen::Index joint = out.mean.size();
-  out.mean.conservativeResize(joint + 3 * static_cast<Eigen::Index>(archived.size()));
-  for (std::size_t i = 0; i < archived.size(); ++i) {
-    out.ids.push_back(archived[i]->id);
-    out.mean.segment<3>(joint + 3 * static_cast<Eigen::Index>(i)) = archived[i]->p_world;
-    out.blocks.emplace_back(archived[i]->covariance);
+  std::size_t block = joint > 0 ? 1 : 0;
+  for (Eigen::Index a = joint; a < count; ++a, ++block) {
+    const ObjectEstimate& estimate = state.archived.at(out.ids[static_cast<std::size_t>(a)]);
+    out.mean.segment<3>(3 * a) = estimate.p_world;
+    Eigen::MatrixXd& covariance = out.blocks[block];
+    if (covariance.rows() != 3 || covariance.cols() != 3) covariance.resize(3, 3);
+    covariance = estimate.covariance;
   }
-
-  return out;
 }
 
 bool Consensus::replace_marginal(State& state, const std::vector<int>& slots,

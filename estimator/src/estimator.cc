@@ -130,6 +130,10 @@ Marginal Estimator::marginal(const std::vector<LandmarkId>& ids) const {
   return Consensus::marginal(state_, ids);
 }
 
+void Estimator::marginal(const std::vector<LandmarkId>& ids, Marginal& out) const {
+  Consensus::marginal(state_, ids, out);
+}
+
 const ConsensusReport& Estimator::fuse(const std::vector<WeightedMarginal>& neighbours) {
   return Consensus::fuse(state_, neighbours, options_.consensus, consensus_workspace_);
 }

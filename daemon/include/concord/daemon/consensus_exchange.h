@@ -252,6 +252,11 @@ class ConsensusExchange {
   void wait_for_round(std::unique_lock<std::mutex>& lock,
                       std::chrono::steady_clock::time_point deadline, const Ready& ready);
   std::map<int, std::unique_ptr<Peer>> peers_;
+  /// The marginals the last fuse consumed (guarded by mutex_): the next ones received are read
+  /// into their storage (from_wire), not allocated again. At most one round's inbox is kept.
+  std::vector<Marginal> spare_marginals_;
+  /// After a fuse: its marginals become the spares (the ones kept before are let go).
+  void recycle(std::vector<WeightedMarginal>& inbox);
   bool stopped_ = false;
   /// Rounds up to this one are over: their messages are dropped on arrival (lockstep).
   std::int64_t forgotten_up_to_ = -1;
@@ -264,6 +269,8 @@ class ConsensusExchange {
   std::map<int, std::map<LandmarkId, std::uint64_t>> last_sent_;
   /// Estimator thread only: per neighbour, what it holds of this robot's landmarks (sharing()).
   std::map<int, MarginalSender> senders_;
+  /// Estimator thread only: the marginal being sent, its storage kept from round to round.
+  Marginal outgoing_;
 };
 
 }  // namespace concord::daemon

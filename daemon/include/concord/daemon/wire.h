@@ -24,6 +24,10 @@ void to_wire(const Marginal& marginal, v1::Marginal& out);
 void to_wire(const CompactMarginal& marginal, v1::Marginal& out);
 /// The Marginal a message carries, or std::nullopt with `error` saying what is malformed.
 [[nodiscard]] std::optional<Marginal> from_wire(const v1::Marginal& message, std::string& error);
+/// The same into `out`, reusing its storage (covariance blocks of the sizes it already holds are
+/// overwritten, not allocated again); false with `error` set when malformed (`out` then holds
+/// no meaningful marginal).
+[[nodiscard]] bool from_wire(const v1::Marginal& message, std::string& error, Marginal& out);
 
 void to_wire(const Eigen::Isometry3d& pose, v1::Pose& out);
 /// Rejects non-finite values and quaternions far from unit length (normalizes the rest).

@@ -65,6 +65,9 @@ class Consensus {
   /// Joint marginal of any subset of the objects the robot holds (in-state block of the joint
   /// covariance; archived objects independent). Unknown ids are skipped.
   static Marginal marginal(const State& state, const std::vector<LandmarkId>& ids);
+  /// The same into `out`, reusing its storage: blocks of the sizes `out` already holds (an
+  /// archived object's 3x3) are overwritten, not allocated again. Same result as above.
+  static void marginal(const State& state, const std::vector<LandmarkId>& ids, Marginal& out);
 
   /// Averages the robot's marginals with its neighbours' (eq. 19) and reconstructs the joint
   /// (Proposition 2, eq. 21). Each neighbour carries its weight A_ij; the robot's own weight is

@@ -52,6 +52,8 @@ class Estimator {
   std::vector<LandmarkId> object_ids() const { return state_.object_ids(); }
   /// Joint marginal of the given objects (unknown ids skipped): what a robot sends.
   Marginal marginal(const std::vector<LandmarkId>& ids) const;
+  /// The same into `out`, reusing its storage (Consensus::marginal).
+  void marginal(const std::vector<LandmarkId>& ids, Marginal& out) const;
   /// Consensus step with neighbours' marginals and weights A_ij (eq. 19-21). The report is
   /// valid until the next call (the buffers are kept from round to round).
   const ConsensusReport& fuse(const std::vector<WeightedMarginal>& neighbours);
