@@ -196,6 +196,16 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
     frame_of[i] = dataset.robots[i].T_world_body_start ? association::kWorldFrame : i;
   }
 
+  // Each robot's inbox keeps its marginals' storage from round to round: a marginal is built
+  // into the one of the previous round at its place (Consensus::marginal reuses it).
+  std::vector<std::vector<WeightedMarginal>> inbox(robots);
+  std::vector<std::size_t> inbox_size(robots, 0);
+  const auto next_in = [&](int i) -> WeightedMarginal& {
+    auto& box = inbox[static_cast<std::size_t>(i)];
+    std::size_t& size = inbox_size[static_cast<std::size_t>(i)];
+    if (size == box.size()) box.emplace_back();
+    return box[size++];
+  };
   for (int step = 0; step < steps; ++step) {
     std::vector<bool> active(robots);
     for (int i = 0; i < robots; ++i) active[i] = step < dataset.robots[i].num_frames();
@@ -275,7 +285,7 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
 
       phase_start = Clock::now();
       // 3. All marginals are taken before anyone fuses.
-      std::vector<std::vector<WeightedMarginal>> inbox(robots);
+      std::fill(inbox_size.begin(), inbox_size.end(), 0);
       std::vector<long long> sent_bytes(robots, 0);  // by sender, this round
       const auto count_bytes = [&](int sender, long long bytes) {
         statistics.marginal_bytes += bytes;
@@ -291,7 +301,7 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
             const double weight =
                 Consensus::metropolis_weight(static_cast<int>(round_neighbours[i].size()),
                                              static_cast<int>(round_neighbours[j].size()));
-            inbox[i].push_back({weight, std::move(marginal)});
+            next_in(i) = {weight, std::move(marginal)};
           }
         }
       } else {
@@ -306,8 +316,10 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
                 Consensus::metropolis_weight(static_cast<int>(round_neighbours[i].size()),
                                              static_cast<int>(round_neighbours[j].size()));
             if (!compact_sharing) {
-              inbox[i].push_back({weight, estimators[j].marginal(common)});
-              count_bytes(j, marginal_bytes(inbox[i].back().marginal));
+              WeightedMarginal& in = next_in(i);
+              in.weight = weight;
+              estimators[j].marginal(common, in.marginal);
+              count_bytes(j, marginal_bytes(in.marginal));
               continue;
             }
             // What j sends i (the changed landmarks, in float32 if asked), then what i fuses.
@@ -325,7 +337,7 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
             }
             sender.delivered(sent);
             Marginal fused = receivers[{i, j}].complete(sent, common);
-            if (!fused.ids.empty()) inbox[i].push_back({weight, std::move(fused)});
+            if (!fused.ids.empty()) next_in(i) = {weight, std::move(fused)};
           }
         }
       }
@@ -335,6 +347,7 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
       }
       // 4. Every robot fuses.
       for (int i = 0; i < robots; ++i) {
+        inbox[i].resize(inbox_size[i]);  // this round's marginals only
         if (inbox[i].empty()) continue;
         const ConsensusReport& report = estimators[i].fuse(inbox[i]);
         ++statistics.consensus_robot_steps;
