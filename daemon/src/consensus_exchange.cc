@@ -489,13 +489,13 @@ void ConsensusExchange::send_landmark_set(int robot, std::uint64_t round,
     std::lock_guard lock(mutex_);
     counters_.negotiation_bytes += message->negotiation().ByteSizeLong();
   }
-  send_counted(robot, envelope);
+  send_counted(robot, std::move(envelope));
 }
 
-bool ConsensusExchange::send_counted(int robot, const v1::Envelope& envelope) {
+bool ConsensusExchange::send_counted(int robot, v1::Envelope&& envelope) {
   // Encryption (secretstream) and the length prefix come on top of the envelope.
   const std::size_t bytes = envelope.ByteSizeLong() + 21;
-  if (!send_(robot, envelope)) return false;
+  if (!send_(robot, std::move(envelope))) return false;
   budget_->spend(bytes);
   std::lock_guard lock(mutex_);
   counters_.bytes_sent += bytes;
@@ -572,7 +572,7 @@ void ConsensusExchange::send_marginal(int robot, std::uint64_t round, const Esti
       } else if (!sent.ids.empty()) {
         to_wire(sent, *message);
       }
-      if (!failpoints_.marginal_garbage && send_counted(robot, envelope)) sender.delivered(sent);
+      if (!failpoints_.marginal_garbage && send_counted(robot, std::move(envelope))) sender.delivered(sent);
       if (!failpoints_.marginal_garbage) return;
     }
   }
@@ -580,7 +580,7 @@ void ConsensusExchange::send_marginal(int robot, std::uint64_t round, const Esti
     message->add_landmark_ids(1);
     message->add_mean(0.0);
   }
-  (void)send_counted(robot, envelope);
+  (void)send_counted(robot, std::move(envelope));
 }
 
 RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& estimator) {

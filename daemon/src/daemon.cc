@@ -419,8 +419,8 @@ bool Daemon::Impl::start_services() {
       exchange_config.share_max_landmarks = config_.estimator.consensus.share_max_landmarks;
       exchange_ = std::make_unique<ConsensusExchange>(
           std::move(exchange_config),
-          [this](int robot, const v1::Envelope& envelope) {
-            return network_->send(robot, envelope);
+          [this](int robot, v1::Envelope&& envelope) {
+            return network_->send(robot, std::move(envelope));
           },
           ExchangeFailpoints{config_.failpoints.marginal_silence,
                              config_.failpoints.marginal_garbage});

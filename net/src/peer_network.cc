@@ -202,8 +202,7 @@ void PeerNetwork::Impl::count_send_drop(int robot) {
     ++record->second.stats.drops;
 }
 
-bool PeerNetwork::Impl::send(int robot, const v1::Envelope& envelope) {
-  auto stamped = std::make_shared<v1::Envelope>(envelope);
+bool PeerNetwork::Impl::send(int robot, std::shared_ptr<v1::Envelope> stamped) {
   stamp(*stamped);
   const std::size_t bytes = stamped->ByteSizeLong();
   if (bytes > options_.max_frame_bytes) {
@@ -233,7 +232,8 @@ bool PeerNetwork::Impl::send(int robot, const v1::Envelope& envelope) {
 
 int PeerNetwork::Impl::broadcast(const v1::Envelope& envelope) {
   int queued = 0;
-  for (const int robot : live_peers()) queued += send(robot, envelope) ? 1 : 0;
+  for (const int robot : live_peers())
+    queued += send(robot, std::make_shared<v1::Envelope>(envelope)) ? 1 : 0;
   return queued;
 }
 
@@ -424,7 +424,11 @@ void PeerNetwork::set_static_peers(std::vector<HostPort> addresses) {
 std::uint16_t PeerNetwork::listen_port() const { return impl_->listen_port(); }
 
 bool PeerNetwork::send(int robot, const v1::Envelope& envelope) {
-  return impl_->send(robot, envelope);
+  return impl_->send(robot, std::make_shared<v1::Envelope>(envelope));
+}
+
+bool PeerNetwork::send(int robot, v1::Envelope&& envelope) {
+  return impl_->send(robot, std::make_shared<v1::Envelope>(std::move(envelope)));
 }
 
 int PeerNetwork::broadcast(const v1::Envelope& envelope) { return impl_->broadcast(envelope); }

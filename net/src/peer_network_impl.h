@@ -127,7 +127,8 @@ class PeerNetwork::Impl : public std::enable_shared_from_this<PeerNetwork::Impl>
   void add_peer(HostPort address);
   void set_static_peers(std::vector<HostPort> addresses);
   std::uint16_t listen_port() const { return listen_port_.load(); }
-  bool send(int robot, const v1::Envelope& envelope);
+  /// Stamps `envelope` (sender, team, version) and queues it to `robot`.
+  bool send(int robot, std::shared_ptr<v1::Envelope> envelope);
   int broadcast(const v1::Envelope& envelope);
   std::vector<PeerStats> peers() const;
   NetworkCounters totals() const;

@@ -146,7 +146,7 @@ class RadioGraph {
 class ConsensusExchange {
  public:
   /// Queues an envelope (its body and round set) to a robot; false if it could not be queued.
-  using Send = std::function<bool(int robot, const v1::Envelope& envelope)>;
+  using Send = std::function<bool(int robot, v1::Envelope&& envelope)>;
 
   ConsensusExchange(ConsensusConfig config, Send send, ExchangeFailpoints failpoints = {});
   ~ConsensusExchange();
@@ -200,8 +200,8 @@ class ConsensusExchange {
   void send_marginal(int robot, std::uint64_t round, const Estimator& estimator,
                      const std::vector<LandmarkId>& own_ids,
                      const std::vector<LandmarkId>& peer_ids, int degree, int links_left);
-  /// Sends and charges the link budget (estimator thread).
-  bool send_counted(int robot, const v1::Envelope& envelope);
+  /// Sends (the envelope is taken over) and charges the link budget (estimator thread).
+  bool send_counted(int robot, v1::Envelope&& envelope);
   /// Whether marginals go compact and event-triggered (marginal_sharing.h; given association).
   bool sharing() const {
     return association_ == nullptr && (config_.share_kl_threshold > 0.0 || config_.share_float32 ||

@@ -199,6 +199,8 @@ class PeerNetwork {
   /// connection when written). Returns false, and counts a drop, if the robot is unknown or down.
   /// Any thread.
   bool send(int robot, const v1::Envelope& envelope);
+  /// The same, taking the envelope over instead of copying it.
+  bool send(int robot, v1::Envelope&& envelope);
 
   /// send() to every live peer; returns how many it was queued for. Any thread.
   int broadcast(const v1::Envelope& envelope);
