@@ -33,7 +33,9 @@ Replaced check_proposition_two(unsigned seed, int poses, int landmarks,
   out.before = testing::random_state(poses, landmarks, random);
   out.after = out.before;
   const auto k = static_cast<Eigen::Index>(3 * slots.size());
-  const Eigen::VectorXd old_mean = StateHelper::landmark_marginal(out.before, slots).mean;
+  std::vector<LandmarkId> slot_ids;
+  for (const int slot : slots) slot_ids.push_back(out.before.landmarks[slot].id);
+  const Eigen::VectorXd old_mean = Consensus::marginal(out.before, slot_ids).mean;
   const Eigen::VectorXd new_mean = old_mean + testing::random_vector(k, random, 0.1);
   const Eigen::MatrixXd new_covariance = testing::random_spd(k, random, 0.02, 0.3);
   EXPECT_TRUE(Consensus::replace_marginal(out.after, slots, new_mean, new_covariance));
@@ -330,7 +332,7 @@ TEST(ConsensusAverage, GroupsEqualSuccessivePropositionTwoReplacements) {
   State reference = state;
   auto average_into = [&](int slot, std::vector<std::pair<const Marginal*, int>> holders) {
     // Information average of the reference's current marginal of `slot` and the holders'.
-    const Marginal own = StateHelper::landmark_marginal(reference, {slot});
+    const Marginal own = Consensus::marginal(reference, {reference.landmarks[slot].id});
     double own_weight = 1.0 - w * static_cast<double>(holders.size());
     Eigen::Matrix3d information = own_weight * own.blocks[0].inverse();
     Eigen::Vector3d vector = information * own.mean;

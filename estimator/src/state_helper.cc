@@ -162,31 +162,6 @@ void StateHelper::remove_oldest_pose(State& state) {
   state.poses.pop_front();
 }
 
-Marginal StateHelper::landmark_marginal(const State& state, const std::vector<int>& slots) {
-  Marginal marginal;
-  const auto count = static_cast<Eigen::Index>(slots.size());
-  std::vector<Eigen::Index> starts;  // first coordinate of each landmark in the state
-  starts.reserve(slots.size());
-  marginal.ids.reserve(slots.size());
-  marginal.mean.resize(3 * count);
-  for (Eigen::Index i = 0; i < count; ++i) {
-    const int slot = slots[static_cast<std::size_t>(i)];
-    marginal.ids.push_back(state.landmarks[slot].id);
-    marginal.mean.segment<3>(3 * i) = state.landmarks[slot].p_world;
-    starts.push_back(state.landmark_index(slot));
-  }
-  if (count == 0) return marginal;
-  // A landmark's three coordinates are adjacent in the state: the joint block is gathered 3x3
-  // block by 3x3 block.
-  Eigen::MatrixXd& covariance = marginal.blocks.emplace_back(3 * count, 3 * count);
-  for (Eigen::Index j = 0; j < count; ++j) {
-    for (Eigen::Index i = 0; i < count; ++i) {
-      covariance.block<3, 3>(3 * i, 3 * j) = state.covariance.block<3, 3>(starts[i], starts[j]);
-    }
-  }
-  return marginal;
-}
-
 std::vector<int> StateHelper::nonzero_columns(const Eigen::MatrixXd& H) {
   std::vector<int> columns;
   for (Eigen::Index c = 0; c < H.cols(); ++c) {

@@ -52,9 +52,6 @@ class StateHelper {
   /// Removes the oldest pose of the window (marginalization: drops its rows and columns).
   static void remove_oldest_pose(State& state);
 
-  /// Joint marginal of in-state landmarks (given by slot) in the order given.
-  static Marginal landmark_marginal(const State& state, const std::vector<int>& slots);
-
   /// Indices of the columns of H that hold a non-zero entry (the state entries a Jacobian
   /// touches); products are formed over these only.
   static std::vector<int> nonzero_columns(const Eigen::MatrixXd& H);
