@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <fstream>
 
+#include "concord/net/frame_codec.h"
 #include "concord/net/log_limiter.h"
 #include "concord/net/secure_channel.h"
 #include "concord/net/team_key.h"
@@ -44,6 +45,40 @@ TEST(SecureChannel, PeersWithTheKeyExchangeMessagesBothWays) {
     EXPECT_EQ(pair.responder.open(sealed, error), "to the responder " + std::to_string(i));
     EXPECT_EQ(pair.initiator.open(pair.responder.seal("back"), error), "back");
   }
+}
+
+TEST(SecureChannel, SealedIntoAFrameBufferAndOpenedIntoAKeptOneAsMessagesOfTheirOwn) {
+  // How a session writes: several messages sealed straight into one write buffer behind their
+  // frame headers; how it reads: each opened into one plaintext buffer kept between messages.
+  const TeamKey key = TeamKey::generate();
+  ChannelPair pair(key, key);
+  ASSERT_TRUE(pair.handshake());
+  const std::vector<std::string> messages = {std::string(3000, 'a'), "b", "",
+                                             std::string(70000, 'c')};
+  std::string buffer = "xy";  // whatever the buffer held before stays in front
+  for (const std::string& message : messages) {
+    pair.initiator.seal(message,
+                        append_raw_frame_space(message.size() + kChannelOverheadBytes, buffer));
+  }
+  ASSERT_EQ(buffer.substr(0, 2), "xy");
+  FrameDecoder decoder(FrameDecoderOptions{});
+  decoder.feed(std::string_view(buffer).substr(2));
+  std::string payload, plaintext, error;
+  for (const std::string& message : messages) {
+    ASSERT_EQ(decoder.next_payload(payload), FrameDecoder::Status::kFrame);
+    ASSERT_TRUE(pair.responder.open(payload, plaintext, error)) << error;
+    EXPECT_EQ(plaintext, message);  // a shorter message leaves nothing of a longer one
+  }
+  EXPECT_EQ(decoder.next_payload(payload), FrameDecoder::Status::kNeedMore);
+
+  // A room of the wrong size is a programming error, not a short message.
+  std::string room(5, '\0');
+  EXPECT_THROW(pair.initiator.seal("payload", room), std::logic_error);
+  // A forged message fails into the kept buffer as it does the other way.
+  std::string sealed = pair.initiator.seal("payload");
+  sealed[sealed.size() / 2] ^= 1;
+  EXPECT_FALSE(pair.responder.open(sealed, plaintext, error));
+  EXPECT_EQ(pair.responder.stage(), SecureChannel::Stage::kFailed);
 }
 
 TEST(SecureChannel, AnotherKeyFailsTheProofOnBothSides) {

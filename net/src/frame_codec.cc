@@ -1,5 +1,6 @@
 #include "concord/net/frame_codec.h"
 
+#include <algorithm>
 #include <cassert>
 #include <limits>
 #include <stdexcept>
@@ -45,14 +46,21 @@ void append_frame(const v1::Envelope& envelope, std::string& out) {
 }
 
 void append_raw_frame(std::string_view payload, std::string& out) {
-  if (payload.size() > std::numeric_limits<std::uint32_t>::max())
+  const std::span<char> room = append_raw_frame_space(payload.size(), out);
+  std::copy(payload.begin(), payload.end(), room.begin());
+}
+
+std::span<char> append_raw_frame_space(std::size_t payload_bytes, std::string& out) {
+  if (payload_bytes > std::numeric_limits<std::uint32_t>::max())
     throw std::length_error("frame payload above 4 GiB");
-  const auto length = static_cast<std::uint32_t>(payload.size());
+  const auto length = static_cast<std::uint32_t>(payload_bytes);
   out.push_back(static_cast<char>(length >> 24));
   out.push_back(static_cast<char>(length >> 16));
   out.push_back(static_cast<char>(length >> 8));
   out.push_back(static_cast<char>(length));
-  out.append(payload);
+  const std::size_t start = out.size();
+  out.resize(start + payload_bytes);
+  return {out.data() + start, payload_bytes};
 }
 
 std::string encode_frame(const v1::Envelope& envelope) {

@@ -223,8 +223,7 @@ bool PeerNetwork::Impl::send(int robot, std::shared_ptr<v1::Envelope> stamped) {
       return false;
     }
   }
-  asio::post(strand_, [self = shared_from_this(), robot,
-                       envelope = std::shared_ptr<const v1::Envelope>(std::move(stamped))] {
+  asio::post(strand_, [self = shared_from_this(), robot, envelope = std::move(stamped)] {
     self->enqueue_data(robot, envelope);
   });
   return true;
@@ -237,8 +236,7 @@ int PeerNetwork::Impl::broadcast(const v1::Envelope& envelope) {
   return queued;
 }
 
-void PeerNetwork::Impl::enqueue_data(int robot,
-                                     const std::shared_ptr<const v1::Envelope>& envelope) {
+void PeerNetwork::Impl::enqueue_data(int robot, const std::shared_ptr<v1::Envelope>& envelope) {
   const auto peer = peers_.find(robot);
   const auto session =
       peer != peers_.end() && peer->second.up ? peer->second.active.lock() : nullptr;

@@ -220,7 +220,7 @@ class PeerNetwork::Impl : public std::enable_shared_from_this<PeerNetwork::Impl>
   void handle_goodbye(const std::shared_ptr<Session>& session, const v1::Envelope& envelope);
   void reject_handshake(const std::shared_ptr<Session>& session, const std::string& reason);
   void mark_down(int robot, Peer& peer, std::string_view reason);
-  void enqueue_data(int robot, const std::shared_ptr<const v1::Envelope>& envelope);
+  void enqueue_data(int robot, const std::shared_ptr<v1::Envelope>& envelope);
   void arm_tick();
   void on_tick();
   void do_stop(const std::string& reason, std::uint64_t last_round);
@@ -280,8 +280,10 @@ class PeerNetwork::Impl::Session : public std::enable_shared_from_this<Session> 
   struct Outgoing {
     enum class Kind { kChannel, kControl, kHeartbeat, kData };
     Kind kind;
-    std::shared_ptr<const v1::Envelope> envelope;  // null for kHeartbeat (built when written)
-    std::string channel_payload;                   // kChannel: a handshake message, unencrypted
+    // Null for kHeartbeat (built when written). Its seq is set on the strand just before it is
+    // serialized (a Goodbye shared by every session gets each session's seq in turn).
+    std::shared_ptr<v1::Envelope> envelope;
+    std::string channel_payload;  // kChannel: a handshake message, unencrypted
   };
 
   Session(std::shared_ptr<Impl> network, std::uint64_t id, Origin origin, std::string dial_key,
@@ -397,7 +399,7 @@ class PeerNetwork::Impl::Session : public std::enable_shared_from_this<Session> 
 
   /// stop(): send Goodbye after what is queued, half-close, read until the peer closes. Also
   /// during the handshake: our Hello is out, so the peer may already count us as up.
-  void finish(std::shared_ptr<const v1::Envelope> goodbye) {
+  void finish(std::shared_ptr<v1::Envelope> goodbye) {
     if (state != SessionState::kEstablished && state != SessionState::kHandshaking)
       return close("stopping");
     queue_.push_back({Outgoing::Kind::kControl, std::move(goodbye), {}});
@@ -471,10 +473,9 @@ class PeerNetwork::Impl::Session : public std::enable_shared_from_this<Session> 
         continue;
       }
       std::string error;
-      const std::optional<std::string> plaintext = channel_.open(payload_, error);
-      if (!plaintext)
+      if (!channel_.open(payload_, plaintext_in_, error))
         return network_->on_frame_error(self, {FrameErrorKind::kUnauthenticated, error});
-      FrameError check = parse_envelope(*plaintext, network_->options_.team, envelope_);
+      FrameError check = parse_envelope(plaintext_in_, network_->options_.team, envelope_);
       if (check.kind != FrameErrorKind::kNone) return network_->on_frame_error(self, check);
       network_->on_envelope(self, envelope_);
     }
@@ -501,9 +502,7 @@ class PeerNetwork::Impl::Session : public std::enable_shared_from_this<Session> 
     }
     if (!channel_.accept_proof(payload_, error)) return network_->on_channel_failed(self, error);
     // 3. The peer proved the key: now the (encrypted) Hello.
-    enqueue({Outgoing::Kind::kControl,
-             std::make_shared<const v1::Envelope>(network_->make_hello()),
-             {}});
+    enqueue({Outgoing::Kind::kControl, std::make_shared<v1::Envelope>(network_->make_hello()), {}});
   }
 
   /// Takes `bytes` and `frames` from the token buckets; how long to pause reading (<= 0: none).
@@ -546,17 +545,20 @@ class PeerNetwork::Impl::Session : public std::enable_shared_from_this<Session> 
         if (item.kind == Outgoing::Kind::kHeartbeat) heartbeat_queued_ = false;
         continue;
       }
+      v1::Envelope* envelope = item.envelope.get();
       if (item.kind == Outgoing::Kind::kHeartbeat) {
         heartbeat_queued_ = false;
         scratch_.Clear();
         network_->fill_heartbeat(*this, scratch_);
-      } else {
-        if (item.kind == Outgoing::Kind::kData) --data_queued_;
-        scratch_ = *item.envelope;
+        envelope = &scratch_;
+      } else if (item.kind == Outgoing::Kind::kData) {
+        --data_queued_;
       }
-      scratch_.set_seq(++seq_out_);
-      scratch_.SerializeToString(&plaintext_);
-      append_raw_frame(channel_.seal(plaintext_), write_buffer_);
+      envelope->set_seq(++seq_out_);
+      envelope->SerializeToString(&plaintext_);
+      // Sealed straight into the write buffer, behind its frame header.
+      channel_.seal(plaintext_, append_raw_frame_space(plaintext_.size() + kChannelOverheadBytes,
+                                                       write_buffer_));
       ++messages;
     }
     writing_ = true;
@@ -592,9 +594,10 @@ class PeerNetwork::Impl::Session : public std::enable_shared_from_this<Session> 
   double byte_tokens_;
   double message_tokens_;
   Clock::time_point tokens_refilled_;
-  std::string payload_;    // last frame payload
-  std::string plaintext_;  // envelope being sealed
-  v1::Envelope envelope_;  // last decoded
+  std::string payload_;       // last frame payload
+  std::string plaintext_;     // envelope being sealed
+  std::string plaintext_in_;  // envelope just opened (its storage kept between messages)
+  v1::Envelope envelope_;     // last decoded
   std::deque<Outgoing> queue_;
   std::size_t data_queued_ = 0;
   bool heartbeat_queued_ = false;
@@ -602,7 +605,7 @@ class PeerNetwork::Impl::Session : public std::enable_shared_from_this<Session> 
   bool shutdown_after_flush_ = false;
   bool half_closed_ = false;
   std::string write_buffer_;
-  v1::Envelope scratch_;  // envelope being encoded
+  v1::Envelope scratch_;  // heartbeat being encoded
   std::uint64_t seq_out_ = 0;
 };
 

@@ -165,41 +165,55 @@ bool SecureChannel::accept_proof(std::string_view peer_proof, std::string& error
 }
 
 std::string SecureChannel::seal(std::string_view plaintext) {
-  if (stage_ != Stage::kEstablished)
-    throw std::logic_error("SecureChannel::seal before established");
   std::string out(plaintext.size() + kChannelOverheadBytes, '\0');
-  unsigned long long length = 0;
-  crypto_secretstream_xchacha20poly1305_push(
-      &secrets_->push, reinterpret_cast<unsigned char*>(out.data()), &length, bytes(plaintext),
-      plaintext.size(), nullptr, 0, crypto_secretstream_xchacha20poly1305_TAG_MESSAGE);
-  out.resize(static_cast<std::size_t>(length));
+  seal(plaintext, out);
   return out;
 }
 
+void SecureChannel::seal(std::string_view plaintext, std::span<char> ciphertext) {
+  if (stage_ != Stage::kEstablished)
+    throw std::logic_error("SecureChannel::seal before established");
+  if (ciphertext.size() != plaintext.size() + kChannelOverheadBytes)
+    throw std::logic_error("SecureChannel::seal: ciphertext of " +
+                           std::to_string(ciphertext.size()) + " bytes for a plaintext of " +
+                           std::to_string(plaintext.size()));
+  unsigned long long length = 0;
+  crypto_secretstream_xchacha20poly1305_push(&secrets_->push,
+                                             reinterpret_cast<unsigned char*>(ciphertext.data()),
+                                             &length, bytes(plaintext), plaintext.size(), nullptr,
+                                             0, crypto_secretstream_xchacha20poly1305_TAG_MESSAGE);
+}
+
 std::optional<std::string> SecureChannel::open(std::string_view ciphertext, std::string& error) {
+  std::string out;
+  if (!open(ciphertext, out, error)) return std::nullopt;
+  return out;
+}
+
+bool SecureChannel::open(std::string_view ciphertext, std::string& plaintext, std::string& error) {
   if (stage_ != Stage::kEstablished) {
     error = "encrypted message before the channel is established";
     stage_ = Stage::kFailed;
-    return std::nullopt;
+    return false;
   }
   if (ciphertext.size() < kChannelOverheadBytes) {
     error = "encrypted message of " + std::to_string(ciphertext.size()) + " bytes is too short";
     stage_ = Stage::kFailed;
-    return std::nullopt;
+    return false;
   }
-  std::string out(ciphertext.size() - kChannelOverheadBytes, '\0');
+  plaintext.resize(ciphertext.size() - kChannelOverheadBytes);
   unsigned long long length = 0;
   unsigned char tag = 0;
   if (crypto_secretstream_xchacha20poly1305_pull(
-          &secrets_->pull, reinterpret_cast<unsigned char*>(out.data()), &length, &tag,
+          &secrets_->pull, reinterpret_cast<unsigned char*>(plaintext.data()), &length, &tag,
           bytes(ciphertext), ciphertext.size(), nullptr, 0) != 0 ||
       tag != crypto_secretstream_xchacha20poly1305_TAG_MESSAGE) {
     error = "message failed authentication (forged, replayed, reordered or corrupted)";
     stage_ = Stage::kFailed;
-    return std::nullopt;
+    return false;
   }
-  out.resize(static_cast<std::size_t>(length));
-  return out;
+  plaintext.resize(static_cast<std::size_t>(length));
+  return true;
 }
 
 std::string seal_beacon(const TeamKey& key, std::string_view plaintext) {

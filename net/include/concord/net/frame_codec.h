@@ -12,6 +12,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <optional>
+#include <span>
 #include <string>
 #include <string_view>
 
@@ -70,6 +71,9 @@ FrameError check_envelope(const v1::Envelope& envelope,
 
 /// Appends one frame holding `payload` as it is (handshake messages, ciphertext).
 void append_raw_frame(std::string_view payload, std::string& out);
+/// Appends the header of a frame of `payload_bytes` and room for its payload; returns that room
+/// (valid until `out` changes again) for the caller to fill, e.g. SecureChannel::seal.
+std::span<char> append_raw_frame_space(std::size_t payload_bytes, std::string& out);
 
 /// What a decoder accepts.
 struct FrameDecoderOptions {

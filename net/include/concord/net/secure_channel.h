@@ -22,6 +22,7 @@
 #include <cstdint>
 #include <memory>
 #include <optional>
+#include <span>
 #include <string>
 #include <string_view>
 
@@ -63,9 +64,16 @@ class SecureChannel {
 
   /// Encrypts one message (established only).
   [[nodiscard]] std::string seal(std::string_view plaintext);
+  /// Encrypts one message into `ciphertext`, which must be exactly plaintext.size() +
+  /// kChannelOverheadBytes long and must not overlap it (established only; std::logic_error
+  /// otherwise): a sender seals straight into its write buffer (append_raw_frame_space).
+  void seal(std::string_view plaintext, std::span<char> ciphertext);
   /// Decrypts one message; std::nullopt with `error` set if it was forged, replayed, reordered
   /// or corrupted (the channel then fails).
   [[nodiscard]] std::optional<std::string> open(std::string_view ciphertext, std::string& error);
+  /// The same into `plaintext` (its storage kept from message to message); false with `error`
+  /// set, and `plaintext` unspecified, where the other form returns std::nullopt.
+  [[nodiscard]] bool open(std::string_view ciphertext, std::string& plaintext, std::string& error);
 
   Stage stage() const { return stage_; }
   bool established() const { return stage_ == Stage::kEstablished; }
