@@ -4,6 +4,7 @@
 
 #include <gtest/gtest.h>
 
+#include <Eigen/Eigenvalues>
 #include <limits>
 #include <random>
 
@@ -84,6 +85,56 @@ TEST(Proposition2, EveryLandmarkReplacedKeepsThePosesConditional) {
   // updates in place.
   const Replaced r = check_proposition_two(23, 3, 4, {0, 1, 2, 3});
   EXPECT_EQ(r.x.back(), static_cast<int>(r.x.size()) - 1);
+}
+
+TEST(Proposition2, AMarginalFusedWithUnknownCorrelationMovesTheRestButNeverShrinksIt) {
+  // An archived object rejoining: its new marginal is more certain in some directions and less
+  // in others. The rest of the state moves exactly as with replace_marginal, and its
+  // covariance is at least what it was (replace_marginal shrinks it).
+  std::mt19937 random(7);
+  const State before = testing::random_state(3, 4, random);
+  const int slot = 2;
+  const Eigen::Index index = before.landmark_index(slot);
+  const Eigen::Matrix3d own = before.covariance.block<3, 3>(index, index);
+  Eigen::Matrix3d target = own;
+  target(0, 0) *= 0.2;  // more certain along x
+  target(2, 2) *= 3.0;  // less certain along z
+  const Eigen::Vector3d mean = before.landmarks[slot].p_world + Eigen::Vector3d(0.1, -0.2, 0.05);
+
+  State kept = before;
+  ASSERT_TRUE(Consensus::replace_marginal_keeping_the_rest(kept, slot, mean, target));
+  State plain = before;
+  ASSERT_TRUE(Consensus::replace_marginal(plain, {slot}, mean, target));
+
+  // The landmark takes the new marginal; everything moves as with replace_marginal.
+  const Eigen::Matrix3d landmark_block = kept.covariance.block<3, 3>(index, index);
+  EXPECT_TRUE(landmark_block.isApprox(target, 1e-12));
+  EXPECT_TRUE(kept.landmarks[slot].p_world.isApprox(mean, 1e-12));
+  for (std::size_t i = 0; i < before.poses.size(); ++i) {
+    EXPECT_TRUE(kept.poses[i].T_world_body.isApprox(plain.poses[i].T_world_body, 1e-12)) << i;
+  }
+  for (std::size_t j = 0; j < before.landmarks.size(); ++j) {
+    EXPECT_TRUE(kept.landmarks[j].p_world.isApprox(plain.landmarks[j].p_world, 1e-12)) << j;
+  }
+  // The rest: at least its old covariance with kept, less than it with replace_marginal.
+  std::vector<int> rest;
+  for (int i = 0; i < before.dimension(); ++i) {
+    if (i < index || i >= index + 3) rest.push_back(i);
+  }
+  const auto smallest_change = [&](const State& after) {
+    const Eigen::MatrixXd change = after.covariance(rest, rest) - before.covariance(rest, rest);
+    return Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd>(change).eigenvalues().minCoeff();
+  };
+  EXPECT_GE(smallest_change(kept), -1e-12);
+  EXPECT_LT(smallest_change(plain), -1e-4);
+  EXPECT_EQ(Eigen::LLT<Eigen::MatrixXd>(kept.covariance).info(), Eigen::Success);
+  EXPECT_TRUE(kept.covariance.isApprox(kept.covariance.transpose(), 0.0));
+
+  // A new marginal nowhere more certain than the own one: replace_marginal exactly.
+  State wider = before, wider_plain = before;
+  ASSERT_TRUE(Consensus::replace_marginal_keeping_the_rest(wider, slot, mean, 2.0 * own));
+  ASSERT_TRUE(Consensus::replace_marginal(wider_plain, {slot}, mean, 2.0 * own));
+  EXPECT_TRUE(wider.covariance.isApprox(wider_plain.covariance, 0.0));
 }
 
 /// One pose and landmark 5 at the origin, all with unit covariance and no correlation.

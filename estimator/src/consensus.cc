@@ -1,6 +1,7 @@
 #include "concord/estimator/consensus.h"
 
 #include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -586,6 +587,27 @@ bool Consensus::replace_marginal(State& state, const std::vector<int>& slots,
                                  const Eigen::VectorXd& mean, const Eigen::MatrixXd& covariance) {
   ConsensusWorkspace workspace;
   return replace_state_marginal(state, slots, mean, covariance, *workspace.buffers_);
+}
+
+bool Consensus::replace_marginal_keeping_the_rest(State& state, int slot,
+                                                  const Eigen::Vector3d& mean,
+                                                  const Eigen::Matrix3d& covariance) {
+  const Eigen::Index index = state.landmark_index(slot);
+  const Eigen::Matrix3d own = state.covariance.block<3, 3>(index, index);
+  const Eigen::LLT<Eigen::Matrix3d> llt(own);
+  if (llt.info() != Eigen::Success) return false;
+  // The rest's gain on the landmark, B = P_rest,landmark own^-1 (the landmark's rows zero).
+  Eigen::MatrixXd gain = llt.solve(state.covariance.middleCols(index, 3).transpose()).transpose();
+  gain.middleRows(index, 3).setZero();
+  if (!replace_marginal(state, {slot}, mean, covariance)) return false;
+  // What Proposition 2 took off the rest, B (own - new) B^T, given back where it is positive.
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eigen(own - covariance);
+  const Eigen::Vector3d shrunk = eigen.eigenvalues().cwiseMax(0.0);
+  if (shrunk.maxCoeff() <= 0.0) return true;
+  const Eigen::MatrixXd root =
+      gain * (eigen.eigenvectors() * shrunk.cwiseSqrt().asDiagonal());  // B S^(1/2)
+  state.covariance.noalias() += root * root.transpose();
+  return true;
 }
 
 ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal>& neighbours,

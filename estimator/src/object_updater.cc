@@ -190,15 +190,18 @@ ObjectUpdater::InitResult ObjectUpdater::try_initialize(State& state, LandmarkId
 
   // 7. An archived object rejoins: its old marginal and the fresh estimate are two estimates of
   //    one position with unknown correlation (both rest on this robot's trajectory), fused by
-  //    covariance intersection into the new landmark's marginal (Proposition 2 keeps the
-  //    conditional of the rest of the state, so the poses follow).
+  //    covariance intersection into the new landmark's marginal. The rest of the state moves
+  //    by the conditional (Proposition 2), but its covariance does not shrink: how the old
+  //    marginal's errors correlate with the poses' is unknown, so what the object gained says
+  //    nothing certain about them (docs/estimator.md, "Archiving").
   if (const auto archived = state.archived.find(id); archived != state.archived.end()) {
     const int slot = state.landmark_slot(id);
     const int index = state.landmark_index(slot);
     const ObjectEstimate fresh{id, state.landmarks[slot].p_world,
                                state.covariance.block<3, 3>(index, index)};
     if (const auto fused = Consensus::covariance_intersection(fresh, archived->second)) {
-      if (Consensus::replace_marginal(state, {slot}, fused->p_world, fused->covariance)) {
+      if (Consensus::replace_marginal_keeping_the_rest(state, slot, fused->p_world,
+                                                       fused->covariance)) {
         ++stats.reactivated;
       } else {
         ++stats.update_failures;

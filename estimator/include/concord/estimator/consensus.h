@@ -86,6 +86,18 @@ class Consensus {
   static bool replace_marginal(State& state, const std::vector<int>& slots,
                                const Eigen::VectorXd& mean, const Eigen::MatrixXd& covariance);
 
+  /// Proposition 2 for one landmark whose new marginal N(mean, covariance) came from fusing in
+  /// an estimate whose correlation with the rest of the state is unknown (an archived object's
+  /// old marginal, by covariance intersection): the landmark takes the new marginal and the
+  /// rest moves by the conditional, as replace_marginal does, but the rest's covariance never
+  /// shrinks: it is replace_marginal's plus B S B^T, with B the rest's gain on the landmark and
+  /// S the part of (own - new) covariance that is positive (the directions the landmark became
+  /// more certain in). Where the new marginal is nowhere more certain than the own one it is
+  /// replace_marginal. Returns false (state unchanged) if the own marginal is not positive
+  /// definite.
+  static bool replace_marginal_keeping_the_rest(State& state, int slot, const Eigen::Vector3d& mean,
+                                                const Eigen::Matrix3d& covariance);
+
   /// Covariance intersection of two estimates of one object whose errors are correlated in an
   /// unknown way: the information-weighted average w I_a + (1 - w) I_b with the weight w in
   /// [0, 1] that minimizes the determinant of the fused covariance. Consistent whenever both
