@@ -11,6 +11,7 @@
 #include <opencv2/video/tracking.hpp>
 #include <optional>
 #include <unordered_set>
+#include <vector>
 
 #include "concord/frontend/sequence.h"
 #include "sample_median.h"
@@ -89,12 +90,24 @@ std::optional<float> search_disparity(const cv::Mat& left, const cv::Mat& right,
   const int largest =
       static_cast<int>(std::min(max_disparity * scale, static_cast<double>(x - radius)));
   int best_cost = std::numeric_limits<int>::max(), best_disparity = -1;
+  if (largest < 0) return std::nullopt;
+  // The right window's sum at every disparity from the columns' sums over the window's rows,
+  // slid along the row (the window at disparity d covers columns x - d - radius .. x - d + radius).
+  const int first_column = x - largest - radius;
+  const int columns = largest + side;
+  thread_local std::vector<int> column_sums;
+  column_sums.assign(static_cast<std::size_t>(columns), 0);
+  for (int row = 0; row < side; ++row) {
+    const unsigned char* pixels = right.ptr<unsigned char>(y - radius + row) + first_column;
+    for (int column = 0; column < columns; ++column) column_sums[column] += pixels[column];
+  }
+  int right_sum = 0;  // the window at disparity 0: the last `side` columns
+  for (int column = columns - side; column < columns; ++column) right_sum += column_sums[column];
   for (int disparity = 0; disparity <= largest; ++disparity) {
     const int right_x = x - disparity;
-    int right_sum = 0;
-    for (int row = 0; row < side; ++row) {
-      const unsigned char* pixels = right.ptr<unsigned char>(y - radius + row) + (right_x - radius);
-      for (int column = 0; column < side; ++column) right_sum += pixels[column];
+    if (disparity > 0) {  // one column in on the left, one out on the right
+      const int leftmost = columns - side - disparity;
+      right_sum += column_sums[leftmost] - column_sums[leftmost + side];
     }
     int cost = 0;
     for (int row = 0; row < side && cost < best_cost; ++row) {
