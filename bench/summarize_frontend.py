@@ -130,9 +130,12 @@ print("The estimator config is the `estimator.yaml` that `concord frontend` wrot
       f"{per_coordinate_sigma('feature_noise'):.2f} px per coordinate (the tracks' consistency under "
       "the odometry), objects "
       f"{per_coordinate_sigma('object_noise'):.1f} px (`objects.detection_sigma`, the detector's stated "
-      "accuracy). The exact team runs on the simulator's own observations of the same paths and "
-      "objects, with noise chosen to be the front-end's (2 mm and 0.2 mrad odometry, 0.4 px on "
-      "every coordinate, 200 tracks a frame) and `configs/sensors/sim.yaml` with that noise.")
+      "accuracy). The exact team runs on the simulator's own observations of the same paths, "
+      "objects and surfaces (its point tracks follow points on the rendered world's surfaces, "
+      "drawn through uniformly random image positions, while both cameras see them), with noise "
+      "chosen to be the front-end's (2 mm and 0.2 mrad odometry, 0.4 px on every coordinate, 200 "
+      "tracks a frame of about the front-end's length) and `configs/sensors/sim.yaml` with that "
+      "noise and the front-end's depth limit for point features.")
 print()
 print("| team | odometry only m | separate m | consensus m | objects, consensus m |")
 print("|---|---|---|---|---|")

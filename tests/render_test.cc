@@ -4,7 +4,11 @@
 
 #include <gtest/gtest.h>
 
+#include <map>
+#include <optional>
+
 #include "frontend_test_support.h"
+#include "sim/simulator.h"
 
 namespace concord::sim {
 namespace {
@@ -81,6 +85,74 @@ TEST(Render, WorldGeometryReadsBack) {
   }
   EXPECT_THROW((void)geometry.render(rendered.camera.K, Eigen::Isometry3d::Identity(), 10, 10, 0, 0),
                std::logic_error);
+}
+
+TEST(Render, PointTracksAreOfSurfacePointsBothCamerasSee) {
+  const auto& rendered = rendered_sequence();
+  SimulationOptions options = rendered.simulation;
+  options.points_per_frame = 60;
+  options.point_track_loss = 0.1;
+  options.pixel_noise = 0.0;  // exact observations: the points can be recovered exactly
+  const SurfaceCast cast = [&world = rendered.world](const Eigen::Vector3d& origin,
+                                                      const Eigen::Vector3d& direction) {
+    const auto hit = world.cast(origin, direction);
+    return hit ? std::optional<double>(hit->distance) : std::nullopt;
+  };
+  dataset::Dataset data = rendered.simulated;
+  place_point_features_on_surfaces(data, options, cast);
+  const dataset::RobotData& robot = data.robots[0];
+  ASSERT_TRUE(robot.has_features);
+  ASSERT_EQ(robot.features.size(), robot.groundtruth.size());
+  const StereoCamera& camera = data.camera;
+  std::map<LandmarkId, std::pair<int, Eigen::Vector3d>> tracks;  // last frame, point
+  double farthest = 0.0;
+  long long observations = 0;
+  for (int k = 0; k < robot.num_frames(); ++k) {
+    // Every frame is filled up to the target (a hall has surfaces in every direction).
+    EXPECT_EQ(robot.features[k].size(), 60u) << "frame " << k;
+    const Eigen::Isometry3d T_world_cam0 = robot.groundtruth[k] * camera.T_cam0_body.inverse();
+    const Eigen::Isometry3d T_world_cam1 = robot.groundtruth[k] * camera.T_cam1_body().inverse();
+    for (const StereoObservation& observation : robot.features[k]) {
+      ++observations;
+      // The stereo point (K is the identity): depth = baseline / disparity.
+      const double disparity = observation.uv(0) - observation.uv(2);
+      ASSERT_GT(disparity, 0.0);
+      const double depth = camera.baseline() / disparity;
+      farthest = std::max(farthest, depth);
+      EXPECT_GE(depth, options.min_depth - 1e-9);
+      EXPECT_NEAR(observation.uv(1), observation.uv(3), 1e-12);
+      const Eigen::Vector3d p_world =
+          T_world_cam0 * Eigen::Vector3d(observation.uv(0) * depth, observation.uv(1) * depth, depth);
+      // On a surface that both cameras see first along their rays.
+      for (const Eigen::Vector3d& centre : {T_world_cam0.translation(), T_world_cam1.translation()}) {
+        const auto hit = rendered.world.cast(centre, p_world - centre);
+        ASSERT_TRUE(hit.has_value());
+        EXPECT_NEAR(hit->distance, 1.0, 1e-6);
+      }
+      // A track follows one point over consecutive frames.
+      auto [it, first] = tracks.try_emplace(observation.id, k, p_world);
+      if (!first) {
+        EXPECT_EQ(it->second.first, k - 1) << "track " << observation.id;
+        EXPECT_LT((it->second.second - p_world).norm(), 1e-6) << "track " << observation.id;
+        it->second.first = k;
+      }
+    }
+  }
+  // Tracks end (point_track_loss, the view, occlusion) and new ones start.
+  EXPECT_GT(tracks.size(), 60u);
+  EXPECT_LT(static_cast<double>(tracks.size()), 0.8 * static_cast<double>(observations));
+  // Surfaces beyond the simulated detectors' range are seen too.
+  EXPECT_GT(farthest, options.max_depth);
+  // Deterministic.
+  dataset::Dataset again = rendered.simulated;
+  place_point_features_on_surfaces(again, options, cast);
+  for (int k = 0; k < robot.num_frames(); ++k) {
+    ASSERT_EQ(again.robots[0].features[k].size(), robot.features[k].size());
+    for (std::size_t i = 0; i < robot.features[k].size(); ++i) {
+      EXPECT_EQ(again.robots[0].features[k][i].id, robot.features[k][i].id);
+      EXPECT_EQ(again.robots[0].features[k][i].uv, robot.features[k][i].uv);
+    }
+  }
 }
 
 TEST(Render, InvalidOptionsAreNamed) {

@@ -472,6 +472,12 @@ int run_sim(sim::SimulationOptions options, const fs::path& out,
     std::vector<LandmarkId> removed;
     world.emplace(sim::build_world(data, *render, options.seed, removed));
     sim::remove_objects(data, removed);
+    // The exact point tracks of the rendered scene: points on its surfaces.
+    sim::place_point_features_on_surfaces(
+        data, options, [&world](const Eigen::Vector3d& origin, const Eigen::Vector3d& direction) {
+          const auto hit = world->cast(origin, direction);
+          return hit ? std::optional<double>(hit->distance) : std::nullopt;
+        });
     std::cerr << "concord sim: rendered world of " << world->quads().size() << " textured quads ("
               << world->cubes().size() << " object cubes; " << removed.size()
               << " objects dropped because a path passes through them)\n";

@@ -5,6 +5,7 @@
 #include <charconv>
 #include <cmath>
 #include <nlohmann/json.hpp>
+#include <limits>
 #include <numbers>
 #include <numeric>
 #include <optional>
@@ -435,6 +436,70 @@ StereoCamera make_camera(const SimulationOptions& options) {
   camera.T_cam0_body.linear() << 1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 1.0, 0.0;
   camera.T_cam0_cam1.translation() = Eigen::Vector3d(options.baseline, 0.0, 0.0);
   return camera;
+}
+
+void place_point_features_on_surfaces(dataset::Dataset& data, const SimulationOptions& options,
+                                      const SurfaceCast& cast) {
+  if (options.points_per_frame <= 0) return;
+  // Surfaces are seen at any depth beyond min_depth (not only to max_depth, the simulated
+  // detectors' range).
+  SimulationOptions any_depth = options;
+  any_depth.max_depth = std::numeric_limits<double>::infinity();
+  // A point on a surface is seen from a camera centre when the ray to it meets nothing first.
+  const auto unoccluded = [&cast](const Eigen::Vector3d& centre, const Eigen::Vector3d& point) {
+    const auto distance = cast(centre, point - centre);
+    return !distance || *distance >= 1.0 - 1e-6;
+  };
+  for (dataset::RobotData& robot : data.robots) {
+    Viewer viewer(any_depth, data.camera);
+    Random point_random(options.seed, static_cast<std::uint64_t>(robot.index), Stream::kPoints);
+    const auto frames = robot.num_frames();
+    robot.features.assign(frames, {});
+    robot.has_features = true;
+    std::vector<ActivePoint> active, still_visible;
+    LandmarkId next_track_id = 0;
+    for (int k = 0; k < frames; ++k) {
+      viewer.look_from(robot.groundtruth[k]);
+      const Eigen::Isometry3d T_world_cam0 =
+          robot.groundtruth[k] * data.camera.T_cam0_body.inverse();
+      const Eigen::Isometry3d T_world_cam1 =
+          robot.groundtruth[k] * data.camera.T_cam1_body().inverse();
+      const Eigen::Vector3d left = T_world_cam0.translation(), right = T_world_cam1.translation();
+      const auto seen = [&](const Eigen::Vector3d& p_world) -> std::optional<Eigen::Vector4d> {
+        auto xy = viewer.project(p_world);
+        if (xy && unoccluded(left, p_world) && unoccluded(right, p_world)) return xy;
+        return std::nullopt;
+      };
+      auto& features = robot.features[k];
+      still_visible.clear();
+      for (const ActivePoint& point : active) {
+        const bool lost =
+            options.point_track_loss > 0.0 && point_random.uniform() < options.point_track_loss;
+        if (lost) continue;
+        if (const auto xy = seen(point.p_world)) {
+          features.push_back({point.id, noisy(*xy, options.pixel_noise, point_random)});
+          still_visible.push_back(point);
+        }
+      }
+      std::swap(active, still_visible);
+      const double tan_x = std::tan(0.5 * options.horizontal_fov_degrees * std::numbers::pi / 180.0);
+      const double tan_y = std::tan(0.5 * options.vertical_fov_degrees * std::numbers::pi / 180.0);
+      for (int missing = options.points_per_frame - static_cast<int>(active.size()), attempts = 0;
+           missing > 0 && attempts < kSpawnAttempts * options.points_per_frame; ++attempts) {
+        const Eigen::Vector3d ray(point_random.uniform(-tan_x, tan_x),
+                                  point_random.uniform(-tan_y, tan_y), 1.0);
+        const Eigen::Vector3d direction = T_world_cam0.linear() * ray;
+        const auto distance = cast(left, direction);
+        if (!distance) continue;
+        const Eigen::Vector3d p_world = left + *distance * direction;
+        const auto xy = seen(p_world);
+        if (!xy) continue;
+        active.push_back({next_track_id++, p_world});
+        features.push_back({active.back().id, noisy(*xy, options.pixel_noise, point_random)});
+        --missing;
+      }
+    }
+  }
 }
 
 dataset::Dataset simulate(const SimulationOptions& options) {

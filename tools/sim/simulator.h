@@ -17,6 +17,8 @@
 /// observations do: objects are placed around all robots' paths).
 
 #include <cstdint>
+#include <functional>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -124,6 +126,20 @@ inline constexpr LandmarkId kPhantomIdBase = 1'000'000'000;
 /// invalid, or if no object can be placed where both cameras see it (a baseline too wide for the
 /// fields of view and depth range).
 dataset::Dataset simulate(const SimulationOptions& options);
+
+/// Where the ray origin + d * direction first meets a surface of a world: d (> 0), or nothing.
+using SurfaceCast = std::function<std::optional<double>(const Eigen::Vector3d& origin,
+                                                        const Eigen::Vector3d& direction)>;
+
+/// Replaces every robot's point features (`simulate` places their points in the free volume in
+/// view) by tracks of points on the surfaces of a world (`concord sim --render`), so the
+/// simulator's exact tracks are of the same scene as the rendered images: a new point is where
+/// the ray through a uniformly drawn left-image position first meets a surface, at any depth
+/// beyond min_depth (a corner detector on a grid finds them on far walls as on near boxes); a
+/// track continues while both cameras see its point unoccluded, in their fields of view, and the
+/// tracker does not lose it (point_track_loss). Noise and ids as `simulate`'s; deterministic.
+void place_point_features_on_surfaces(dataset::Dataset& data, const SimulationOptions& options,
+                                      const SurfaceCast& cast);
 
 /// Counts of a dataset, for the CLI's summary line and the tests.
 struct SimulationSummary {
