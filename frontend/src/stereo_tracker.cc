@@ -402,54 +402,57 @@ void StereoTracker::add_features(const cv::Mat& left, const std::vector<cv::Mat>
   if (candidates.empty()) return;
 
   // Stereo match left -> right: a coarse search along the row at half resolution, refined by
-  // KLT; then back right -> left, then the row and disparity checks.
+  // KLT; then back right -> left, then the row and disparity checks. The candidates are matched
+  // in batches in rank order, each a half more than the tracks still missing (some fail the
+  // checks), and the best-ranked matches are taken until the target is reached: candidates
+  // beyond the batch that reaches it are never matched (a frame after a turn, which replaces
+  // many tracks, would otherwise match three times as many as it keeps). The tracks added are
+  // those of matching every candidate and keeping the best-ranked (matches are independent).
   const Klt klt(options_, options_.stereo_klt_window);
   const int search_level = std::min(1, options_.stereo_pyramid_levels);
   const float search_scale = search_level == 1 ? 0.5f : 1.0f;
-  std::vector<cv::Point2f> left_points(candidates.size()), right_points(candidates.size());
-  for (std::size_t index = 0; index < candidates.size(); ++index) {
-    left_points[index] = candidates[index].point;
-    const std::optional<float> disparity = search_disparity(
-        pyramid_image(left_pyramid, search_level), pyramid_image(right_pyramid, search_level),
-        left_points[index], search_scale, kSearchRadius, options_.max_disparity);
-    right_points[index] = left_points[index] - cv::Point2f(disparity.value_or(0.0f), 0.0f);
-  }
+  std::vector<cv::Point2f> left_points, right_points, left_back;
   std::vector<unsigned char> status, back_status;
-  klt.track(left_pyramid, right_pyramid, left_points, right_points, search_level, status);
-  if (hook_) hook_(MatchStage::kNewStereo, right_points);
-  std::vector<cv::Point2f> left_back = left_points;
-  klt.track(right_pyramid, left_pyramid, right_points, left_back, search_level, back_status);
-  std::vector<std::size_t> accepted;
-  for (std::size_t index = 0; index < candidates.size(); ++index) {
-    if (!status[index] || !inside(right_points[index], size)) {
-      ++out.counts.lost_stereo;
-      continue;
+  for (std::size_t next = 0; next < candidates.size() && out.counts.added < missing;) {
+    const auto needed = static_cast<std::size_t>(missing - out.counts.added);
+    const std::size_t batch =
+        std::min(candidates.size() - next, std::max<std::size_t>(needed + needed / 2, 16));
+    left_points.resize(batch);
+    right_points.resize(batch);
+    for (std::size_t index = 0; index < batch; ++index) {
+      left_points[index] = candidates[next + index].point;
+      const std::optional<float> disparity = search_disparity(
+          pyramid_image(left_pyramid, search_level), pyramid_image(right_pyramid, search_level),
+          left_points[index], search_scale, kSearchRadius, options_.max_disparity);
+      right_points[index] = left_points[index] - cv::Point2f(disparity.value_or(0.0f), 0.0f);
     }
-    if (!back_status[index] ||
-        distance(left_back[index], left_points[index]) > options_.circular_tolerance) {
-      ++out.counts.rejected_circular;
-      continue;
+    next += batch;
+    klt.track(left_pyramid, right_pyramid, left_points, right_points, search_level, status);
+    if (hook_) hook_(MatchStage::kNewStereo, right_points);
+    left_back = left_points;
+    klt.track(right_pyramid, left_pyramid, right_points, left_back, search_level, back_status);
+    for (std::size_t index = 0; index < batch && out.counts.added < missing; ++index) {
+      if (!status[index] || !inside(right_points[index], size)) {
+        ++out.counts.lost_stereo;
+        continue;
+      }
+      if (!back_status[index] ||
+          distance(left_back[index], left_points[index]) > options_.circular_tolerance) {
+        ++out.counts.rejected_circular;
+        continue;
+      }
+      const double disparity = left_points[index].x - right_points[index].x;
+      if (std::abs(left_points[index].y - right_points[index].y) > options_.epipolar_tolerance ||
+          disparity < options_.min_disparity || disparity > options_.max_disparity) {
+        ++out.counts.rejected_epipolar;
+        continue;
+      }
+      tracks_.ids.push_back(next_id_++);
+      tracks_.left.push_back(left_points[index]);
+      tracks_.right.push_back(right_points[index]);
+      tracks_.lengths.push_back(1);
+      ++out.counts.added;
     }
-    const double disparity = left_points[index].x - right_points[index].x;
-    if (std::abs(left_points[index].y - right_points[index].y) > options_.epipolar_tolerance ||
-        disparity < options_.min_disparity || disparity > options_.max_disparity) {
-      ++out.counts.rejected_epipolar;
-      continue;
-    }
-    accepted.push_back(index);
-  }
-
-  // The best-ranked matches of every cell first, until the target is reached.
-  std::stable_sort(accepted.begin(), accepted.end(), [&](std::size_t a, std::size_t b) {
-    return candidates[a].rank < candidates[b].rank;
-  });
-  for (const std::size_t index : accepted) {
-    if (out.counts.added >= missing) break;
-    tracks_.ids.push_back(next_id_++);
-    tracks_.left.push_back(left_points[index]);
-    tracks_.right.push_back(right_points[index]);
-    tracks_.lengths.push_back(1);
-    ++out.counts.added;
   }
 }
 

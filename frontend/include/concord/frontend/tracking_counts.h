@@ -14,7 +14,7 @@ struct TrackingCounts {
   int rejected_epipolar = 0;  ///< off the row, or disparity out of range
   int rejected_ransac = 0;    ///< temporal RANSAC outliers
   int continued = 0;          ///< tracks that go on
-  int detected = 0;           ///< new FAST corners tried
+  int detected = 0;           ///< new FAST corners offered (matched in rank order until enough)
   int added = 0;              ///< new tracks
 };
 
