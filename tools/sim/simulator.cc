@@ -243,6 +243,25 @@ struct ActivePoint {
   Eigen::Vector3d p_world;
 };
 
+/// Continues a frame's point tracks: a track ends for good when the tracker loses it
+/// (point_track_loss) or `project` no longer sees its point; the others are observed with noise.
+template <typename Project>
+void continue_point_tracks(const SimulationOptions& options, const Project& project,
+                           Random& random, std::vector<ActivePoint>& active,
+                           std::vector<ActivePoint>& still_visible,
+                           std::vector<StereoObservation>& features) {
+  still_visible.clear();
+  for (const ActivePoint& point : active) {
+    const bool lost = options.point_track_loss > 0.0 && random.uniform() < options.point_track_loss;
+    if (lost) continue;
+    if (const auto xy = project(point.p_world)) {
+      features.push_back({point.id, noisy(*xy, options.pixel_noise, random)});
+      still_visible.push_back(point);
+    }
+  }
+  std::swap(active, still_visible);
+}
+
 /// A phantom object (false detection) while the robot hallucinates it.
 struct Phantom {
   LandmarkId id;
@@ -334,18 +353,9 @@ void observe(const SimulationOptions& options, const StereoCamera& camera,
     //    it leaves; new points are spawned in view up to points_per_frame. The work per frame is
     //    proportional to the visible points.
     auto& features = robot.features[k];
-    still_visible.clear();
-    for (const ActivePoint& point : active) {
-      // A track ends when its point leaves the view or the tracker loses it.
-      const bool lost =
-          options.point_track_loss > 0.0 && point_random.uniform() < options.point_track_loss;
-      if (lost) continue;
-      if (const auto xy = viewer.project(point.p_world)) {
-        features.push_back({point.id, noisy(*xy, options.pixel_noise, point_random)});
-        still_visible.push_back(point);
-      }
-    }
-    std::swap(active, still_visible);
+    continue_point_tracks(
+        options, [&viewer](const Eigen::Vector3d& p_world) { return viewer.project(p_world); },
+        point_random, active, still_visible, features);
     for (int missing = options.points_per_frame - static_cast<int>(active.size()); missing > 0;
          --missing) {
       const auto p_world = viewer.sample_in_view(point_random, options.min_depth, options.max_depth,
@@ -471,17 +481,7 @@ void place_point_features_on_surfaces(dataset::Dataset& data, const SimulationOp
         return std::nullopt;
       };
       auto& features = robot.features[k];
-      still_visible.clear();
-      for (const ActivePoint& point : active) {
-        const bool lost =
-            options.point_track_loss > 0.0 && point_random.uniform() < options.point_track_loss;
-        if (lost) continue;
-        if (const auto xy = seen(point.p_world)) {
-          features.push_back({point.id, noisy(*xy, options.pixel_noise, point_random)});
-          still_visible.push_back(point);
-        }
-      }
-      std::swap(active, still_visible);
+      continue_point_tracks(options, seen, point_random, active, still_visible, features);
       const double tan_x = std::tan(0.5 * options.horizontal_fov_degrees * std::numbers::pi / 180.0);
       const double tan_y = std::tan(0.5 * options.vertical_fov_degrees * std::numbers::pi / 180.0);
       for (int missing = options.points_per_frame - static_cast<int>(active.size()), attempts = 0;
