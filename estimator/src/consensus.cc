@@ -542,14 +542,23 @@ void Consensus::marginal(const State& state, const std::vector<LandmarkId>& ids,
   // correlated objects one by one and carrying each average into the state (Proposition 2)
   // was measured to cost accuracy (docs/estimator.md, "Archiving"). Each archived object is a
   // 3x3 block of its own, after the joint block.
+  // One look-up an id; the lists are kept between calls (no allocation once they are large
+  // enough).
+  thread_local std::vector<std::pair<int, Eigen::Index>> in_state;  // slot, index in the state
+  thread_local std::vector<std::pair<LandmarkId, const ObjectEstimate*>> archived;
+  in_state.clear();
+  archived.clear();
   out.ids.clear();
   for (LandmarkId id : ids) {
-    if (state.landmark_slot(id) >= 0) out.ids.push_back(id);
+    if (const int slot = state.landmark_slot(id); slot >= 0) {
+      out.ids.push_back(id);
+      in_state.emplace_back(slot, state.landmark_index(slot));
+    } else if (const auto it = state.archived.find(id); it != state.archived.end()) {
+      archived.emplace_back(id, &it->second);
+    }
   }
   const auto joint = static_cast<Eigen::Index>(out.ids.size());
-  for (LandmarkId id : ids) {
-    if (state.landmark_slot(id) < 0 && state.archived.count(id) > 0) out.ids.push_back(id);
-  }
+  for (const auto& [id, estimate] : archived) out.ids.push_back(id);
   const auto count = static_cast<Eigen::Index>(out.ids.size());
   if (out.mean.size() != 3 * count) out.mean.resize(3 * count);
   const std::size_t blocks = (joint > 0 ? 1 : 0) + static_cast<std::size_t>(count - joint);
@@ -558,24 +567,24 @@ void Consensus::marginal(const State& state, const std::vector<LandmarkId>& ids,
     Eigen::MatrixXd& covariance = out.blocks.front();
     if (covariance.rows() != 3 * joint || covariance.cols() != 3 * joint)
       covariance.resize(3 * joint, 3 * joint);
-    std::vector<Eigen::Index> starts(static_cast<std::size_t>(joint));  // in the state
-    for (Eigen::Index j = 0; j < joint; ++j) {
-      const int slot = state.landmark_slot(out.ids[static_cast<std::size_t>(j)]);
-      starts[static_cast<std::size_t>(j)] = state.landmark_index(slot);
-      out.mean.segment<3>(3 * j) = state.landmarks[slot].p_world;
-    }
     // A landmark's three coordinates are adjacent in the state: the joint block is gathered
-    // 3x3 block by 3x3 block.
+    // 3x3 block by 3x3 block, each block above the diagonal read once and mirrored (the
+    // state's covariance is kept symmetric).
     for (Eigen::Index j = 0; j < joint; ++j) {
-      for (Eigen::Index i = 0; i < joint; ++i) {
-        covariance.block<3, 3>(3 * i, 3 * j) = state.covariance.block<3, 3>(
-            starts[static_cast<std::size_t>(i)], starts[static_cast<std::size_t>(j)]);
+      const auto [slot, column] = in_state[static_cast<std::size_t>(j)];
+      out.mean.segment<3>(3 * j) = state.landmarks[slot].p_world;
+      for (Eigen::Index i = 0; i < j; ++i) {
+        const Eigen::Matrix3d block =
+            state.covariance.block<3, 3>(in_state[static_cast<std::size_t>(i)].second, column);
+        covariance.block<3, 3>(3 * i, 3 * j) = block;
+        covariance.block<3, 3>(3 * j, 3 * i) = block.transpose();
       }
+      covariance.block<3, 3>(3 * j, 3 * j) = state.covariance.block<3, 3>(column, column);
     }
   }
   std::size_t block = joint > 0 ? 1 : 0;
   for (Eigen::Index a = joint; a < count; ++a, ++block) {
-    const ObjectEstimate& estimate = state.archived.at(out.ids[static_cast<std::size_t>(a)]);
+    const ObjectEstimate& estimate = *archived[static_cast<std::size_t>(a - joint)].second;
     out.mean.segment<3>(3 * a) = estimate.p_world;
     Eigen::MatrixXd& covariance = out.blocks[block];
     if (covariance.rows() != 3 || covariance.cols() != 3) covariance.resize(3, 3);
