@@ -4,8 +4,8 @@
 #include <atomic>
 #include <charconv>
 #include <cmath>
-#include <nlohmann/json.hpp>
 #include <limits>
+#include <nlohmann/json.hpp>
 #include <numbers>
 #include <numeric>
 #include <optional>
@@ -460,6 +460,8 @@ void place_point_features_on_surfaces(dataset::Dataset& data, const SimulationOp
     const auto distance = cast(centre, point - centre);
     return !distance || *distance >= 1.0 - 1e-6;
   };
+  const double tan_x = std::tan(0.5 * options.horizontal_fov_degrees * std::numbers::pi / 180.0);
+  const double tan_y = std::tan(0.5 * options.vertical_fov_degrees * std::numbers::pi / 180.0);
   for (dataset::RobotData& robot : data.robots) {
     Viewer viewer(any_depth, data.camera);
     Random point_random(options.seed, static_cast<std::uint64_t>(robot.index), Stream::kPoints);
@@ -482,8 +484,6 @@ void place_point_features_on_surfaces(dataset::Dataset& data, const SimulationOp
       };
       auto& features = robot.features[k];
       continue_point_tracks(options, seen, point_random, active, still_visible, features);
-      const double tan_x = std::tan(0.5 * options.horizontal_fov_degrees * std::numbers::pi / 180.0);
-      const double tan_y = std::tan(0.5 * options.vertical_fov_degrees * std::numbers::pi / 180.0);
       for (int missing = options.points_per_frame - static_cast<int>(active.size()), attempts = 0;
            missing > 0 && attempts < kSpawnAttempts * options.points_per_frame; ++attempts) {
         const Eigen::Vector3d ray(point_random.uniform(-tan_x, tan_x),
