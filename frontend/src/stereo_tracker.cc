@@ -194,6 +194,12 @@ bool StereoTracker::inside(const cv::Point2f& point, const cv::Size& size) const
          point.y < size.height - 1 - border;
 }
 
+bool StereoTracker::on_row_in_range(const cv::Point2f& left, const cv::Point2f& right) const {
+  const double disparity = left.x - right.x;
+  return std::abs(left.y - right.y) <= options_.epipolar_tolerance &&
+         disparity >= options_.min_disparity && disparity <= options_.max_disparity;
+}
+
 TrackedFrame StereoTracker::track(const cv::Mat& left, const cv::Mat& right) {
   if (left.empty() || right.empty() || left.size() != right.size() || left.type() != CV_8UC1 ||
       right.type() != CV_8UC1) {
@@ -287,9 +293,7 @@ void StereoTracker::continue_tracks(const std::vector<cv::Mat>& left_pyramid,
   // 4. Epipolar check on the rectified pair: same row, disparity in range.
   for (std::size_t index = 0; index < count; ++index) {
     if (!keep[index]) continue;
-    const double disparity = left_now[index].x - right_now[index].x;
-    if (std::abs(left_now[index].y - right_now[index].y) > options_.epipolar_tolerance ||
-        disparity < options_.min_disparity || disparity > options_.max_disparity) {
+    if (!on_row_in_range(left_now[index], right_now[index])) {
       keep[index] = 0;
       ++out.counts.rejected_epipolar;
     }
@@ -441,9 +445,7 @@ void StereoTracker::add_features(const cv::Mat& left, const std::vector<cv::Mat>
         ++out.counts.rejected_circular;
         continue;
       }
-      const double disparity = left_points[index].x - right_points[index].x;
-      if (std::abs(left_points[index].y - right_points[index].y) > options_.epipolar_tolerance ||
-          disparity < options_.min_disparity || disparity > options_.max_disparity) {
+      if (!on_row_in_range(left_points[index], right_points[index])) {
         ++out.counts.rejected_epipolar;
         continue;
       }

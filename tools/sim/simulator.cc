@@ -195,20 +195,27 @@ class Viewer {
     return xy;
   }
 
+  /// A ray (x, y, 1) in the left camera's frame through a uniformly drawn position of the
+  /// central `fov_fraction` of its field of view (x drawn first, then y).
+  Eigen::Vector3d random_ray(Random& random, double fov_fraction) const {
+    const double x = fov_fraction * random.uniform(-tan_half_horizontal_, tan_half_horizontal_);
+    const double y = fov_fraction * random.uniform(-tan_half_vertical_, tan_half_vertical_);
+    return {x, y, 1.0};
+  }
+
   /// A random point in the left camera's view at a depth in [depth_low, depth_high] that both
   /// cameras see, in world coordinates, or nothing after `attempts` failed draws.
   std::optional<Eigen::Vector3d> sample_in_view(Random& random, double depth_low, double depth_high,
                                                 double fov_fraction, int attempts) const {
     const Eigen::Isometry3d T_cam1_cam0 = camera_.T_cam0_cam1.inverse();
     for (int attempt = 0; attempt < attempts; ++attempt) {
-      const double x = fov_fraction * random.uniform(-tan_half_horizontal_, tan_half_horizontal_);
-      const double y = fov_fraction * random.uniform(-tan_half_vertical_, tan_half_vertical_);
+      const Eigen::Vector3d ray = random_ray(random, fov_fraction);
       // Depth with density proportional to depth^2: points spread uniformly in the volume of
       // the view, as a static world of uniform density looks through a camera.
       const double cube_low = depth_low * depth_low * depth_low;
       const double depth =
           std::cbrt(random.uniform(cube_low, depth_high * depth_high * depth_high));
-      const Eigen::Vector3d p_cam0 = depth * Eigen::Vector3d(x, y, 1.0);
+      const Eigen::Vector3d p_cam0 = depth * ray;
       if (project_camera(p_cam0, T_cam1_cam0 * p_cam0)) return T_world_cam0_ * p_cam0;
     }
     return std::nullopt;
@@ -460,8 +467,6 @@ void place_point_features_on_surfaces(dataset::Dataset& data, const SimulationOp
     const auto distance = cast(centre, point - centre);
     return !distance || *distance >= 1.0 - 1e-6;
   };
-  const double tan_x = std::tan(0.5 * options.horizontal_fov_degrees * std::numbers::pi / 180.0);
-  const double tan_y = std::tan(0.5 * options.vertical_fov_degrees * std::numbers::pi / 180.0);
   for (dataset::RobotData& robot : data.robots) {
     Viewer viewer(any_depth, data.camera);
     Random point_random(options.seed, static_cast<std::uint64_t>(robot.index), Stream::kPoints);
@@ -486,9 +491,8 @@ void place_point_features_on_surfaces(dataset::Dataset& data, const SimulationOp
       continue_point_tracks(options, seen, point_random, active, still_visible, features);
       for (int missing = options.points_per_frame - static_cast<int>(active.size()), attempts = 0;
            missing > 0 && attempts < kSpawnAttempts * options.points_per_frame; ++attempts) {
-        const Eigen::Vector3d ray(point_random.uniform(-tan_x, tan_x),
-                                  point_random.uniform(-tan_y, tan_y), 1.0);
-        const Eigen::Vector3d direction = T_world_cam0.linear() * ray;
+        const Eigen::Vector3d direction =
+            T_world_cam0.linear() * viewer.random_ray(point_random, 1.0);
         const auto distance = cast(left, direction);
         if (!distance) continue;
         const Eigen::Vector3d p_world = left + *distance * direction;

@@ -86,6 +86,9 @@ class StereoTracker {
   void add_features(const cv::Mat& left, const std::vector<cv::Mat>& left_pyramid,
                     const std::vector<cv::Mat>& right_pyramid, TrackedFrame& out);
   bool inside(const cv::Point2f& point, const cv::Size& size) const;
+  /// The epipolar check of a rectified match: on the same row (within the tolerance), its
+  /// disparity in [min_disparity, max_disparity].
+  bool on_row_in_range(const cv::Point2f& left, const cv::Point2f& right) const;
 
   TrackerOptions options_;
   MatchHook hook_;
