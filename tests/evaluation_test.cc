@@ -4,6 +4,7 @@
 
 #include <cmath>
 #include <filesystem>
+#include <numbers>
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <stdexcept>
@@ -67,6 +68,64 @@ TEST(EvaluationTest, ConstantOffsetGivesTrajectoryRmseOfItsLength) {
   EXPECT_DOUBLE_EQ(metrics.robots[0].trajectory_rmse, 5.0);
   EXPECT_EQ(metrics.robots[0].frames, 10);
   EXPECT_EQ(metrics.robots[0].robot, 0);
+}
+
+TEST(EvaluationTest, TeamRigidFitRemovesAnErrorOfTheWholeTeamsFrame) {
+  // Every robot's estimate is the truth seen from a frame rotated by 5 degrees and shifted: the
+  // trajectories are wrong by metres, their shape and the robots' relative poses are right.
+  Team team = perfect_trajectories(2, 12);
+  Eigen::Isometry3d frame_error = Eigen::Isometry3d::Identity();
+  frame_error.linear() =
+      Eigen::AngleAxisd(5.0 * std::numbers::pi / 180.0, Eigen::Vector3d(1, 2, 3).normalized())
+          .toRotationMatrix();
+  frame_error.translation() = Eigen::Vector3d(1.0, -2.0, 2.0);
+  for (RobotResult& result : team.results) {
+    for (Eigen::Isometry3d& T_world_body : result.trajectory) T_world_body = frame_error * T_world_body;
+  }
+  const TeamMetrics metrics = evaluate(team.truths, team.results, {});
+  EXPECT_GT(metrics.robots[1].trajectory_rmse, 1.0);
+  EXPECT_LT(metrics.team_aligned.trajectory_rmse, 1e-9);
+  EXPECT_NEAR(metrics.team_aligned.rotation_degrees, 5.0, 1e-9);
+  // The fit maps the estimate onto the truth: the inverse of frame_error.
+  EXPECT_NEAR(metrics.team_aligned.translation, frame_error.inverse().translation().norm(), 1e-9);
+  EXPECT_EQ(metrics.team_aligned.robots, 2);
+  EXPECT_EQ(metrics.team_aligned.poses, 24);
+  EXPECT_NE(format_table(metrics, "t").find("one rigid fit of the 2 robots"), std::string::npos);
+}
+
+TEST(EvaluationTest, TeamRigidFitKeepsTheRobotsErrorsRelativeToEachOther) {
+  // Robot 1 is 2 m off, robot 0 exact, both on the same path: the best single transform moves
+  // both by half the offset (their centred paths are alike, so it does not rotate), and each
+  // robot is left 1 m off.
+  Team team = perfect_trajectories(2, 12);
+  for (Eigen::Isometry3d& T_world_body : team.results[1].trajectory) {
+    T_world_body.translation() += Eigen::Vector3d(0.0, 2.0, 0.0);
+  }
+  const TeamMetrics metrics = evaluate(team.truths, team.results, {});
+  EXPECT_NEAR(metrics.team_aligned.trajectory_rmse, 1.0, 1e-9);
+  EXPECT_NEAR(metrics.team_aligned.rotation_degrees, 0.0, 1e-6);
+  EXPECT_NEAR(metrics.team_aligned.translation, 1.0, 1e-9);
+}
+
+TEST(EvaluationTest, TeamRigidFitTakesOnlyRobotsInRobotZerosFrameFromTheirFirstFrames) {
+  Team team = perfect_trajectories(3, 10);
+  // Robot 1 ends in its own start frame (never joined robot 0's): left out, however wrong.
+  team.results[1].trajectory_frames.assign(10, 1);
+  for (Eigen::Isometry3d& T : team.results[1].trajectory) T.translation().x() += 50.0;
+  // Robot 2 joined at frame 4: its poses before are in another frame and left out.
+  team.results[2].aligned_at_frame = 4;
+  team.results[2].trajectory_frames.assign(10, std::nullopt);
+  for (int k = 0; k < 4; ++k) {
+    team.results[2].trajectory_frames[static_cast<std::size_t>(k)] = 2;
+    team.results[2].trajectory[static_cast<std::size_t>(k)].translation().y() += 50.0;
+  }
+  const TeamMetrics metrics = evaluate(team.truths, team.results, {});
+  EXPECT_EQ(metrics.team_aligned.robots, 2);
+  EXPECT_EQ(metrics.team_aligned.poses, 10 + 6);
+  EXPECT_LT(metrics.team_aligned.trajectory_rmse, 1e-9);
+  // Too few poses: nothing to fit.
+  Team tiny = perfect_trajectories(1, 2);
+  EXPECT_TRUE(std::isnan(evaluate(tiny.truths, tiny.results, {}).team_aligned.trajectory_rmse));
 }
 
 TEST(EvaluationTest, TranslationRmseIsTheRootOfTheMeanSquare) {

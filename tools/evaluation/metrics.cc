@@ -1,6 +1,7 @@
 #include "evaluation/metrics.h"
 
 #include <Eigen/Cholesky>
+#include <Eigen/Geometry>
 #include <algorithm>
 #include <cassert>
 #include <cmath>
@@ -433,6 +434,27 @@ AssociationMetrics association_of(const std::vector<RobotTruth>& truths,
   return metrics;
 }
 
+/// TeamAlignedMetrics of the positions estimated_positions[i] against truth_positions[i].
+TeamAlignedMetrics team_aligned_of(const std::vector<Eigen::Vector3d>& estimated_positions,
+                                   const std::vector<Eigen::Vector3d>& truth_positions, int robots) {
+  TeamAlignedMetrics metrics;
+  metrics.robots = robots;
+  metrics.poses = static_cast<int>(estimated_positions.size());
+  if (estimated_positions.size() < 3) return metrics;
+  Eigen::Matrix3Xd estimated(3, metrics.poses), truth(3, metrics.poses);
+  for (int i = 0; i < metrics.poses; ++i) {
+    estimated.col(i) = estimated_positions[static_cast<std::size_t>(i)];
+    truth.col(i) = truth_positions[static_cast<std::size_t>(i)];
+  }
+  const Eigen::Matrix4d fit = Eigen::umeyama(estimated, truth, false);
+  const Eigen::Matrix3Xd residual =
+      (fit.topLeftCorner<3, 3>() * estimated).colwise() + fit.topRightCorner<3, 1>() - truth;
+  metrics.trajectory_rmse = std::sqrt(residual.squaredNorm() / static_cast<double>(residual.cols()));
+  metrics.rotation_degrees = degrees_of(fit.topLeftCorner<3, 3>());
+  metrics.translation = fit.topRightCorner<3, 1>().norm();
+  return metrics;
+}
+
 }  // namespace
 
 TeamMetrics evaluate(const std::vector<RobotTruth>& truths, const std::vector<RobotResult>& results,
@@ -454,6 +476,10 @@ TeamMetrics evaluate(const std::vector<RobotTruth>& truths, const std::vector<Ro
   }
 
   TeamMetrics team;
+  // Positions for the team's rigid fit: robots ending in robot 0's frame, from their first frame
+  // on, where the estimate is in that frame.
+  std::vector<Eigen::Vector3d> team_estimated, team_truth;
+  int team_robots = 0;
   for (std::size_t robot = 0; robot < truths.size(); ++robot) {
     const RobotTruth& truth = truths[robot];
     const RobotResult& result = results[robot];
@@ -475,6 +501,14 @@ TeamMetrics evaluate(const std::vector<RobotTruth>& truths, const std::vector<Ro
     metrics.trajectory_rmse_aligned =
         translation_rmse({result.trajectory.begin() + metrics.first_frame, result.trajectory.end()},
                          {truth_in_frames.begin() + metrics.first_frame, truth_in_frames.end()});
+    if (frames[robot] == frames.front()) {
+      ++team_robots;
+      for (int k = metrics.first_frame; k < metrics.frames; ++k) {
+        if (frame_at(result, static_cast<std::size_t>(k)) != frames.front()) continue;
+        team_estimated.push_back(result.trajectory[static_cast<std::size_t>(k)].translation());
+        team_truth.push_back(truth_in_frames[static_cast<std::size_t>(k)].translation());
+      }
+    }
     // 2. The dead-reckoning baseline from the known start pose.
     if (!truth.odometry.empty()) {
       metrics.odometry_rmse = translation_rmse(
@@ -517,6 +551,7 @@ TeamMetrics evaluate(const std::vector<RobotTruth>& truths, const std::vector<Ro
     team.robots.push_back(metrics);
   }
 
+  team.team_aligned = team_aligned_of(team_estimated, team_truth, team_robots);
   team.average.robot = -1;
   team.maximum.robot = -1;
   for (double RobotMetrics::*field :
@@ -553,6 +588,14 @@ nlohmann::json to_json(const TeamMetrics& metrics) {
       {"robots", robots},
       {"average", robot_to_json(metrics.average)},
       {"maximum", robot_to_json(metrics.maximum)},
+  };
+  const TeamAlignedMetrics& aligned = metrics.team_aligned;
+  document["team_aligned"] = {
+      {"trajectory_rmse", number_or_null(aligned.trajectory_rmse)},
+      {"rotation_degrees", number_or_null(aligned.rotation_degrees)},
+      {"translation", number_or_null(aligned.translation)},
+      {"robots", aligned.robots},
+      {"poses", aligned.poses},
   };
   if (metrics.association) {
     const AssociationMetrics& a = *metrics.association;
@@ -605,6 +648,16 @@ std::string format_table(const TeamMetrics& metrics, const std::string& title) {
                   format_metres(a.precision).c_str(), a.correct_pairs, a.linked_pairs,
                   format_metres(a.recall).c_str(), a.found, a.common_objects,
                   format_metres(a.recall_aligned).c_str(), a.pairs_in_one_frame, a.robot_pairs);
+    table << line;
+  }
+  if (metrics.team_aligned.poses >= 3) {
+    const TeamAlignedMetrics& aligned = metrics.team_aligned;
+    std::snprintf(line, sizeof(line),
+                  "team trajectory RMSE after one rigid fit of the %d robots in robot 0's frame: "
+                  "%s m (the fit: %s deg, %s m)\n",
+                  aligned.robots, format_metres(aligned.trajectory_rmse).c_str(),
+                  format_metres(aligned.rotation_degrees).c_str(),
+                  format_metres(aligned.translation).c_str());
     table << line;
   }
   for (const RobotMetrics& robot : metrics.robots) {

@@ -127,6 +127,22 @@ struct AssociationMetrics {
   int robot_pairs = 0;
 };
 
+/// The team's trajectory up to one rigid transform: every pose, from each robot's first frame
+/// on, of the robots whose estimates end in robot 0's frame (its own, or the team frame it joined),
+/// fitted to the truth in that frame by a single rotation and translation (least squares on the
+/// positions, Umeyama without scale) and the RMSE of what is left. It separates an error of the
+/// team's frame as a whole (e.g. robot 0's early heading drift, which the whole negotiated map then
+/// shares) from the robots' errors relative to each other. NaN when fewer than three poses.
+struct TeamAlignedMetrics {
+  double trajectory_rmse = std::numeric_limits<double>::quiet_NaN();
+  /// The fitted transform's rotation angle (degrees) and translation length (metres).
+  double rotation_degrees = std::numeric_limits<double>::quiet_NaN();
+  double translation = std::numeric_limits<double>::quiet_NaN();
+  /// Robots and poses that took part.
+  int robots = 0;
+  int poses = 0;
+};
+
 /// Metrics of the whole team.
 struct TeamMetrics {
   /// One entry per robot, in robot order.
@@ -139,6 +155,7 @@ struct TeamMetrics {
   RobotMetrics maximum;
   /// Association against the truth (when the results carry team ids).
   std::optional<AssociationMetrics> association;
+  TeamAlignedMetrics team_aligned;
 };
 
 /// What one robot estimated.
