@@ -10,6 +10,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "concord/estimator/lie.h"
 #include "evaluation/metrics.h"
 #include "evaluation/plot.h"
 
@@ -82,8 +83,13 @@ TEST(EvaluationTest, TeamRigidFitRemovesAnErrorOfTheWholeTeamsFrame) {
   for (RobotResult& result : team.results) {
     for (Eigen::Isometry3d& T_world_body : result.trajectory) T_world_body = frame_error * T_world_body;
   }
-  const TeamMetrics metrics = evaluate(team.truths, team.results, {});
+  // Robot 0's object is seen from the same wrong frame and 0.5 m off besides; robot 1 has none.
+  const Eigen::Vector3d object_truth(4.0, 1.0, -2.0);
+  team.results[0].objects = {object(7, frame_error * (object_truth + Eigen::Vector3d(0, 0.5, 0)))};
+  const TeamMetrics metrics = evaluate(team.truths, team.results, {{7, object_truth}});
   EXPECT_GT(metrics.robots[1].trajectory_rmse, 1.0);
+  EXPECT_GT(metrics.robots[0].object_error, 1.0);
+  EXPECT_NEAR(metrics.team_aligned.object_error, 0.5, 1e-9);
   EXPECT_LT(metrics.team_aligned.trajectory_rmse, 1e-9);
   EXPECT_NEAR(metrics.team_aligned.rotation_degrees, 5.0, 1e-9);
   // The fit maps the estimate onto the truth: the inverse of frame_error.
@@ -126,6 +132,22 @@ TEST(EvaluationTest, TeamRigidFitTakesOnlyRobotsInRobotZerosFrameFromTheirFirstF
   // Too few poses: nothing to fit.
   Team tiny = perfect_trajectories(1, 2);
   EXPECT_TRUE(std::isnan(evaluate(tiny.truths, tiny.results, {}).team_aligned.trajectory_rmse));
+}
+
+TEST(EvaluationTest, AlignmentNeesIsTheLeftErrorOfTTeamOwnUnderItsCovariance) {
+  Team team = perfect_trajectories(2, 5);  // both start at the identity: T_team_own's truth
+  RobotResult& moved = team.results[1];
+  moved.trajectory_frames.assign(5, 0);
+  moved.moved = true;
+  lie::Vector6d error;
+  error << 0.1, 0.2, 0.3, 0.01, 0.02, 0.03;
+  moved.T_team_own = lie::se3_exp(-error);  // the truth is exp(error) T_team_own
+  moved.T_team_own_covariance.diagonal() << 0.01, 0.04, 0.09, 1e-4, 4e-4, 9e-4;
+  const TeamMetrics metrics = evaluate(team.truths, team.results, {});
+  EXPECT_NEAR(metrics.robots[1].alignment_nees, 6.0, 1e-9);
+  EXPECT_TRUE(std::isnan(metrics.robots[0].alignment_nees));  // did not move
+  moved.T_team_own_covariance.setZero();  // not known
+  EXPECT_TRUE(std::isnan(evaluate(team.truths, team.results, {}).robots[1].alignment_nees));
 }
 
 TEST(EvaluationTest, TranslationRmseIsTheRootOfTheMeanSquare) {

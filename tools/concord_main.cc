@@ -118,6 +118,7 @@ evaluation::RobotResult read_robot_result(const fs::path& folder) {
     result.aligned_at_frame = alignment.aligned_at_frame;
     result.moved = alignment.moved;
     result.T_team_own = alignment.T_team_own;
+    result.T_team_own_covariance = alignment.covariance;
   }
   const fs::path covariance_file = folder / "pose_covariance.csv";
   if (!fs::exists(covariance_file)) return result;
@@ -297,6 +298,7 @@ int run_replay(const fs::path& dataset_dir, const fs::path& out, bool separate,
     robot_result.aligned_at_frame = alignment.aligned_at_frame;
     robot_result.moved = alignment.moved;
     robot_result.T_team_own = alignment.T_team_own;
+    robot_result.T_team_own_covariance = alignment.covariance;
     results.push_back(std::move(robot_result));
   }
   const auto& s = result.statistics;

@@ -263,6 +263,7 @@ nlohmann::json robot_to_json(const RobotMetrics& metrics) {
       {"aligned_pose_error", number_or_null(metrics.aligned_pose_error)},
       {"aligned_pose_rotation_error_degrees",
        number_or_null(metrics.aligned_pose_rotation_error_degrees)},
+      {"alignment_nees", number_or_null(metrics.alignment_nees)},
   };
 }
 
@@ -434,11 +435,16 @@ AssociationMetrics association_of(const std::vector<RobotTruth>& truths,
   return metrics;
 }
 
-/// TeamAlignedMetrics of the positions estimated_positions[i] against truth_positions[i].
-TeamAlignedMetrics team_aligned_of(const std::vector<Eigen::Vector3d>& estimated_positions,
-                                   const std::vector<Eigen::Vector3d>& truth_positions, int robots) {
+/// TeamAlignedMetrics of the positions estimated_positions[i] against truth_positions[i], and of
+/// the objects of the robots in `team` (their estimates in their final frame T_team_world).
+TeamAlignedMetrics team_aligned_of(
+    const std::vector<Eigen::Vector3d>& estimated_positions,
+    const std::vector<Eigen::Vector3d>& truth_positions, const std::vector<std::size_t>& team,
+    const std::vector<std::map<LandmarkId, Eigen::Vector3d>>& estimated_objects,
+    const std::map<LandmarkId, Eigen::Vector3d>& objects_groundtruth,
+    const Eigen::Isometry3d& T_team_world) {
   TeamAlignedMetrics metrics;
-  metrics.robots = robots;
+  metrics.robots = static_cast<int>(team.size());
   metrics.poses = static_cast<int>(estimated_positions.size());
   if (estimated_positions.size() < 3) return metrics;
   Eigen::Matrix3Xd estimated(3, metrics.poses), truth(3, metrics.poses);
@@ -452,6 +458,20 @@ TeamAlignedMetrics team_aligned_of(const std::vector<Eigen::Vector3d>& estimated
   metrics.trajectory_rmse = std::sqrt(residual.squaredNorm() / static_cast<double>(residual.cols()));
   metrics.rotation_degrees = degrees_of(fit.topLeftCorner<3, 3>());
   metrics.translation = fit.topRightCorner<3, 1>().norm();
+  Eigen::Isometry3d T_fit = Eigen::Isometry3d::Identity();
+  T_fit.matrix() = fit;
+  double robots_sum = 0.0;
+  int robots_with_objects = 0;
+  for (const std::size_t robot : team) {
+    std::map<LandmarkId, Eigen::Vector3d> fitted;
+    for (const auto& [id, p] : estimated_objects[robot]) fitted.emplace(id, T_fit * p);
+    RobotMetrics robot_metrics;
+    fill_object_error(fitted, objects_groundtruth, T_team_world, robot_metrics);
+    if (robot_metrics.objects_evaluated == 0) continue;
+    robots_sum += robot_metrics.object_error;
+    ++robots_with_objects;
+  }
+  if (robots_with_objects > 0) metrics.object_error = robots_sum / robots_with_objects;
   return metrics;
 }
 
@@ -479,7 +499,7 @@ TeamMetrics evaluate(const std::vector<RobotTruth>& truths, const std::vector<Ro
   // Positions for the team's rigid fit: robots ending in robot 0's frame, from their first frame
   // on, where the estimate is in that frame.
   std::vector<Eigen::Vector3d> team_estimated, team_truth;
-  int team_robots = 0;
+  std::vector<std::size_t> team_robots;
   for (std::size_t robot = 0; robot < truths.size(); ++robot) {
     const RobotTruth& truth = truths[robot];
     const RobotResult& result = results[robot];
@@ -502,7 +522,7 @@ TeamMetrics evaluate(const std::vector<RobotTruth>& truths, const std::vector<Ro
         translation_rmse({result.trajectory.begin() + metrics.first_frame, result.trajectory.end()},
                          {truth_in_frames.begin() + metrics.first_frame, truth_in_frames.end()});
     if (frames[robot] == frames.front()) {
-      ++team_robots;
+      team_robots.push_back(robot);
       for (int k = metrics.first_frame; k < metrics.frames; ++k) {
         if (frame_at(result, static_cast<std::size_t>(k)) != frames.front()) continue;
         team_estimated.push_back(result.trajectory[static_cast<std::size_t>(k)].translation());
@@ -541,6 +561,11 @@ TeamMetrics evaluate(const std::vector<RobotTruth>& truths, const std::vector<Ro
       metrics.alignment_translation_error =
           (T_true.translation() - result.T_team_own.translation()).norm();
       metrics.alignment_rotation_error_degrees = degrees_of(error.linear());
+      const lie::Vector6d left_error = lie::se3_log(T_true * result.T_team_own.inverse());
+      const Eigen::LLT<Eigen::Matrix<double, 6, 6>> llt(result.T_team_own_covariance);
+      if (!result.T_team_own_covariance.isZero() && llt.info() == Eigen::Success) {
+        metrics.alignment_nees = left_error.dot(llt.solve(left_error));
+      }
       const auto k = static_cast<std::size_t>(
           std::clamp(result.aligned_at_frame, 0, static_cast<int>(result.trajectory.size()) - 1));
       metrics.aligned_pose_error =
@@ -551,14 +576,19 @@ TeamMetrics evaluate(const std::vector<RobotTruth>& truths, const std::vector<Ro
     team.robots.push_back(metrics);
   }
 
-  team.team_aligned = team_aligned_of(team_estimated, team_truth, team_robots);
+  if (!frames.empty()) {
+    team.team_aligned =
+        team_aligned_of(team_estimated, team_truth, team_robots, estimated_objects,
+                        objects_groundtruth, frame_from_world(truths, frames.front()));
+  }
   team.average.robot = -1;
   team.maximum.robot = -1;
   for (double RobotMetrics::*field :
        {&RobotMetrics::trajectory_rmse, &RobotMetrics::odometry_rmse, &RobotMetrics::object_error,
         &RobotMetrics::disagreement, &RobotMetrics::trajectory_rmse_aligned,
         &RobotMetrics::alignment_translation_error, &RobotMetrics::alignment_rotation_error_degrees,
-        &RobotMetrics::aligned_pose_error, &RobotMetrics::aligned_pose_rotation_error_degrees}) {
+        &RobotMetrics::aligned_pose_error, &RobotMetrics::aligned_pose_rotation_error_degrees,
+        &RobotMetrics::alignment_nees}) {
     aggregate(team.robots, field, team.average, team.maximum);
   }
   for (NeesSummary RobotMetrics::*field : {&RobotMetrics::pose_nees, &RobotMetrics::position_nees,
@@ -594,6 +624,7 @@ nlohmann::json to_json(const TeamMetrics& metrics) {
       {"trajectory_rmse", number_or_null(aligned.trajectory_rmse)},
       {"rotation_degrees", number_or_null(aligned.rotation_degrees)},
       {"translation", number_or_null(aligned.translation)},
+      {"object_error", number_or_null(aligned.object_error)},
       {"robots", aligned.robots},
       {"poses", aligned.poses},
   };
@@ -654,8 +685,9 @@ std::string format_table(const TeamMetrics& metrics, const std::string& title) {
     const TeamAlignedMetrics& aligned = metrics.team_aligned;
     std::snprintf(line, sizeof(line),
                   "team trajectory RMSE after one rigid fit of the %d robots in robot 0's frame: "
-                  "%s m (the fit: %s deg, %s m)\n",
+                  "%s m, object error %s m (the fit: %s deg, %s m)\n",
                   aligned.robots, format_metres(aligned.trajectory_rmse).c_str(),
+                  format_metres(aligned.object_error).c_str(),
                   format_metres(aligned.rotation_degrees).c_str(),
                   format_metres(aligned.translation).c_str());
     table << line;
@@ -663,11 +695,12 @@ std::string format_table(const TeamMetrics& metrics, const std::string& title) {
   for (const RobotMetrics& robot : metrics.robots) {
     if (!robot.moved) continue;
     std::snprintf(line, sizeof(line),
-                  "Robot %d aligned at frame %d: T_team_own error %s m / %s deg, pose error there "
-                  "%s m / %s deg; traj RMSE from frame %d: %s m\n",
+                  "Robot %d aligned at frame %d: T_team_own error %s m / %s deg (NEES %s, 6-D), "
+                  "pose error there %s m / %s deg; traj RMSE from frame %d: %s m\n",
                   robot.robot, robot.aligned_at_frame,
                   format_metres(robot.alignment_translation_error).c_str(),
                   format_metres(robot.alignment_rotation_error_degrees).c_str(),
+                  format_metres(robot.alignment_nees).c_str(),
                   format_metres(robot.aligned_pose_error).c_str(),
                   format_metres(robot.aligned_pose_rotation_error_degrees).c_str(),
                   robot.first_frame, format_metres(robot.trajectory_rmse_aligned).c_str());

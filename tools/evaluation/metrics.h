@@ -99,6 +99,9 @@ struct RobotMetrics {
   double alignment_rotation_error_degrees = std::numeric_limits<double>::quiet_NaN();
   double aligned_pose_error = std::numeric_limits<double>::quiet_NaN();
   double aligned_pose_rotation_error_degrees = std::numeric_limits<double>::quiet_NaN();
+  /// NEES (6-D) of T_team_own against the truth under its covariance, the left perturbation
+  /// log(T_true T_team_own^-1); NaN when the covariance is not known or not positive definite.
+  double alignment_nees = std::numeric_limits<double>::quiet_NaN();
   /// Consistency: NEES of every frame's online pose estimate (6-D, and its position and
   /// orientation parts, 3-D each; needs the pose covariances), and of the final object
   /// estimates that have ground truth (3-D).
@@ -130,11 +133,15 @@ struct AssociationMetrics {
 /// The team's trajectory up to one rigid transform: every pose, from each robot's first frame
 /// on, of the robots whose estimates end in robot 0's frame (its own, or the team frame it joined),
 /// fitted to the truth in that frame by a single rotation and translation (least squares on the
-/// positions, Umeyama without scale) and the RMSE of what is left. It separates an error of the
+/// positions, Umeyama without scale) and the RMSE of what is left, and the objects under that fit.
+/// It separates an error of the
 /// team's frame as a whole (e.g. robot 0's early heading drift, which the whole negotiated map then
 /// shares) from the robots' errors relative to each other. NaN when fewer than three poses.
 struct TeamAlignedMetrics {
   double trajectory_rmse = std::numeric_limits<double>::quiet_NaN();
+  /// Object error (mean over those robots of their mean object error) with the same fit applied
+  /// to their final objects.
+  double object_error = std::numeric_limits<double>::quiet_NaN();
   /// The fitted transform's rotation angle (degrees) and translation length (metres).
   double rotation_degrees = std::numeric_limits<double>::quiet_NaN();
   double translation = std::numeric_limits<double>::quiet_NaN();
@@ -177,6 +184,8 @@ struct RobotResult {
   int aligned_at_frame = 0;
   bool moved = false;
   Eigen::Isometry3d T_team_own = Eigen::Isometry3d::Identity();
+  /// Its covariance (left perturbation in the team frame, [rho; phi]); zero: not known.
+  Eigen::Matrix<double, 6, 6> T_team_own_covariance = Eigen::Matrix<double, 6, 6>::Zero();
 };
 
 /// Ground truth and measured motion of one robot.
