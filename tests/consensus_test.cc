@@ -250,7 +250,9 @@ TEST(ConsensusMarginal, IntoAMarginalOfTheSameShapeTheArchivedBlocksAllocateNoth
   Consensus::marginal(state, ids, reused);
   // Nothing: the 12 archived blocks and the joint block are reused, and the lists of where the
   // landmarks are are kept between calls.
-  if (testing::counting_allocations()) EXPECT_EQ(testing::allocations() - before, 0u);
+  if (testing::counting_allocations()) {
+    EXPECT_EQ(testing::allocations() - before, 0u);
+  }
   EXPECT_EQ(reused.ids, fresh.ids);
   EXPECT_EQ(reused.mean, fresh.mean);
   EXPECT_TRUE(testing::same_blocks(reused.blocks, fresh.blocks));

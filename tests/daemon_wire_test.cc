@@ -64,7 +64,9 @@ TEST(DaemonWire, AMarginalReadIntoOneOfTheSameShapeReusesItsStorage) {
   ASSERT_TRUE(from_wire(first_message, error, reused)) << error;
   const std::size_t before = testing::allocations();
   ASSERT_TRUE(from_wire(second_message, error, reused)) << error;
-  if (testing::counting_allocations()) EXPECT_EQ(testing::allocations(), before);
+  if (testing::counting_allocations()) {
+    EXPECT_EQ(testing::allocations(), before);
+  }
   // The same marginal as read into a fresh one, to the bit.
   const auto fresh = from_wire(second_message, error);
   ASSERT_TRUE(fresh) << error;

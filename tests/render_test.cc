@@ -4,6 +4,7 @@
 
 #include <gtest/gtest.h>
 
+#include <array>
 #include <map>
 #include <optional>
 
@@ -124,7 +125,9 @@ TEST(Render, PointTracksAreOfSurfacePointsBothCamerasSee) {
       const Eigen::Vector3d p_world =
           T_world_cam0 * Eigen::Vector3d(observation.uv(0) * depth, observation.uv(1) * depth, depth);
       // On a surface that both cameras see first along their rays.
-      for (const Eigen::Vector3d& centre : {T_world_cam0.translation(), T_world_cam1.translation()}) {
+      const std::array<Eigen::Vector3d, 2> centres{T_world_cam0.translation(),
+                                                    T_world_cam1.translation()};
+      for (const Eigen::Vector3d& centre : centres) {
         const auto hit = rendered.world.cast(centre, p_world - centre);
         ASSERT_TRUE(hit.has_value());
         EXPECT_NEAR(hit->distance, 1.0, 1e-6);
