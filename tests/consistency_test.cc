@@ -217,6 +217,97 @@ TEST(FailureCounters, AnUpdateWithAnIndefiniteInnovationIsRefusedAndLeavesTheSta
   EXPECT_TRUE(state.covariance.isApprox(before.covariance, 0.0));
 }
 
+/// Angle (radians) between the body's up axis (+z) in the world and the world's +z.
+double tilt(const Eigen::Isometry3d& T_world_body) {
+  const Eigen::Vector3d up = T_world_body.linear() * Eigen::Vector3d::UnitZ();
+  return std::acos(std::clamp(up.z(), -1.0, 1.0));
+}
+
+TEST(LevelPrior, TakesTheKalmanShareOfATiltAndLeavesTheHeading) {
+  // One step turns the robot 0.3 rad about the vertical and pitches it 0.05 rad; the odometry's
+  // rotation noise (0.1 rad) and the level prior's (0.1 rad) are equal, so the update takes
+  // about half of the tilt away and leaves the heading alone.
+  EstimatorOptions options;
+  options.odometry_rotation_sigma = 0.1;
+  options.level_sigma = 0.1;
+  options.use_objects = false;
+  options.use_point_features = false;
+  Estimator estimator(options, testing::kitti_like_camera(), Eigen::Isometry3d::Identity());
+  FrameInput start;
+  estimator.process(start);
+  FrameInput step;
+  step.frame = 1;
+  Eigen::Isometry3d motion = Eigen::Isometry3d::Identity();
+  motion.linear() = (Eigen::AngleAxisd(0.3, Eigen::Vector3d::UnitZ()) *
+                     Eigen::AngleAxisd(0.05, Eigen::Vector3d::UnitY()))
+                        .toRotationMatrix();
+  step.T_previous_current = motion;
+  const FrameReport report = estimator.process(step);
+  EXPECT_TRUE(report.level_applied);
+  EXPECT_FALSE(report.level_failed);
+  const Eigen::Isometry3d pose = estimator.current_pose();
+  const double prior = 0.1 * 0.1 + 1e-6;  // odometry and the start's 1 mrad
+  EXPECT_NEAR(tilt(pose), 0.05 * (0.01 / (prior + 0.01)), 1e-3);
+  const Eigen::Vector3d forward = pose.linear() * Eigen::Vector3d::UnitX();
+  EXPECT_NEAR(std::atan2(forward.y(), forward.x()), 0.3, 1e-3);
+  // The tilt's variance halves; the heading's stays the odometry's.
+  const Eigen::Matrix3d rotation = estimator.current_pose_covariance().bottomRightCorner<3, 3>();
+  const Eigen::Vector3d vertical = pose.linear().transpose() * Eigen::Vector3d::UnitZ();
+  EXPECT_NEAR(vertical.dot(rotation * vertical), prior, 1e-4);
+  const Eigen::Vector3d across = pose.linear().transpose() * Eigen::Vector3d::UnitX();
+  EXPECT_NEAR(across.dot(rotation * across), prior * 0.01 / (prior + 0.01), 1e-4);
+}
+
+TEST(LevelPrior, BoundsThePitchThatBiasedOdometryLetsDrift) {
+  // The odometry reads 2 mrad of pitch a frame that the robot does not make: dead reckoning
+  // tilts by 0.6 rad in 300 frames; with the prior every 10th frame the tilt stays small, and
+  // the frames between are left alone.
+  for (const double sigma : {0.0, 0.02}) {
+    EstimatorOptions options;
+    options.odometry_rotation_sigma = 0.002;
+    options.level_sigma = sigma;
+    options.level_every_frames = 10;
+    options.use_objects = false;
+    options.use_point_features = false;
+    Estimator estimator(options, testing::kitti_like_camera(), Eigen::Isometry3d::Identity());
+    estimator.process(FrameInput{});
+    Eigen::Isometry3d motion = Eigen::Isometry3d::Identity();
+    motion.translation() = Eigen::Vector3d(0.8, 0.0, 0.0);
+    motion.linear() = Eigen::AngleAxisd(0.002, Eigen::Vector3d::UnitY()).toRotationMatrix();
+    int applied = 0;
+    for (int frame = 1; frame <= 300; ++frame) {
+      FrameInput input;
+      input.frame = frame;
+      input.T_previous_current = motion;
+      const FrameReport report = estimator.process(input);
+      EXPECT_EQ(report.level_applied, sigma > 0.0 && frame % 10 == 0);
+      applied += report.level_applied;
+    }
+    if (sigma == 0.0) {
+      EXPECT_NEAR(tilt(estimator.current_pose()), 0.6, 1e-6);
+    } else {
+      EXPECT_EQ(applied, 30);
+      EXPECT_LT(tilt(estimator.current_pose()), 0.1);
+    }
+  }
+}
+
+TEST(LevelPrior, OptionsAreChecked) {
+  EstimatorOptions options;
+  options.level_sigma = -1.0;
+  options.level_every_frames = 0;
+  options.level_up_axis = "up";
+  const std::vector<std::string> problems = options.validate();
+  ASSERT_EQ(problems.size(), 3u);
+  EXPECT_NE(problems[0].find("level_sigma"), std::string::npos);
+  EXPECT_NE(problems[1].find("level_every_frames"), std::string::npos);
+  EXPECT_NE(problems[2].find("level_up_axis"), std::string::npos);
+  EXPECT_EQ(body_axis_vector("-y"), (std::array<double, 3>{0.0, -1.0, 0.0}));
+  EXPECT_EQ(body_axis_vector("+z"), (std::array<double, 3>{0.0, 0.0, 1.0}));
+  EXPECT_EQ(body_axis_vector("z"), (std::array<double, 3>{0.0, 0.0, 0.0}));
+  EXPECT_EQ(body_axis_vector("+w"), (std::array<double, 3>{0.0, 0.0, 0.0}));
+}
+
 /// A short simulated robot with objects only, for the restore and odometry-noise tests.
 dataset::Dataset one_robot(int frames) {
   sim::SimulationOptions simulation;
@@ -497,6 +588,36 @@ TEST(Calibration, RecoversTheSimulatorsNoise) {
   const std::string yaml = calibration::to_yaml(report, options);
   EXPECT_NO_THROW(config::parse_estimator_options(yaml, "calibration"));
   options.frames = 5;
+  EXPECT_THROW(calibration::calibrate(data, options), std::invalid_argument);
+}
+
+TEST(Calibration, MeasuresTheTiltFromLevelAndHowLongItLasts) {
+  // A robot driving along x pitches as a sine of amplitude 0.04 rad and period 120 frames: the
+  // tilt's RMS is 0.04 / sqrt(2) and its autocorrelation first drops to zero a quarter period on.
+  dataset::Dataset data;
+  data.robots.resize(1);
+  dataset::RobotData& robot = data.robots.front();
+  const int frames = 480;
+  for (int k = 0; k < frames; ++k) {
+    Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
+    pose.translation() = Eigen::Vector3d(0.8 * k, 0.0, 0.0);
+    pose.linear() = Eigen::AngleAxisd(0.04 * std::sin(2.0 * M_PI * k / 120.0),
+                                      Eigen::Vector3d::UnitY())
+                        .toRotationMatrix();
+    robot.groundtruth.push_back(pose);
+    if (k > 0) robot.odometry.push_back(robot.groundtruth[k - 1].inverse() * pose);
+  }
+  robot.objects.resize(frames);
+  robot.features.resize(frames);
+  calibration::CalibrationOptions options;
+  options.frames = frames;
+  const calibration::CalibrationReport report = calibration::calibrate(data, options);
+  EXPECT_NEAR(report.tilt_rms, 0.04 / std::sqrt(2.0), 1e-3);
+  EXPECT_NEAR(report.tilt_decorrelation_frames, 30, 2);
+  // The axis it pitches about does not tilt.
+  options.up_axis = "-y";
+  EXPECT_LT(calibration::calibrate(data, options).tilt_rms, 1e-12);
+  options.up_axis = "up";
   EXPECT_THROW(calibration::calibrate(data, options), std::invalid_argument);
 }
 

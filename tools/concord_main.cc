@@ -6,7 +6,7 @@
 ///   concord eval --dataset DIR --result DIR [--first-frames-from DIR]
 ///   concord slice --dataset DIR --out DIR --frames N [--robots R] [--private-ids]
 ///   [--unknown-start] concord convert --dataset DIR --out DIR [--private-ids] [--unknown-start]
-///   concord calibrate --dataset DIR [--robot R] [--first F] [--frames N]
+///   concord calibrate --dataset DIR [--robot R] [--first F] [--frames N] [--up-axis A]
 ///   concord launch --dataset DIR --out DIR [--lockstep|--async|--separate] [--base-port P]
 ///                  [--http-base-port P] [--config FILE] [--robots R] [--frames N] [--rate HZ]
 ///                  [--graph complete|ring] [--range M] [--nearest K] [--max-degree D]
@@ -746,6 +746,11 @@ int main(int argc, char** argv) {
   calibrate_command->add_option("--frames", calibration_options.frames, "Frames in the segment")
       ->capture_default_str()
       ->check(CLI::Range(10, 1000000));
+  calibrate_command
+      ->add_option("--up-axis", calibration_options.up_axis,
+                   "Body axis pointing up when level, for the tilt (+x, -x, +y, -y, +z, -z)")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"+x", "-x", "+y", "-y", "+z", "-z"}));
 
   auto* slice_command = app.add_subcommand("slice", "Cut the first frames/robots of a dataset");
   int robots = 0;

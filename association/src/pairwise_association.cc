@@ -3,6 +3,7 @@
 #include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -13,6 +14,8 @@
 #include "concord/association/alignment.h"
 #include "concord/association/max_clique.h"
 #include "concord/estimator/updater_helper.h"
+
+#include "concord/estimator/options.h"
 
 namespace concord::association {
 
@@ -290,18 +293,8 @@ std::string to_string(AlignmentStatus status) {
 }
 
 Eigen::Vector3d start_up_vector(const std::string& axis) {
-  if (axis.size() != 2 || (axis[0] != '+' && axis[0] != '-')) return Eigen::Vector3d::Zero();
-  const double sign = axis[0] == '+' ? 1.0 : -1.0;
-  switch (axis[1]) {
-    case 'x':
-      return sign * Eigen::Vector3d::UnitX();
-    case 'y':
-      return sign * Eigen::Vector3d::UnitY();
-    case 'z':
-      return sign * Eigen::Vector3d::UnitZ();
-    default:
-      return Eigen::Vector3d::Zero();
-  }
+  const std::array<double, 3> v = body_axis_vector(axis);
+  return {v[0], v[1], v[2]};
 }
 
 bool keeps_level(const Eigen::Isometry3d& T_a_b, const lie::Matrix6d& covariance,

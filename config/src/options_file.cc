@@ -84,6 +84,9 @@ void for_each_field(Options& options, Visitor&& visit) {
   visit("odometry_rotation_sigma", options.odometry_rotation_sigma);
   visit("odometry_translation_scale", options.odometry_translation_scale);
   visit("disparity_offset_sigma", options.disparity_offset_sigma);
+  visit("level_sigma", options.level_sigma);
+  visit("level_every_frames", options.level_every_frames);
+  visit("level_up_axis", options.level_up_axis);
   visit("use_objects", options.use_objects);
   visit("object_noise", options.object_noise);
   visit("object_min_observations", options.object_min_observations);

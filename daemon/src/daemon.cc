@@ -856,7 +856,8 @@ bool Daemon::Impl::process(QueuedFrame& item) {
     live_.object_initializations_gated += static_cast<std::uint64_t>(report.objects.init_gated);
     live_.feature_tracks_rejected += static_cast<std::uint64_t>(report.features.tracks_rejected);
     live_.update_failures += static_cast<std::uint64_t>(report.objects.update_failures +
-                                                        report.features.update_failures);
+                                                        report.features.update_failures +
+                                                        (report.level_failed ? 1 : 0));
     live_.update_seconds += seconds_between(popped, updated);
     if (exchange_) {
       ++live_.rounds;

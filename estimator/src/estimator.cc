@@ -1,6 +1,7 @@
 #include "concord/estimator/estimator.h"
 
 #include <Eigen/Cholesky>
+#include <array>
 #include <stdexcept>
 #include <string>
 
@@ -117,6 +118,10 @@ FrameReport Estimator::process(const FrameInput& input) {
       }
     }
     propagator_.propagate(state_, motion, input.frame, noise);
+    if (options_.level_sigma > 0.0 && input.frame % options_.level_every_frames == 0) {
+      report.level_applied = true;
+      report.level_failed = !level_update();
+    }
   }
   started_ = true;
   if (options_.use_point_features) {
@@ -124,6 +129,28 @@ FrameReport Estimator::process(const FrameInput& input) {
   }
   if (options_.use_objects) report.objects = object_updater_.process(state_, input.objects);
   return report;
+}
+
+bool Estimator::level_update() {
+  // The body's up axis u, seen in the world as g = R u, measures the world's up axis (the same
+  // axis u of the level world frame) with noise level_sigma on its two horizontal components.
+  // With the left perturbation R = exp(phi^) R_hat, g = g_hat + phi x g_hat, so the rows of the
+  // measurement along two unit vectors a, b perpendicular to u are -[a b]^T g_hat^ on phi.
+  const std::array<double, 3> axis = body_axis_vector(options_.level_up_axis);
+  const Eigen::Vector3d up(axis[0], axis[1], axis[2]);
+  const Eigen::Vector3d a = up.unitOrthogonal();
+  const Eigen::Vector3d b = up.cross(a);
+  Eigen::Matrix<double, 2, 3> horizontal;
+  horizontal.row(0) = a.transpose();
+  horizontal.row(1) = b.transpose();
+  const int slot = state_.num_poses() - 1;
+  const Eigen::Vector3d g = state_.poses[static_cast<std::size_t>(slot)].T_world_body.linear() * up;
+  Eigen::MatrixXd H = Eigen::MatrixXd::Zero(2, state_.dimension());
+  H.block<2, 3>(0, state_.pose_index(slot) + 3) = -horizontal * lie::skew(g);
+  const Eigen::VectorXd residual = -horizontal * g;  // the measurement, 0, minus the prediction
+  const Eigen::MatrixXd noise =
+      Eigen::Matrix2d::Identity() * (options_.level_sigma * options_.level_sigma);
+  return StateHelper::update(state_, H, residual, noise);
 }
 
 Marginal Estimator::marginal(const std::vector<LandmarkId>& ids) const {

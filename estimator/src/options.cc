@@ -83,6 +83,15 @@ StereoNoise StereoNoise::isotropic(double sigma) {
   return {sigma / root_two, sigma / root_two, sigma * root_two, sigma * root_two};
 }
 
+std::array<double, 3> body_axis_vector(const std::string& axis) {
+  std::array<double, 3> out{0.0, 0.0, 0.0};
+  if (axis.size() != 2 || (axis[0] != '+' && axis[0] != '-')) return out;
+  const double sign = axis[0] == '+' ? 1.0 : -1.0;
+  if (axis[1] < 'x' || axis[1] > 'z') return out;
+  out[static_cast<std::size_t>(axis[1] - 'x')] = sign;
+  return out;
+}
+
 std::vector<std::string> EstimatorOptions::validate() const {
   Problems problems;
   problems.check_at_least("window_size", window_size, 2);
@@ -97,6 +106,13 @@ std::vector<std::string> EstimatorOptions::validate() const {
 
   if (!(std::isfinite(disparity_offset_sigma) && disparity_offset_sigma >= 0.0)) {
     problems.add("disparity_offset_sigma", disparity_offset_sigma, "finite and >= 0 (0 disables)");
+  }
+  if (!(std::isfinite(level_sigma) && level_sigma >= 0.0)) {
+    problems.add("level_sigma", level_sigma, "finite and >= 0 (0 disables)");
+  }
+  problems.check_at_least("level_every_frames", level_every_frames, 1);
+  if (body_axis_vector(level_up_axis) == std::array<double, 3>{0.0, 0.0, 0.0}) {
+    problems.add("level_up_axis", level_up_axis, "+x, -x, +y, -y, +z or -z");
   }
   problems.check_stereo_noise("object_noise", object_noise);
   problems.check_at_least("object_min_observations", object_min_observations, 2);

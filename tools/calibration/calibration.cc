@@ -1,12 +1,14 @@
 #include "calibration/calibration.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <map>
 #include <stdexcept>
 
 #include "concord/estimator/lie.h"
+#include "concord/estimator/options.h"
 #include "concord/estimator/updater_helper.h"
 
 namespace concord::calibration {
@@ -196,6 +198,42 @@ CalibrationReport calibrate(const dataset::Dataset& dataset, const CalibrationOp
     }
   }
   report.features = features.spread();
+
+  // 4. Tilt from level: the world's horizontal components of the body's up axis, their RMS
+  //    about zero (the prior says "level", not "the segment's mean tilt") and the first lag at
+  //    which the autocorrelation about their mean is no longer positive.
+  const std::array<double, 3> axis = body_axis_vector(options.up_axis);
+  const Eigen::Vector3d up(axis[0], axis[1], axis[2]);
+  if (up.isZero()) {
+    throw std::invalid_argument("calibrate: up axis " + options.up_axis +
+                                " is not +x, -x, +y, -y, +z or -z");
+  }
+  const Eigen::Vector3d across = up.unitOrthogonal();
+  const Eigen::Vector3d horizontal[2] = {across, up.cross(across)};
+  for (const Eigen::Vector3d& direction : horizontal) {
+    std::vector<double> tilt;
+    for (int k = first; k < end; ++k) {
+      tilt.push_back(direction.dot(robot.groundtruth[k].linear() * up));
+    }
+    const auto n = static_cast<double>(tilt.size());
+    double mean = 0.0, squares = 0.0;
+    for (double value : tilt) {
+      mean += value / n;
+      squares += value * value / n;
+    }
+    report.tilt_rms = std::max(report.tilt_rms, std::sqrt(squares));
+    const double variance = squares - mean * mean;
+    if (!(variance > 0.0)) continue;
+    int lag = 1;
+    for (; lag < static_cast<int>(tilt.size()) / 2; ++lag) {
+      double covariance = 0.0;
+      for (std::size_t k = 0; k + static_cast<std::size_t>(lag) < tilt.size(); ++k) {
+        covariance += (tilt[k] - mean) * (tilt[k + static_cast<std::size_t>(lag)] - mean) / n;
+      }
+      if (covariance <= 0.0) break;
+    }
+    report.tilt_decorrelation_frames = std::max(report.tilt_decorrelation_frames, lag);
+  }
   return report;
 }
 
@@ -249,6 +287,11 @@ std::string to_yaml(const CalibrationReport& report, const CalibrationOptions& o
   };
   noise("object_noise", report.objects);
   noise("feature_noise", report.features);
+  text += "# Tilt from level (" + options.up_axis + " up): RMS " + number(report.tilt_rms) +
+          " rad, correlated over " + std::to_string(report.tilt_decorrelation_frames) +
+          " frames. A ground vehicle's level prior (docs/estimator.md) would be:\n";
+  text += "# level_sigma: " + number(report.tilt_rms) + "\n";
+  text += "# level_every_frames: " + std::to_string(report.tilt_decorrelation_frames) + "\n";
   return text;
 }
 

@@ -16,6 +16,8 @@ struct CalibrationOptions {
   int robot = 0;
   int first_frame = 0;
   int frames = 200;
+  /// The body axis that points up when the robot stands level (level_up_axis), for the tilt.
+  std::string up_axis = "+z";
 };
 
 /// Robust spread of the four components of stereo observation errors (image units): the
@@ -55,6 +57,12 @@ struct CalibrationReport {
   /// Point features against their tracks triangulated with the true poses (tracks of at least
   /// 3 frames); observations = 0 when there are none.
   StereoErrorSpread features;
+  /// The body's tilt from level: the horizontal components of its up axis in the world (about
+  /// the tilt angles, radians), their RMS (the larger one), and the first lag (frames) at which
+  /// their autocorrelation is no longer positive (the larger one): level_sigma and
+  /// level_every_frames of a ground vehicle's level prior.
+  double tilt_rms = 0.0;
+  int tilt_decorrelation_frames = 1;
 };
 
 /// Measures the segment. Throws std::invalid_argument when the robot or the segment is outside

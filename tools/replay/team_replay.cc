@@ -221,7 +221,8 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
       statistics.feature_tracks_used += report.features.tracks_used;
       statistics.object_initializations_gated += report.objects.init_gated;
       statistics.objects_reactivated += report.objects.reactivated;
-      statistics.update_failures += report.objects.update_failures + report.features.update_failures;
+      statistics.update_failures += report.objects.update_failures + report.features.update_failures +
+                                    (report.level_failed ? 1 : 0);
     }
     statistics.update_seconds += seconds_since(phase_start);
 

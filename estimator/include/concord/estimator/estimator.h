@@ -26,6 +26,10 @@ struct FrameReport {
   int frame = 0;
   ObjectUpdateStats objects;
   FeatureUpdateStats features;
+  /// The level prior (EstimatorOptions::level_sigma) was applied this frame / its update was
+  /// refused (innovation covariance not positive definite).
+  bool level_applied = false;
+  bool level_failed = false;
 };
 
 class Estimator {
@@ -79,6 +83,10 @@ class Estimator {
   FeatureUpdater feature_updater_;
   ConsensusWorkspace consensus_workspace_;
   bool started_ = false;
+
+  /// The level prior on the newest pose (EstimatorOptions::level_sigma); false if the update
+  /// was refused.
+  bool level_update();
 };
 
 }  // namespace concord

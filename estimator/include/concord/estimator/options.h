@@ -91,6 +91,21 @@ struct EstimatorOptions {
   /// error shared by all tracks of a frame is not averaged away as if it were independent
   /// noise. 0 (the default): the calibration is taken as exact.
   double disparity_offset_sigma = 0.0;
+  /// level_sigma: a ground vehicle's level prior (radians; 0, the default, disables it). On every
+  /// level_every_frames-th frame the newest pose's up axis (level_up_axis, in the body) is taken
+  /// as a measurement of the world's up axis (the same axis of the world frame, which is a level
+  /// start frame) with this standard deviation on each of its two horizontal components. A car
+  /// on roads tilts by the road's grade and its suspension: a few degrees, correlated over tens
+  /// of frames. So the value is the tilt's RMS and the spacing the lag at which its
+  /// autocorrelation has died out, both measured on a calibration segment (docs/tuning.md): the
+  /// measurements are then about independent, each as uncertain as the tilt really is. It bounds
+  /// the pitch and roll that odometry alone lets drift, and with them the height. Off for a robot
+  /// that tilts freely (a drone, a hand-held rig).
+  double level_sigma = 0.0;
+  int level_every_frames = 1;
+  /// level_up_axis: the body axis that points up when the robot stands level ("+x", "-x", "+y",
+  /// "-y", "+z", "-z").
+  std::string level_up_axis = "+z";
 
   // --- Objects (persistent landmarks, §V-D and §V-E) ---
   /// use_objects: process object detections at all.
@@ -173,5 +188,9 @@ struct EstimatorOptions {
   /// Every problem with the values, each naming the key and the bad value; empty when valid.
   std::vector<std::string> validate() const;
 };
+
+/// The unit vector of a body axis named "+x", "-x", "+y", "-y", "+z" or "-z"; zero for
+/// anything else.
+std::array<double, 3> body_axis_vector(const std::string& axis);
 
 }  // namespace concord
