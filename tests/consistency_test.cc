@@ -224,9 +224,11 @@ double tilt(const Eigen::Isometry3d& T_world_body) {
 }
 
 TEST(LevelPrior, TakesTheKalmanShareOfATiltAndLeavesTheHeading) {
-  // One step turns the robot 0.3 rad about the vertical and pitches it 0.05 rad; the odometry's
-  // rotation noise (0.1 rad) and the level prior's (0.1 rad) are equal, so the update takes
-  // about half of the tilt away and leaves the heading alone.
+  // One step turns the robot 0.3 rad about the vertical and pitches it 0.05 rad. The odometry's
+  // rotation noise is 0.1 rad; the level prior's is 0.1 rad and the world's up axis, which the
+  // start frame gives up to its own tilt, is uncertain by as much: the measurement's noise is
+  // twice the odometry's variance, so the update takes about a third of the tilt away and leaves
+  // the heading alone.
   EstimatorOptions options;
   options.odometry_rotation_sigma = 0.1;
   options.level_sigma = 0.1;
@@ -247,20 +249,21 @@ TEST(LevelPrior, TakesTheKalmanShareOfATiltAndLeavesTheHeading) {
   EXPECT_FALSE(report.level_failed);
   const Eigen::Isometry3d pose = estimator.current_pose();
   const double prior = 0.1 * 0.1 + 1e-6;  // odometry and the start's 1 mrad
-  EXPECT_NEAR(tilt(pose), 0.05 * (0.01 / (prior + 0.01)), 1e-3);
+  const double measurement = 0.1 * 0.1 + 0.1 * 0.1;  // the level prior and the world's up axis
+  EXPECT_NEAR(tilt(pose), 0.05 * (measurement / (prior + measurement)), 1e-3);
   const Eigen::Vector3d forward = pose.linear() * Eigen::Vector3d::UnitX();
   EXPECT_NEAR(std::atan2(forward.y(), forward.x()), 0.3, 1e-3);
-  // The tilt's variance halves; the heading's stays the odometry's.
+  // The tilt's variance shrinks by the same share; the heading's stays the odometry's.
   const Eigen::Matrix3d rotation = estimator.current_pose_covariance().bottomRightCorner<3, 3>();
   const Eigen::Vector3d vertical = pose.linear().transpose() * Eigen::Vector3d::UnitZ();
   EXPECT_NEAR(vertical.dot(rotation * vertical), prior, 1e-4);
   const Eigen::Vector3d across = pose.linear().transpose() * Eigen::Vector3d::UnitX();
-  EXPECT_NEAR(across.dot(rotation * across), prior * 0.01 / (prior + 0.01), 1e-4);
+  EXPECT_NEAR(across.dot(rotation * across), prior * measurement / (prior + measurement), 1e-4);
 }
 
 TEST(LevelPrior, BoundsThePitchThatBiasedOdometryLetsDrift) {
   // The odometry reads 2 mrad of pitch a frame that the robot does not make: dead reckoning
-  // tilts by 0.6 rad in 300 frames; with the prior every 10th frame the tilt stays small, and
+  // tilts by 0.6 rad in 300 frames; with the prior every 10th frame the tilt stays bounded, and
   // the frames between are left alone.
   for (const double sigma : {0.0, 0.02}) {
     EstimatorOptions options;
@@ -275,6 +278,7 @@ TEST(LevelPrior, BoundsThePitchThatBiasedOdometryLetsDrift) {
     motion.translation() = Eigen::Vector3d(0.8, 0.0, 0.0);
     motion.linear() = Eigen::AngleAxisd(0.002, Eigen::Vector3d::UnitY()).toRotationMatrix();
     int applied = 0;
+    double tilt_halfway = 0.0;
     for (int frame = 1; frame <= 300; ++frame) {
       FrameInput input;
       input.frame = frame;
@@ -282,21 +286,75 @@ TEST(LevelPrior, BoundsThePitchThatBiasedOdometryLetsDrift) {
       const FrameReport report = estimator.process(input);
       EXPECT_EQ(report.level_applied, sigma > 0.0 && frame % 10 == 0);
       applied += report.level_applied;
+      if (frame == 150) tilt_halfway = tilt(estimator.current_pose());
     }
     if (sigma == 0.0) {
       EXPECT_NEAR(tilt(estimator.current_pose()), 0.6, 1e-6);
     } else {
       EXPECT_EQ(applied, 30);
-      EXPECT_LT(tilt(estimator.current_pose()), 0.1);
+      // Bounded, not growing with the run: the world's up axis, free within its prior, takes up
+      // part of the drift (its share grows with the drift's length, then stops).
+      EXPECT_LT(tilt(estimator.current_pose()), 0.12);
+      EXPECT_LT(tilt(estimator.current_pose()), 1.5 * tilt_halfway);
     }
   }
+}
+
+TEST(LevelPrior, FindsTheUpAxisOfAStartFrameOnASlope) {
+  // The robot starts on a 0.04 rad slope, so its start frame, the world frame, is tilted against
+  // gravity by that much; then it drives off onto level ground and turns, with exact odometry.
+  // The level measurements keep showing the body's axis tilted against the start's: the world's
+  // up axis (a state) takes that up, and the poses stay where the odometry puts them instead of
+  // being pulled towards the start's tilted level.
+  const double slope = 0.04;
+  const Eigen::Vector3d gravity_up =
+      Eigen::AngleAxisd(slope, Eigen::Vector3d::UnitY()) * Eigen::Vector3d::UnitZ();
+  const auto truth = [&](int frame) {
+    Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
+    if (frame < 10) return pose;  // on the slope
+    // Level: the body's z along gravity's up, heading turning.
+    pose.linear() = Eigen::AngleAxisd(slope, Eigen::Vector3d::UnitY()).toRotationMatrix() *
+                    Eigen::AngleAxisd(0.02 * frame, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+    pose.translation() = Eigen::Vector3d(0.8 * frame, 0.0, 0.0);
+    return pose;
+  };
+  EstimatorOptions options;
+  options.odometry_translation_sigma = 0.01;
+  options.odometry_rotation_sigma = 0.001;
+  options.level_sigma = slope;  // the start's slope is one draw of the tilt
+  options.level_every_frames = 5;
+  options.use_objects = false;
+  options.use_point_features = false;
+  Estimator estimator(options, testing::kitti_like_camera(), truth(0));
+  estimator.process(FrameInput{});
+  const double start_error = std::acos(estimator.state().world_up.direction().dot(gravity_up));
+  EXPECT_NEAR(start_error, slope, 1e-9);
+  double worst_tilt_error = 0.0;
+  for (int frame = 1; frame <= 300; ++frame) {
+    FrameInput input;
+    input.frame = frame;
+    input.T_previous_current = truth(frame - 1).inverse() * truth(frame);
+    ASSERT_FALSE(estimator.process(input).level_failed);
+    const Eigen::Vector3d body_z = estimator.current_pose().linear() * Eigen::Vector3d::UnitZ();
+    const Eigen::Vector3d true_z = truth(frame).linear() * Eigen::Vector3d::UnitZ();
+    worst_tilt_error = std::max(worst_tilt_error, std::acos(std::min(1.0, body_z.dot(true_z))));
+  }
+  const State& state = estimator.state();
+  const double end_error = std::acos(std::min(1.0, state.world_up.direction().dot(gravity_up)));
+  EXPECT_LT(end_error, 0.2 * slope);
+  // Within its own uncertainty (the larger tilt sigma, three of them).
+  const Eigen::Matrix2d tilt_covariance =
+      state.covariance.block<2, 2>(state.world_up_index(), state.world_up_index());
+  EXPECT_LT(end_error, 3.0 * std::sqrt(tilt_covariance.eigenvalues().real().maxCoeff()));
+  // The poses keep the odometry's exact attitude to within a fraction of the slope.
+  EXPECT_LT(worst_tilt_error, 0.25 * slope);
 }
 
 TEST(LevelPrior, OptionsAreChecked) {
   EstimatorOptions options;
   options.level_sigma = -1.0;
   options.level_every_frames = 0;
-  options.level_up_axis = "up";
+  options.level_up_axis = {0.0, 0.0, 0.0};
   const std::vector<std::string> problems = options.validate();
   ASSERT_EQ(problems.size(), 3u);
   EXPECT_NE(problems[0].find("level_sigma"), std::string::npos);
@@ -424,7 +482,7 @@ TEST(Resume, AStateWithADisparityOffsetNeedsTheOptionsThatMadeIt) {
   Estimator estimator(options, data.camera, data.robots.front().groundtruth.front());
   for (int frame = 0; frame < 10; ++frame)
     (void)estimator.process(data.robots.front().frame_input(frame));
-  ASSERT_EQ(estimator.state().calibration_dim, 1);
+  ASSERT_TRUE(estimator.state().has_disparity_offset);
   EXPECT_NO_THROW(Estimator(options, data.camera, estimator.state()));
   options.disparity_offset_sigma = 0.0;
   EXPECT_THROW(Estimator(options, data.camera, estimator.state()), std::invalid_argument);
@@ -479,8 +537,8 @@ TEST(DisparityOffset, AnOffsetSharedByEveryTrackIsEstimatedAndKeepsTheFilterHone
   const double offset = 0.02;
   const OffsetRun ignored = run_with_disparity_offset(offset, 0.0);
   const OffsetRun estimated = run_with_disparity_offset(offset, 0.05);
-  ASSERT_EQ(estimated.state.calibration_dim, 1);
-  const int index = estimated.state.calibration_index();
+  ASSERT_TRUE(estimated.state.has_disparity_offset);
+  const int index = estimated.state.disparity_offset_index();
   const double sigma = std::sqrt(estimated.state.covariance(index, index));
   // Learned from the data (well inside the prior), and the truth within 3 sigma of it.
   EXPECT_LT(sigma, 0.05 / 5.0);
@@ -491,7 +549,7 @@ TEST(DisparityOffset, AnOffsetSharedByEveryTrackIsEstimatedAndKeepsTheFilterHone
   EXPECT_LT(estimated.mean_pose_nees, ignored.mean_pose_nees);
   // Without an offset in the data the state stays near zero and changes nothing much.
   const OffsetRun none = run_with_disparity_offset(0.0, 0.05);
-  const int none_index = none.state.calibration_index();
+  const int none_index = none.state.disparity_offset_index();
   EXPECT_LT(std::abs(none.state.disparity_offset),
             3.0 * std::sqrt(none.state.covariance(none_index, none_index)));
 }
@@ -591,17 +649,16 @@ TEST(Calibration, RecoversTheSimulatorsNoise) {
   EXPECT_THROW(calibration::calibrate(data, options), std::invalid_argument);
 }
 
-TEST(Calibration, MeasuresTheTiltFromLevelAndHowLongItLasts) {
-  // A robot driving along x pitches as a sine of amplitude 0.04 rad and period 120 frames: the
-  // tilt's RMS is 0.04 / sqrt(2) and its autocorrelation first drops to zero a quarter period on.
+/// A robot driving along the world's x for `frames` frames, pitching as a sine of amplitude 0.04
+/// rad and period 120 frames about a body pitched nose-down by `mount` (about its y axis).
+dataset::Dataset pitching_robot(int frames, double mount) {
   dataset::Dataset data;
   data.robots.resize(1);
   dataset::RobotData& robot = data.robots.front();
-  const int frames = 480;
   for (int k = 0; k < frames; ++k) {
     Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
     pose.translation() = Eigen::Vector3d(0.8 * k, 0.0, 0.0);
-    pose.linear() = Eigen::AngleAxisd(0.04 * std::sin(2.0 * M_PI * k / 120.0),
+    pose.linear() = Eigen::AngleAxisd(0.04 * std::sin(2.0 * M_PI * k / 120.0) + mount,
                                       Eigen::Vector3d::UnitY())
                         .toRotationMatrix();
     robot.groundtruth.push_back(pose);
@@ -609,16 +666,47 @@ TEST(Calibration, MeasuresTheTiltFromLevelAndHowLongItLasts) {
   }
   robot.objects.resize(frames);
   robot.features.resize(frames);
+  return data;
+}
+
+TEST(Calibration, MeasuresTheTiltFromLevelAndHowLongItLasts) {
+  // The tilt's RMS is 0.04 / sqrt(2) and its autocorrelation first drops to zero a quarter
+  // period on: 480 frames hold 16 looks at it.
+  const int frames = 480;
+  const dataset::Dataset data = pitching_robot(frames, 0.0);
   calibration::CalibrationOptions options;
   options.frames = frames;
   const calibration::CalibrationReport report = calibration::calibrate(data, options);
   EXPECT_NEAR(report.tilt_rms, 0.04 / std::sqrt(2.0), 1e-3);
   EXPECT_NEAR(report.tilt_decorrelation_frames, 30, 2);
+  EXPECT_NEAR(report.tilt_looks, frames / static_cast<double>(report.tilt_decorrelation_frames),
+              1e-12);
+  const double looks = report.tilt_looks;
+  EXPECT_NEAR(report.level_sigma, report.tilt_rms * std::sqrt(looks / (looks - 1.0)), 1e-12);
+  // It travels level: the level axis is the body's +z.
+  EXPECT_LT((report.level_axis - Eigen::Vector3d::UnitZ()).norm(), 1e-3);
   // The axis it pitches about does not tilt.
   options.up_axis = "-y";
   EXPECT_LT(calibration::calibrate(data, options).tilt_rms, 1e-12);
   options.up_axis = "up";
   EXPECT_THROW(calibration::calibrate(data, options), std::invalid_argument);
+}
+
+TEST(Calibration, FindsTheLevelAxisOfAPitchedMount) {
+  // The body is pitched 0.03 rad nose-down against its travel (a camera mounted so): it travels
+  // along a direction 0.03 rad above its own x axis, and its level axis is +z tilted back by
+  // that much. The tilt about that axis is the sine's alone, and the report suggests that axis.
+  const int frames = 480;
+  const double mount = 0.03;
+  const dataset::Dataset data = pitching_robot(frames, mount);
+  calibration::CalibrationOptions options;
+  options.frames = frames;
+  const calibration::CalibrationReport report = calibration::calibrate(data, options);
+  const Eigen::Vector3d expected(-std::sin(mount), 0.0, std::cos(mount));
+  EXPECT_LT((report.level_axis - expected).norm(), 1e-3) << report.level_axis.transpose();
+  EXPECT_NEAR(report.tilt_rms, 0.04 / std::sqrt(2.0), 1e-3);
+  const std::string yaml = calibration::to_yaml(report, options);
+  EXPECT_NE(yaml.find("# level_up_axis: [-0.0300, 0.0000, 0.999"), std::string::npos) << yaml;
 }
 
 TEST(ConfigOverrides, SetKeysOverTheConfigAndNameBadEntries) {

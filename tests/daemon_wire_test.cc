@@ -296,6 +296,14 @@ TEST(DaemonCheckpoint, RoundTripsTheFilterStateAndPendingObjectsAndRefusesDamage
   checkpoint.poses = {Eigen::Isometry3d::Identity(), Eigen::Isometry3d::Identity()};
   checkpoint.state = concord::testing::random_state(3, 2, random);
   checkpoint.state.landmarks[0].archived = true;  // a consider state (object_archive_mode)
+  // Both calibration entries: a disparity offset and a tilted world up axis (the level prior).
+  checkpoint.state.has_disparity_offset = true;
+  checkpoint.state.disparity_offset = -0.2;
+  checkpoint.state.has_world_up = true;
+  checkpoint.state.world_up = WorldUp::around(Eigen::Vector3d(0.02, -0.01, 1.0));
+  checkpoint.state.world_up.tilt = Eigen::Vector2d(0.01, 0.03);
+  checkpoint.state.covariance =
+      concord::testing::random_spd(checkpoint.state.dimension(), random, 0.05, 1.0);
   checkpoint.pending[9] = {{40, Eigen::Vector4d(0.1, 0.2, 0.05, 0.2)},
                            {41, Eigen::Vector4d(0.11, 0.2, 0.06, 0.2)}};
   const std::string bytes = serialize_checkpoint(checkpoint);
@@ -309,6 +317,12 @@ TEST(DaemonCheckpoint, RoundTripsTheFilterStateAndPendingObjectsAndRefusesDamage
             checkpoint.state.landmarks[1].p_linearization);
   EXPECT_TRUE(back->state.landmarks[0].archived);
   EXPECT_FALSE(back->state.landmarks[1].archived);
+  EXPECT_TRUE(back->state.has_disparity_offset);
+  EXPECT_EQ(back->state.disparity_offset, -0.2);
+  ASSERT_TRUE(back->state.has_world_up);
+  EXPECT_EQ(back->state.world_up.reference, checkpoint.state.world_up.reference);
+  EXPECT_EQ(back->state.world_up.basis, checkpoint.state.world_up.basis);
+  EXPECT_EQ(back->state.world_up.tilt, checkpoint.state.world_up.tilt);
   ASSERT_EQ(back->pending.size(), 1u);
   ASSERT_EQ(back->pending.at(9).size(), 2u);
   EXPECT_EQ(back->pending.at(9)[1].frame, 41);
@@ -321,6 +335,11 @@ TEST(DaemonCheckpoint, RoundTripsTheFilterStateAndPendingObjectsAndRefusesDamage
   flipped[bytes.size() / 2] ^= 0x10;
   EXPECT_FALSE(parse_checkpoint(flipped, error));
   EXPECT_NE(error.find("checksum"), std::string::npos) << error;
+  // A world up axis whose basis is not perpendicular to its reference is refused, checksum or no.
+  Checkpoint skewed = checkpoint;
+  skewed.state.world_up.basis.col(0) = skewed.state.world_up.reference;
+  EXPECT_FALSE(parse_checkpoint(serialize_checkpoint(skewed), error));
+  EXPECT_NE(error.find("world up"), std::string::npos) << error;
 }
 
 }  // namespace

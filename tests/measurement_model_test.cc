@@ -380,7 +380,7 @@ void check_full_assembly(bool with_disparity_offset) {
     state.landmarks.push_back({10 + j, p_world, 0, p_world});
   }
   if (with_disparity_offset) {
-    state.calibration_dim = 1;
+    state.has_disparity_offset = true;
     state.disparity_offset = 0.3;  // pixels: the right image's u reads 0.3 px high
   }
   state.rebuild_landmark_index();
@@ -405,7 +405,7 @@ void check_full_assembly(bool with_disparity_offset) {
                                                     s.landmarks[slot].p_world)
                                  ->xy;
       // The model: u_right = u_right(true) + d, in normalized units d / fx.
-      if (s.calibration_dim == 1) xy(4 * i + 2) += s.disparity_offset / camera.K(0, 0);
+      if (s.has_disparity_offset) xy(4 * i + 2) += s.disparity_offset / camera.K(0, 0);
     }
     return xy;
   };
@@ -426,8 +426,8 @@ void check_full_assembly(bool with_disparity_offset) {
   EXPECT_TRUE(linearized->residual.isApprox(observed - predict(state), 1e-12));
   if (with_disparity_offset) {
     // The offset's column is there (not all zero) and landmarks sit after it.
-    EXPECT_GT(linearized->H_state.col(state.calibration_index()).norm(), 0.0);
-    EXPECT_EQ(state.landmark_index(0), state.calibration_index() + 1);
+    EXPECT_GT(linearized->H_state.col(state.disparity_offset_index()).norm(), 0.0);
+    EXPECT_EQ(state.landmark_index(0), state.disparity_offset_index() + 1);
   }
 }
 
@@ -437,6 +437,54 @@ TEST(Linearization, FullAssemblyMatchesFiniteDifferencesOfTheState) {
 
 TEST(Linearization, FullAssemblyWithADisparityOffsetStateMatchesFiniteDifferences) {
   check_full_assembly(true);
+}
+
+TEST(Linearization, LevelMeasurementMatchesFiniteDifferencesOfTheState) {
+  // A three-pose window with a disparity offset, a world up axis tilted off its reference and a
+  // landmark: every column of the level measurement's H against the change of
+  // h = [a b]^T (R_newest u - w) (a, b fixed at the estimate) under the filter's own retraction.
+  std::mt19937 random(21);
+  State state = testing::random_state(3, 1, random);
+  for (PoseClone& pose : state.poses) {
+    pose.T_world_body = lie::se3_exp(testing::random_vector(6, random, 0.1)) * pose.T_world_body;
+  }
+  state.has_disparity_offset = true;
+  state.has_world_up = true;
+  state.world_up = WorldUp::around(Eigen::Vector3d(0.05, -0.02, 1.0));
+  state.world_up.tilt = Eigen::Vector2d(0.03, -0.01);
+  state.covariance = Eigen::MatrixXd::Identity(state.dimension(), state.dimension());
+  const Eigen::Vector3d axis = Eigen::Vector3d(-0.02, 0.01, 1.0).normalized();
+  Eigen::MatrixXd H;
+  Eigen::VectorXd residual;
+  UpdaterHelper::linearize_level(state, axis, H, residual);
+  ASSERT_EQ(H.rows(), 2);
+  ASSERT_EQ(H.cols(), state.dimension());
+  const Eigen::Vector3d w = state.world_up.direction();
+  Eigen::Matrix<double, 2, 3> across;
+  across.row(0) = w.unitOrthogonal().transpose();
+  across.row(1) = w.cross(w.unitOrthogonal()).transpose();
+  const auto h = [&](const State& s) -> Eigen::Vector2d {
+    return across * (s.newest_pose().T_world_body.linear() * axis - s.world_up.direction());
+  };
+  EXPECT_TRUE(residual.isApprox(-h(state), 1e-12));
+  EXPECT_GT(residual.norm(), 0.01);  // tilted against each other: the residual is not trivial
+  const double step = 1e-6;
+  for (int column = 0; column < state.dimension(); ++column) {
+    State plus = state, minus = state;
+    StateHelper::apply_correction(plus, step * Eigen::VectorXd::Unit(state.dimension(), column));
+    StateHelper::apply_correction(minus, -step * Eigen::VectorXd::Unit(state.dimension(), column));
+    const Eigen::Vector2d numeric = (h(plus) - h(minus)) / (2 * step);
+    const Eigen::Vector2d analytic = H.col(column);
+    EXPECT_LT((numeric - analytic).norm(), 1e-6 * (1.0 + analytic.norm()))
+        << "column " << column << ": numeric " << numeric.transpose() << " analytic "
+        << analytic.transpose();
+  }
+  // Only the newest pose's rotation and the tilt enter.
+  EXPECT_GT(H.middleCols<3>(state.pose_index(2) + 3).norm(), 0.5);
+  EXPECT_GT(H.middleCols<2>(state.world_up_index()).norm(), 0.5);
+  EXPECT_NEAR(H.norm() * H.norm(), H.middleCols<3>(state.pose_index(2) + 3).squaredNorm() +
+                                        H.middleCols<2>(state.world_up_index()).squaredNorm(),
+              1e-12);
 }
 
 TEST(StereoNoise, CovarianceOfTheComponentsAndWhitening) {

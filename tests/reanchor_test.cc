@@ -97,5 +97,72 @@ TEST(ReanchorTest, CovarianceMatchesMonteCarlo) {
             0.05);
 }
 
+TEST(ReanchorTest, TheWorldUpAxisTurnsWithTheFrameAndTakesTheTransformsTilt) {
+  // A state with a world up axis (the level prior's) tilted off its reference: the mean turns
+  // with the frame, and the tilt's covariance, with its correlations, matches a Monte-Carlo
+  // sample of the moved up axis's error, the transform's own rotation error included.
+  std::mt19937 random(11);
+  State state = testing::random_state(2, 1, random);
+  state.has_world_up = true;
+  state.world_up = WorldUp::around(Eigen::Vector3d(0.03, 0.01, 1.0));
+  state.world_up.tilt = Eigen::Vector2d(0.02, -0.015);
+  state.covariance = 1e-4 * testing::random_spd(state.dimension(), random, 0.05, 1.0);
+  const Eigen::Isometry3d T = transform(0.7, Eigen::Vector3d(2, 8, -1));
+  lie::Matrix6d sigma = lie::Matrix6d::Zero();
+  sigma.diagonal() << 0.02, 0.01, 0.03, 2e-4, 1e-4, 3e-4;
+  State moved = state;
+  StateHelper::reanchor(moved, T, sigma);
+  EXPECT_TRUE(moved.world_up.direction().isApprox(T.linear() * state.world_up.direction(), 1e-12));
+  EXPECT_EQ(moved.world_up.tilt, state.world_up.tilt);
+
+  // Sample the true up axis in the old frame and the true transform; the moved truth's tilt
+  // against the moved estimate's, in the moved basis: t solves u ~ reference + basis t.
+  const int index = state.world_up_index();
+  const Eigen::LLT<Eigen::MatrixXd> state_llt(state.covariance);
+  const Eigen::LLT<lie::Matrix6d> transform_llt(sigma);
+  const int draws = 20000;
+  Eigen::MatrixXd sample = Eigen::MatrixXd::Zero(2, 2);
+  Eigen::MatrixXd cross = Eigen::MatrixXd::Zero(2, 6);  // with the newest pose's error
+  for (int draw = 0; draw < draws; ++draw) {
+    const Eigen::VectorXd x =
+        state_llt.matrixL() * testing::random_vector(state.dimension(), random);
+    const Eigen::Isometry3d T_true =
+        lie::se3_exp(transform_llt.matrixL() * testing::random_vector(6, random)) * T;
+    WorldUp up = state.world_up;
+    up.tilt += x.segment<2>(index);
+    const Eigen::Vector3d truth = T_true.linear() * up.direction();
+    const WorldUp& estimate = moved.world_up;
+    const Eigen::Vector2d tilt =
+        estimate.basis.transpose() * truth / estimate.reference.dot(truth);
+    const Eigen::Vector2d error = tilt - estimate.tilt;
+    sample += error * error.transpose();
+    const int pose = state.pose_index(1);
+    const Eigen::Isometry3d pose_truth =
+        T_true * lie::se3_exp(x.segment<6>(pose)) * state.poses[1].T_world_body;
+    cross += error * lie::se3_log(pose_truth * moved.poses[1].T_world_body.inverse()).transpose();
+  }
+  sample /= draws;
+  cross /= draws;
+  const Eigen::Matrix2d predicted = moved.covariance.block<2, 2>(index, index);
+  EXPECT_LT((sample - predicted).norm() / predicted.norm(), 0.05);
+  const Eigen::MatrixXd predicted_cross = moved.covariance.block(index, state.pose_index(1), 2, 6);
+  // Each cross entry within four standard errors of its Monte-Carlo mean: the pose's
+  // translation error, widened by the transform's, is much larger than the tilt's.
+  const Eigen::MatrixXd pose_block = moved.covariance.block(state.pose_index(1), state.pose_index(1), 6, 6);
+  for (int row = 0; row < 2; ++row) {
+    for (int column = 0; column < 6; ++column) {
+      const double standard_error =
+          std::sqrt((predicted(row, row) * pose_block(column, column) +
+                     predicted_cross(row, column) * predicted_cross(row, column)) /
+                    draws);
+      EXPECT_LT(std::abs(cross(row, column) - predicted_cross(row, column)), 4.0 * standard_error)
+          << "tilt " << row << ", pose error " << column;
+    }
+  }
+  // The transform's rotation error widened the tilt beyond its own.
+  const double widened = state.covariance.block<2, 2>(index, index).trace() + 0.5 * 3e-4;
+  EXPECT_GT(predicted.trace(), widened);
+}
+
 }  // namespace
 }  // namespace concord

@@ -145,6 +145,28 @@ void read_node(YamlSection& section, const YAML::Node& node, const std::string& 
   if (all_read) field = values;
 }
 
+/// A body direction: a named axis ("+z") or a sequence of three numbers.
+void read_node(YamlSection& section, const YAML::Node& node, const std::string& key,
+               std::array<double, 3>& field) {
+  const std::string expected = "+x, -x, +y, -y, +z, -z or a sequence [x, y, z]";
+  if (node.IsScalar()) {
+    std::string name;
+    if (!section.read_value(node, key, name, expected)) return;
+    const std::array<double, 3> axis = body_axis_vector(name);
+    if (axis == std::array<double, 3>{0.0, 0.0, 0.0}) return section.problem(node, key, expected);
+    field = axis;
+    return;
+  }
+  if (!node.IsSequence() || node.size() != field.size()) return section.problem(node, key, expected);
+  std::array<double, 3> values = field;
+  bool all_read = true;
+  for (std::size_t index = 0; index < values.size(); ++index) {
+    all_read &= section.read_value(node[index], key + "[" + std::to_string(index) + "]",
+                                   values[index], "a number");
+  }
+  if (all_read) field = values;
+}
+
 template <typename Options, typename ForEach>
 void read_map(YamlSection& section, Options& options, ForEach&& for_each);
 
@@ -224,6 +246,12 @@ std::string format_value(const StereoNoise& noise) {
     text += std::string(key) + ": " + format_number(value);
   });
   return text + "}";
+}
+
+/// Flow sequence.
+std::string format_value(const std::array<double, 3>& values) {
+  return "[" + format_number(values[0]) + ", " + format_number(values[1]) + ", " +
+         format_number(values[2]) + "]";
 }
 
 /// Flow sequence, one row of the 6x4 matrix per line.

@@ -8,7 +8,7 @@ namespace concord::daemon {
 
 namespace {
 
-constexpr char kMagic[] = "CONCORD-CHECKPOINT-6\n";
+constexpr char kMagic[] = "CONCORD-CHECKPOINT-7\n";
 constexpr std::size_t kMagicBytes = sizeof(kMagic) - 1;
 
 std::uint64_t fnv1a(const char* data, std::size_t size) {
@@ -111,8 +111,12 @@ std::string serialize_checkpoint(const Checkpoint& checkpoint) {
       for (int i = 0; i < 4; ++i) w.put<double>(observation.xy[i]);
     }
   }
-  w.put<std::uint32_t>(static_cast<std::uint32_t>(state.calibration_dim));
+  w.put<std::uint8_t>(state.has_disparity_offset ? 1 : 0);
   w.put<double>(state.disparity_offset);
+  w.put<std::uint8_t>(state.has_world_up ? 1 : 0);
+  for (int i = 0; i < 3; ++i) w.put<double>(state.world_up.reference[i]);
+  for (int i = 0; i < 6; ++i) w.put<double>(state.world_up.basis.data()[i]);
+  for (int i = 0; i < 2; ++i) w.put<double>(state.world_up.tilt[i]);
   const auto dimension = static_cast<std::uint32_t>(state.covariance.rows());
   w.put<std::uint32_t>(dimension);
   for (Eigen::Index i = 0; i < state.covariance.size(); ++i)
@@ -200,10 +204,23 @@ std::optional<Checkpoint> parse_checkpoint(const std::string& bytes, std::string
       track.push_back(observation);
     }
   }
-  std::uint32_t calibration_dim = 0;
-  if (!r.get(calibration_dim) || calibration_dim > 1 || !r.get(state.disparity_offset))
-    return fail("bad calibration entry");
-  state.calibration_dim = static_cast<int>(calibration_dim);
+  std::uint8_t has_disparity_offset = 0, has_world_up = 0;
+  if (!r.get(has_disparity_offset) || has_disparity_offset > 1 || !r.get(state.disparity_offset))
+    return fail("bad disparity offset entry");
+  state.has_disparity_offset = has_disparity_offset == 1;
+  bool world_up_read = r.get(has_world_up) && has_world_up <= 1;
+  WorldUp& world_up = state.world_up;
+  for (int i = 0; world_up_read && i < 3; ++i) world_up_read = r.get(world_up.reference[i]);
+  for (int i = 0; world_up_read && i < 6; ++i) world_up_read = r.get(world_up.basis.data()[i]);
+  for (int i = 0; world_up_read && i < 2; ++i) world_up_read = r.get(world_up.tilt[i]);
+  // The reference a unit vector, the basis two unit vectors perpendicular to it and each other.
+  Eigen::Matrix3d frame;
+  frame << world_up.reference, world_up.basis;
+  if (!world_up_read ||
+      (frame.transpose() * frame - Eigen::Matrix3d::Identity()).norm() > 1e-6 ||
+      world_up.tilt.norm() > 1.0)
+    return fail("bad world up entry");
+  state.has_world_up = has_world_up == 1;
   std::uint32_t dimension = 0;
   if (!r.get(dimension) || dimension != static_cast<std::uint32_t>(state.dimension()) ||
       static_cast<std::uint64_t>(dimension) * dimension * 8 != content.size() - r.offset())

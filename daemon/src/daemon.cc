@@ -834,8 +834,9 @@ bool Daemon::Impl::process(QueuedFrame& item) {
                            estimator_->current_pose_covariance()});
     live_.pose_covariance = estimator_->current_pose_covariance();
     live_.objects = estimator_->objects();
-    if (const State& state = estimator_->state(); state.calibration_dim == 1) {
-      const double variance = state.covariance(state.calibration_index(), state.calibration_index());
+    if (const State& state = estimator_->state(); state.has_disparity_offset) {
+      const int index = state.disparity_offset_index();
+      const double variance = state.covariance(index, index);
       live_.disparity_offset = {state.disparity_offset, std::sqrt(std::max(variance, 0.0))};
     }
     if (association_) {

@@ -7,6 +7,7 @@
 
 #include "concord/estimator/lie.h"
 #include "concord/estimator/state_helper.h"
+#include "concord/estimator/updater_helper.h"
 
 namespace concord {
 
@@ -50,14 +51,23 @@ Estimator::Estimator(const EstimatorOptions& options, const StereoCamera& camera
   start.diagonal().tail<3>().setConstant(options_.initial_rotation_sigma *
                                          options_.initial_rotation_sigma);
   state_.covariance = lie::left_from_right_covariance(T_world_body_start, start);
-  if (options_.disparity_offset_sigma > 0.0) {
-    // The calibration state sits after the poses: [eps_start, d].
-    state_.calibration_dim = 1;
-    state_.disparity_offset = 0.0;
-    state_.covariance.conservativeResize(7, 7);
-    state_.covariance.row(6).setZero();
-    state_.covariance.col(6).setZero();
-    state_.covariance(6, 6) = options_.disparity_offset_sigma * options_.disparity_offset_sigma;
+  // The calibration entries sit after the poses, uncorrelated with the start: [eps_start, d, t].
+  state_.has_disparity_offset = options_.disparity_offset_sigma > 0.0;
+  state_.has_world_up = options_.level_sigma > 0.0;
+  const int dimension = state_.dimension();
+  state_.covariance.conservativeResize(dimension, dimension);
+  state_.covariance.rightCols(dimension - 6).setZero();
+  state_.covariance.bottomRows(dimension - 6).setZero();
+  if (state_.has_disparity_offset) {
+    const int index = state_.disparity_offset_index();
+    state_.covariance(index, index) =
+        options_.disparity_offset_sigma * options_.disparity_offset_sigma;
+  }
+  if (state_.has_world_up) {
+    // The start's level axis is the world's up axis, up to the start's own tilt.
+    state_.world_up = WorldUp::around(T_world_body_start.linear() * level_axis());
+    state_.covariance.block<2, 2>(state_.world_up_index(), state_.world_up_index()) =
+        Eigen::Matrix2d::Identity() * (options_.level_sigma * options_.level_sigma);
   }
 }
 
@@ -76,10 +86,15 @@ Estimator::Estimator(const EstimatorOptions& options, const StereoCamera& camera
   for (std::size_t k = 1; consecutive && k < state_.poses.size(); ++k) {
     consecutive = state_.poses[k].frame == state_.poses[k - 1].frame + 1;
   }
-  if (state_.calibration_dim != (options_.disparity_offset_sigma > 0.0 ? 1 : 0)) {
+  if (state_.has_disparity_offset != (options_.disparity_offset_sigma > 0.0)) {
     throw std::invalid_argument(
         "Estimator: the state was made with a different disparity_offset_sigma (a disparity "
         "offset state is there in one and not in the other)");
+  }
+  if (state_.has_world_up != (options_.level_sigma > 0.0)) {
+    throw std::invalid_argument(
+        "Estimator: the state was made with a different level_sigma (a world up axis state is "
+        "there in one and not in the other)");
   }
   if (!consecutive || state_.num_poses() > options_.window_size || state_.covariance.rows() != n ||
       state_.covariance.cols() != n || !state_.covariance.allFinite()) {
@@ -131,23 +146,15 @@ FrameReport Estimator::process(const FrameInput& input) {
   return report;
 }
 
+Eigen::Vector3d Estimator::level_axis() const {
+  const std::array<double, 3>& axis = options_.level_up_axis;
+  return Eigen::Vector3d(axis[0], axis[1], axis[2]).normalized();
+}
+
 bool Estimator::level_update() {
-  // The body's up axis u, seen in the world as g = R u, measures the world's up axis (the same
-  // axis u of the level world frame) with noise level_sigma on its two horizontal components.
-  // With the left perturbation R = exp(phi^) R_hat, g = g_hat + phi x g_hat, so the rows of the
-  // measurement along two unit vectors a, b perpendicular to u are -[a b]^T g_hat^ on phi.
-  const std::array<double, 3> axis = body_axis_vector(options_.level_up_axis);
-  const Eigen::Vector3d up(axis[0], axis[1], axis[2]);
-  const Eigen::Vector3d a = up.unitOrthogonal();
-  const Eigen::Vector3d b = up.cross(a);
-  Eigen::Matrix<double, 2, 3> horizontal;
-  horizontal.row(0) = a.transpose();
-  horizontal.row(1) = b.transpose();
-  const int slot = state_.num_poses() - 1;
-  const Eigen::Vector3d g = state_.poses[static_cast<std::size_t>(slot)].T_world_body.linear() * up;
-  Eigen::MatrixXd H = Eigen::MatrixXd::Zero(2, state_.dimension());
-  H.block<2, 3>(0, state_.pose_index(slot) + 3) = -horizontal * lie::skew(g);
-  const Eigen::VectorXd residual = -horizontal * g;  // the measurement, 0, minus the prediction
+  Eigen::MatrixXd H;
+  Eigen::VectorXd residual;
+  UpdaterHelper::linearize_level(state_, level_axis(), H, residual);
   const Eigen::MatrixXd noise =
       Eigen::Matrix2d::Identity() * (options_.level_sigma * options_.level_sigma);
   return StateHelper::update(state_, H, residual, noise);

@@ -22,6 +22,10 @@ std::string to_text(int value) { return std::to_string(value); }
 
 std::string to_text(const std::string& value) { return "\"" + value + "\""; }
 
+std::string to_text(const std::array<double, 3>& value) {
+  return "[" + to_text(value[0]) + ", " + to_text(value[1]) + ", " + to_text(value[2]) + "]";
+}
+
 /// Collects "<key> = <value>: must be <rule>" messages.
 class Problems {
  public:
@@ -111,8 +115,9 @@ std::vector<std::string> EstimatorOptions::validate() const {
     problems.add("level_sigma", level_sigma, "finite and >= 0 (0 disables)");
   }
   problems.check_at_least("level_every_frames", level_every_frames, 1);
-  if (body_axis_vector(level_up_axis) == std::array<double, 3>{0.0, 0.0, 0.0}) {
-    problems.add("level_up_axis", level_up_axis, "+x, -x, +y, -y, +z or -z");
+  const double up_norm = std::hypot(level_up_axis[0], level_up_axis[1], level_up_axis[2]);
+  if (!(std::isfinite(up_norm) && up_norm > 0.5 && up_norm < 2.0)) {
+    problems.add("level_up_axis", level_up_axis, "a body direction of about unit length");
   }
   problems.check_stereo_noise("object_noise", object_noise);
   problems.check_at_least("object_min_observations", object_min_observations, 2);

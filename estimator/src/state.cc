@@ -4,6 +4,22 @@
 
 namespace concord {
 
+WorldUp WorldUp::around(const Eigen::Vector3d& reference) {
+  WorldUp up;
+  up.reference = reference.normalized();
+  up.basis.col(0) = up.reference.unitOrthogonal();
+  up.basis.col(1) = up.reference.cross(up.basis.col(0));
+  return up;
+}
+
+Eigen::Vector3d WorldUp::direction() const { return (reference + basis * tilt).normalized(); }
+
+Eigen::Matrix<double, 3, 2> WorldUp::jacobian() const {
+  const Eigen::Vector3d v = reference + basis * tilt;
+  const Eigen::Vector3d u = v.normalized();
+  return (Eigen::Matrix3d::Identity() - u * u.transpose()) * basis / v.norm();
+}
+
 int State::pose_slot(int frame) const {
   // Poses are consecutive frames, oldest first.
   if (poses.empty()) return -1;

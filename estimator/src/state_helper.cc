@@ -52,7 +52,10 @@ void StateHelper::apply_correction(State& state,
   for (int slot = 0; slot < state.num_landmarks(); ++slot) {
     state.landmarks[slot].p_world += correction.segment<3>(state.landmark_index(slot));
   }
-  if (state.calibration_dim == 1) state.disparity_offset += correction(state.calibration_index());
+  if (state.has_disparity_offset) {
+    state.disparity_offset += correction(state.disparity_offset_index());
+  }
+  if (state.has_world_up) state.world_up.tilt += correction.segment<2>(state.world_up_index());
 }
 
 bool StateHelper::update(State& state, const Eigen::MatrixXd& H, const Eigen::VectorXd& residual,
@@ -144,7 +147,7 @@ void StateHelper::remove_landmarks(State& state, const std::vector<int>& slots) 
   for (int slot : slots) removed[slot] = true;
   std::vector<int> keep;
   keep.reserve(state.dimension());
-  for (int i = 0; i < state.pose_block_size() + state.calibration_dim; ++i) keep.push_back(i);
+  for (int i = 0; i < state.pose_block_size() + state.calibration_dim(); ++i) keep.push_back(i);
   std::vector<ObjectLandmark> kept_landmarks;
   for (int slot = 0; slot < state.num_landmarks(); ++slot) {
     if (removed[slot]) continue;
@@ -182,10 +185,22 @@ void StateHelper::reanchor(State& state, const Eigen::Isometry3d& T_new_old,
     landmark.p_world = T_new_old * landmark.p_world;
     landmark.p_linearization = T_new_old * landmark.p_linearization;
   }
-  // 2. Joint covariance: P <- G P G^T + J covariance J^T, G block diagonal.
+  // The world's up axis turns with the frame, its basis with it: the tilt keeps its value.
+  state.world_up.reference = R * state.world_up.reference;
+  state.world_up.basis = R * state.world_up.basis;
+  // 2. Joint covariance: P <- G P G^T + J covariance J^T, G block diagonal (identity on the
+  //    calibration).
   const int n = state.dimension();
   Eigen::MatrixXd& P = state.covariance;
-  Eigen::MatrixXd J = Eigen::MatrixXd::Zero(n, 6);  // the calibration does not move
+  Eigen::MatrixXd J = Eigen::MatrixXd::Zero(n, 6);  // the disparity offset does not move
+  if (state.has_world_up) {
+    // w' = exp(phi_e^) R w: the transform's rotation error turns the up axis, w' + phi_e x w',
+    // which the tilt takes through the pseudo-inverse of dw'/dt.
+    const Eigen::Matrix<double, 3, 2> jacobian = state.world_up.jacobian();
+    const Eigen::Matrix2d normal = jacobian.transpose() * jacobian;
+    J.block<2, 3>(state.world_up_index(), 3) = -normal.inverse() * jacobian.transpose() *
+                                              lie::skew(state.world_up.direction());
+  }
   for (int slot = 0; slot < state.num_poses(); ++slot) {
     const int index = state.pose_index(slot);
     P.middleRows(index, 6) = (adjoint * P.middleRows(index, 6)).eval();

@@ -152,7 +152,7 @@ std::optional<LinearizedTrack> UpdaterHelper::linearize(const State& state,
   out.residual.resize(rows);
   const int newest_frame = state.newest_pose().frame;
   // With a disparity offset state d: the right image's x is predicted as x_r + d / fx.
-  const bool has_offset = state.calibration_dim == 1;
+  const bool has_offset = state.has_disparity_offset;
   const double offset_x = has_offset ? state.disparity_offset / camera.K(0, 0) : 0.0;
   for (std::size_t i = 0; i < track.size(); ++i) {
     const int slot = state.pose_slot(track[i].frame);
@@ -167,7 +167,7 @@ std::optional<LinearizedTrack> UpdaterHelper::linearize(const State& state,
     out.residual.segment<4>(row) = track[i].xy - projection->xy;
     if (has_offset) {
       out.residual(row + 2) -= offset_x;
-      out.H_state(row + 2, state.calibration_index()) = 1.0 / camera.K(0, 0);
+      out.H_state(row + 2, state.disparity_offset_index()) = 1.0 / camera.K(0, 0);
     }
     if (track[i].frame == newest_frame) out.newest_frame_row = static_cast<int>(row);
   }
@@ -178,10 +178,29 @@ std::optional<LinearizedTrack> UpdaterHelper::linearize(const State& state,
   return out;
 }
 
+void UpdaterHelper::linearize_level(const State& state, const Eigen::Vector3d& level_axis,
+                                    Eigen::MatrixXd& H, Eigen::VectorXd& residual) {
+  // The body's level axis u, seen in the world as g = R u, measures the world's up axis w. With
+  // the left perturbation R = exp(phi^) R_hat, g = g_hat + phi x g_hat, so the rows are
+  // -[a b]^T g_hat^ on phi and -[a b]^T dw/dt on the tilt.
+  const WorldUp& world_up = state.world_up;
+  const Eigen::Vector3d w = world_up.direction();
+  const Eigen::Vector3d a = w.unitOrthogonal();
+  Eigen::Matrix<double, 2, 3> across;
+  across.row(0) = a.transpose();
+  across.row(1) = w.cross(a).transpose();
+  const int slot = state.num_poses() - 1;
+  const Eigen::Vector3d g = state.newest_pose().T_world_body.linear() * level_axis;
+  H = Eigen::MatrixXd::Zero(2, state.dimension());
+  H.block<2, 3>(0, state.pose_index(slot) + 3) = -across * lie::skew(g);
+  H.block<2, 2>(0, state.world_up_index()) = -across * world_up.jacobian();
+  residual = -across * g;  // across * w, which is 0, minus the prediction
+}
+
 Eigen::Vector4d UpdaterHelper::without_disparity_offset(const State& state,
                                                         const StereoCamera& camera,
                                                         const Eigen::Vector4d& xy) {
-  if (state.calibration_dim != 1) return xy;
+  if (!state.has_disparity_offset) return xy;
   Eigen::Vector4d corrected = xy;
   corrected(2) -= state.disparity_offset / camera.K(0, 0);
   return corrected;

@@ -111,6 +111,13 @@ std::string number(double value) {
   return text;
 }
 
+/// A flow sequence of a vector's entries, to four decimals (a config's body direction).
+std::string vector_text(const Eigen::Vector3d& v) {
+  char text[64];
+  std::snprintf(text, sizeof(text), "[%.4f, %.4f, %.4f]", v.x(), v.y(), v.z());
+  return text;
+}
+
 }  // namespace
 
 CalibrationReport calibrate(const dataset::Dataset& dataset, const CalibrationOptions& options) {
@@ -199,21 +206,44 @@ CalibrationReport calibrate(const dataset::Dataset& dataset, const CalibrationOp
   }
   report.features = features.spread();
 
-  // 4. Tilt from level: the world's horizontal components of the body's up axis, their RMS
-  //    about zero (the prior says "level", not "the segment's mean tilt") and the first lag at
-  //    which the autocorrelation about their mean is no longer positive.
+  // 4. Level (a ground vehicle's level prior, docs/estimator.md):
+  //    a. the level axis: the nominal up axis made perpendicular to the segment's direction of
+  //       travel (the sum of the true steps in the body): a camera mounted with a small pitch
+  //       travels a little off its own horizontal plane;
+  //    b. the segment's up axis: the mean of the level axis seen in the world (the world frame
+  //       is the start's, itself on some slope);
+  //    c. the tilt: the level axis's two components across that mean, per frame; their RMS and
+  //       the first lag at which their autocorrelation is no longer positive (the larger of the
+  //       two each);
+  //    d. level_sigma: the tilt's spread about the true level, which the filter estimates (the
+  //       world up axis state): the segment's RMS about its own mean underestimates it by the
+  //       one look's worth of mean it took out, so the unbiased value for its frames / lag
+  //       independent looks, RMS sqrt(n / (n - 1)).
   const std::array<double, 3> axis = body_axis_vector(options.up_axis);
   const Eigen::Vector3d up(axis[0], axis[1], axis[2]);
   if (up.isZero()) {
     throw std::invalid_argument("calibrate: up axis " + options.up_axis +
                                 " is not +x, -x, +y, -y, +z or -z");
   }
-  const Eigen::Vector3d across = up.unitOrthogonal();
-  const Eigen::Vector3d horizontal[2] = {across, up.cross(across)};
+  Eigen::Vector3d travel = Eigen::Vector3d::Zero();
+  for (int k = first; k + 1 < end; ++k) {
+    travel += (robot.groundtruth[k].inverse() * robot.groundtruth[k + 1]).translation();
+  }
+  report.level_axis = up;
+  if (travel.norm() > 1e-9) {
+    const Eigen::Vector3d direction = travel.normalized();
+    const Eigen::Vector3d level = up - up.dot(direction) * direction;
+    if (level.norm() > 0.5) report.level_axis = level.normalized();  // else: travels "up"
+  }
+  Eigen::Vector3d mean_up = Eigen::Vector3d::Zero();
+  for (int k = first; k < end; ++k) mean_up += robot.groundtruth[k].linear() * report.level_axis;
+  mean_up.normalize();
+  const Eigen::Vector3d across = mean_up.unitOrthogonal();
+  const Eigen::Vector3d horizontal[2] = {across, mean_up.cross(across)};
   for (const Eigen::Vector3d& direction : horizontal) {
     std::vector<double> tilt;
     for (int k = first; k < end; ++k) {
-      tilt.push_back(direction.dot(robot.groundtruth[k].linear() * up));
+      tilt.push_back(direction.dot(robot.groundtruth[k].linear() * report.level_axis));
     }
     const auto n = static_cast<double>(tilt.size());
     double mean = 0.0, squares = 0.0;
@@ -221,8 +251,8 @@ CalibrationReport calibrate(const dataset::Dataset& dataset, const CalibrationOp
       mean += value / n;
       squares += value * value / n;
     }
-    report.tilt_rms = std::max(report.tilt_rms, std::sqrt(squares));
     const double variance = squares - mean * mean;
+    report.tilt_rms = std::max(report.tilt_rms, std::sqrt(std::max(variance, 0.0)));
     if (!(variance > 0.0)) continue;
     int lag = 1;
     for (; lag < static_cast<int>(tilt.size()) / 2; ++lag) {
@@ -233,6 +263,11 @@ CalibrationReport calibrate(const dataset::Dataset& dataset, const CalibrationOp
       if (covariance <= 0.0) break;
     }
     report.tilt_decorrelation_frames = std::max(report.tilt_decorrelation_frames, lag);
+  }
+  // d. Looks per component: n = frames / lag.
+  report.tilt_looks = static_cast<double>(end - first) / report.tilt_decorrelation_frames;
+  if (report.tilt_looks > 1.0) {
+    report.level_sigma = report.tilt_rms * std::sqrt(report.tilt_looks / (report.tilt_looks - 1.0));
   }
   return report;
 }
@@ -287,11 +322,15 @@ std::string to_yaml(const CalibrationReport& report, const CalibrationOptions& o
   };
   noise("object_noise", report.objects);
   noise("feature_noise", report.features);
-  text += "# Tilt from level (" + options.up_axis + " up): RMS " + number(report.tilt_rms) +
-          " rad, correlated over " + std::to_string(report.tilt_decorrelation_frames) +
-          " frames. A ground vehicle's level prior (docs/estimator.md) would be:\n";
-  text += "# level_sigma: " + number(report.tilt_rms) + "\n";
+  text += "# Level (" + options.up_axis + " nominally up): the axis level with the direction of travel " +
+          vector_text(report.level_axis) + "; its tilt about the segment's up axis: RMS " +
+          number(report.tilt_rms) + " rad, correlated over " +
+          std::to_string(report.tilt_decorrelation_frames) + " frames (" + number(report.tilt_looks) +
+          " independent looks), the unbiased spread is level_sigma.\n";
+  text += "# A ground vehicle's level prior (docs/estimator.md) would be:\n";
+  text += "# level_sigma: " + number(report.level_sigma) + "\n";
   text += "# level_every_frames: " + std::to_string(report.tilt_decorrelation_frames) + "\n";
+  text += "# level_up_axis: " + vector_text(report.level_axis) + "\n";
   return text;
 }
 

@@ -57,12 +57,18 @@ struct CalibrationReport {
   /// Point features against their tracks triangulated with the true poses (tracks of at least
   /// 3 frames); observations = 0 when there are none.
   StereoErrorSpread features;
-  /// The body's tilt from level: the horizontal components of its up axis in the world (about
-  /// the tilt angles, radians), their RMS (the larger one), and the first lag (frames) at which
-  /// their autocorrelation is no longer positive (the larger one): level_sigma and
-  /// level_every_frames of a ground vehicle's level prior.
+  /// Level (a ground vehicle's level prior): the body's level axis (the nominal up axis made
+  /// perpendicular to the segment's direction of travel: level_up_axis); its tilt about the
+  /// segment's mean up axis, the components across it (about the tilt angles, radians): their
+  /// RMS (the larger one) and the first lag (frames) at which their autocorrelation is no longer
+  /// positive (the larger one: level_every_frames); the independent looks at the tilt that the
+  /// segment holds (frames / that lag); and level_sigma, the spread's unbiased value from those
+  /// looks, RMS sqrt(looks / (looks - 1)) (0 with a single look).
+  Eigen::Vector3d level_axis = Eigen::Vector3d::UnitZ();
   double tilt_rms = 0.0;
   int tilt_decorrelation_frames = 1;
+  double tilt_looks = 0.0;
+  double level_sigma = 0.0;
 };
 
 /// Measures the segment. Throws std::invalid_argument when the robot or the segment is outside

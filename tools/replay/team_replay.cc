@@ -372,8 +372,8 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
   for (int i = 0; i < robots; ++i) {
     RobotOutput& output = result.robots[i];
     output.objects = estimators[i].objects();
-    if (const State& state = estimators[i].state(); state.calibration_dim == 1) {
-      const int index = state.calibration_index();
+    if (const State& state = estimators[i].state(); state.has_disparity_offset) {
+      const int index = state.disparity_offset_index();
       output.disparity_offset = {state.disparity_offset,
                                  std::sqrt(std::max(state.covariance(index, index), 0.0))};
     }

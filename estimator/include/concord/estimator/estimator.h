@@ -84,9 +84,11 @@ class Estimator {
   ConsensusWorkspace consensus_workspace_;
   bool started_ = false;
 
-  /// The level prior on the newest pose (EstimatorOptions::level_sigma); false if the update
-  /// was refused.
+  /// The level prior on the newest pose against the world's up axis (EstimatorOptions::
+  /// level_sigma); false if the update was refused.
   bool level_update();
+  /// The body's level axis (EstimatorOptions::level_up_axis), normalized.
+  Eigen::Vector3d level_axis() const;
 };
 
 }  // namespace concord

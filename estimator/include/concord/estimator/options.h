@@ -92,20 +92,25 @@ struct EstimatorOptions {
   /// noise. 0 (the default): the calibration is taken as exact.
   double disparity_offset_sigma = 0.0;
   /// level_sigma: a ground vehicle's level prior (radians; 0, the default, disables it). On every
-  /// level_every_frames-th frame the newest pose's up axis (level_up_axis, in the body) is taken
-  /// as a measurement of the world's up axis (the same axis of the world frame, which is a level
-  /// start frame) with this standard deviation on each of its two horizontal components. A car
-  /// on roads tilts by the road's grade and its suspension: a few degrees, correlated over tens
-  /// of frames. So the value is the tilt's RMS and the spacing the lag at which its
-  /// autocorrelation has died out, both measured on a calibration segment (docs/tuning.md): the
-  /// measurements are then about independent, each as uncertain as the tilt really is. It bounds
-  /// the pitch and roll that odometry alone lets drift, and with them the height. Off for a robot
+  /// level_every_frames-th frame the newest pose's level axis (level_up_axis, in the body) is
+  /// taken as a measurement of the world's up axis with this standard deviation on each of its
+  /// two horizontal components. A car on roads tilts by the road's grade and its suspension: a
+  /// few degrees, correlated over tens of frames. So the value is the tilt's spread and the
+  /// spacing the lag at which its autocorrelation has died out, both measured on a calibration
+  /// segment (docs/tuning.md): the measurements are then about independent, each as uncertain as
+  /// the tilt really is. It bounds the pitch and roll that odometry alone lets drift, and with
+  /// them the height. The world's up axis is a state of the filter (State::world_up): the start
+  /// frame is level only up to the slope the robot started on, one draw of the same tilt, so it
+  /// starts at the start pose's level axis with level_sigma on each tilt angle. Off for a robot
   /// that tilts freely (a drone, a hand-held rig).
   double level_sigma = 0.0;
   int level_every_frames = 1;
-  /// level_up_axis: the body axis that points up when the robot stands level ("+x", "-x", "+y",
-  /// "-y", "+z", "-z").
-  std::string level_up_axis = "+z";
+  /// level_up_axis: the body direction that points up when the robot travels on level ground;
+  /// in a config a named axis ("+x", "-x", "+y", "-y", "+z", "-z") or a vector [x, y, z]
+  /// (normalized when used). A camera mounted with a small pitch has a level axis a little off
+  /// the body's nominal one; `concord calibrate` measures it on the calibration segment as the
+  /// nominal axis made perpendicular to the direction of travel.
+  std::array<double, 3> level_up_axis = {0.0, 0.0, 1.0};
 
   // --- Objects (persistent landmarks, §V-D and §V-E) ---
   /// use_objects: process object detections at all.

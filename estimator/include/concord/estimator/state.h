@@ -2,11 +2,14 @@
 /// \file
 /// The filter state of one robot (eq. 18): a sliding window of body poses and the positions of
 /// object landmarks, with one joint covariance over the error state
-///   [eps_0 .. eps_{c-1}, (d~), p~_0 .. p~_{m-1}],  T_world_body = exp(eps^) * T_hat,
-///   p = p_hat + p~,  d = d_hat + d~,
-/// where d, present when the options ask for it (disparity_offset_sigma > 0), is a constant
-/// offset of the right image's horizontal coordinate: the stereo calibration's error, estimated
-/// online (an error shared by every observation, which no per-observation noise can model).
+///   [eps_0 .. eps_{c-1}, (d~), (t~), p~_0 .. p~_{m-1}],  T_world_body = exp(eps^) * T_hat,
+///   p = p_hat + p~,  d = d_hat + d~,  t = t_hat + t~,
+/// where the calibration entries are there when the options ask for them:
+/// - d (disparity_offset_sigma > 0): a constant offset of the right image's horizontal
+///   coordinate, the stereo calibration's error, estimated online (an error shared by every
+///   observation, which no per-observation noise can model);
+/// - t (level_sigma > 0): the world's up axis, two tilt angles about the start's level axis (see
+///   WorldUp): the start frame of a ground vehicle is level only up to the slope it stood on.
 ///
 /// Pose errors are left (world-frame) perturbations, not the right perturbations of eq. (20):
 /// both describe the same Gaussian to first order (eps_left = Ad(T_hat) eps_right), but with the
@@ -30,6 +33,24 @@
 #include "concord/estimator/types.h"
 
 namespace concord {
+
+/// The world's up axis (opposite to gravity) in the world frame, as a state of the filter:
+/// up = normalize(reference + basis * tilt), with the error on tilt (two angles, radians, to
+/// first order). reference (a unit vector) and basis (two unit columns perpendicular to it) are
+/// fixed when the state is made and move only with the world frame (StateHelper::reanchor), so
+/// that the tilt's covariance keeps its meaning as the tilt changes.
+struct WorldUp {
+  Eigen::Vector3d reference = Eigen::Vector3d::UnitZ();
+  Eigen::Matrix<double, 3, 2> basis = Eigen::Matrix<double, 3, 2>::Identity();
+  Eigen::Vector2d tilt = Eigen::Vector2d::Zero();
+
+  /// A world up axis of `reference` (normalized) with zero tilt.
+  static WorldUp around(const Eigen::Vector3d& reference);
+  /// The unit up axis.
+  Eigen::Vector3d direction() const;
+  /// d direction / d tilt (3 x 2).
+  Eigen::Matrix<double, 3, 2> jacobian() const;
+};
 
 /// One body pose in the window.
 struct PoseClone {
@@ -69,28 +90,36 @@ class State {
   /// Last frame each archived object was observed (for bookkeeping and output).
   std::map<LandmarkId, int> archived_last_observed;
 
-  /// Calibration entries between the poses and the landmarks: 1 with a disparity offset, else 0.
-  int calibration_dim = 0;
+  /// The disparity offset is a state (one calibration entry, the first).
+  bool has_disparity_offset = false;
   /// Estimated offset of the right image's horizontal coordinate (image units): an observation
-  /// is u_right = u_right(true) + disparity_offset. Meaningful when calibration_dim is 1.
+  /// is u_right = u_right(true) + disparity_offset. Meaningful when has_disparity_offset.
   double disparity_offset = 0.0;
+  /// The world's up axis is a state (two calibration entries, after the disparity offset).
+  bool has_world_up = false;
+  /// Estimated up axis of the world frame. Meaningful when has_world_up.
+  WorldUp world_up;
 
-  /// Joint covariance, (6 * poses + calibration_dim + 3 * landmarks) square.
+  /// Joint covariance, (6 * poses + calibration_dim() + 3 * landmarks) square.
   Eigen::MatrixXd covariance;
 
   int dimension() const {
-    return pose_block_size() + calibration_dim + kLandmarkDim * num_landmarks();
+    return pose_block_size() + calibration_dim() + kLandmarkDim * num_landmarks();
   }
+  /// Calibration entries between the poses and the landmarks (0 to 3).
+  int calibration_dim() const { return (has_disparity_offset ? 1 : 0) + (has_world_up ? 2 : 0); }
   int num_poses() const { return static_cast<int>(poses.size()); }
   int num_landmarks() const { return static_cast<int>(landmarks.size()); }
   int pose_block_size() const { return kPoseDim * num_poses(); }
   /// Covariance index of pose slot i (0 = oldest).
   int pose_index(int slot) const { return kPoseDim * slot; }
-  /// Covariance index of the disparity offset (when calibration_dim is 1).
-  int calibration_index() const { return pose_block_size(); }
+  /// Covariance index of the disparity offset (when has_disparity_offset).
+  int disparity_offset_index() const { return pose_block_size(); }
+  /// Covariance index of the world up axis's tilt (when has_world_up).
+  int world_up_index() const { return pose_block_size() + (has_disparity_offset ? 1 : 0); }
   /// Covariance index of landmark slot i.
   int landmark_index(int slot) const {
-    return pose_block_size() + calibration_dim + kLandmarkDim * slot;
+    return pose_block_size() + calibration_dim() + kLandmarkDim * slot;
   }
 
   /// Slot of the pose of a frame in the window, or -1.

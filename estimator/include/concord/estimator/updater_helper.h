@@ -81,6 +81,13 @@ class UpdaterHelper {
                                                   const Eigen::Vector3d& p_world,
                                                   int landmark_slot = -1);
 
+  /// The level prior's measurement of the newest pose (Estimator::level_update), linearized:
+  /// h = [a b]^T (R level_axis - w) = 0, where w is the world's up axis (state.world_up, which
+  /// must be there) and a, b are two unit vectors perpendicular to w. H is 2 x the state
+  /// dimension (the newest pose's rotation and the world up's tilt), residual = 0 - h.
+  static void linearize_level(const State& state, const Eigen::Vector3d& level_axis,
+                              Eigen::MatrixXd& H, Eigen::VectorXd& residual);
+
   /// An observation with the state's estimated disparity offset taken out of its right x (for
   /// triangulation, which treats the calibration as exact); unchanged without that state.
   static Eigen::Vector4d without_disparity_offset(const State& state, const StereoCamera& camera,
