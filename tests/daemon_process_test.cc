@@ -332,6 +332,9 @@ TEST(DaemonProcess, RejectsGarbageAndMalformedHttpAndStillAnswers) {
   ASSERT_TRUE(later_metrics);
   EXPECT_NE(later_metrics->find("concord_disparity_offset{robot=\"0\"}"), std::string::npos);
   EXPECT_NE(later_metrics->find("concord_disparity_offset_sigma{robot=\"0\"}"), std::string::npos);
+  // And its level prior makes the world's up axis one.
+  EXPECT_NE(later_metrics->find("concord_world_up_tilt{robot=\"0\"}"), std::string::npos);
+  EXPECT_NE(later_metrics->find("concord_world_up_tilt_sigma{robot=\"0\"}"), std::string::npos);
   const auto trajectory = launch::http_get("127.0.0.1", http, "/trajectory?format=tum", 1s);
   ASSERT_TRUE(trajectory);
   EXPECT_EQ(std::count(trajectory->begin(), trajectory->end(), '\n') > 0, true);

@@ -132,6 +132,9 @@ struct LiveState {
   std::vector<ObjectEstimate> objects;
   /// The estimated disparity offset and its sigma (image units), with a calibration state.
   std::optional<std::pair<double, double>> disparity_offset;
+  /// The world up axis's tilt from the start's level axis and its largest standard deviation
+  /// (radians), with the level prior on.
+  std::optional<std::pair<double, double>> world_up_tilt;
   /// Team id of each object (parallel to objects): the object's id when ids are given, -1 while
   /// unshared when they are negotiated.
   std::vector<LandmarkId> team_ids;
@@ -839,6 +842,16 @@ bool Daemon::Impl::process(QueuedFrame& item) {
       const double variance = state.covariance(index, index);
       live_.disparity_offset = {state.disparity_offset, std::sqrt(std::max(variance, 0.0))};
     }
+    if (const State& state = estimator_->state(); state.has_world_up) {
+      const int index = state.world_up_index();
+      // The larger eigenvalue of the symmetric 2x2 [a b; b c].
+      const double a = state.covariance(index, index), c = state.covariance(index + 1, index + 1);
+      const double b = state.covariance(index, index + 1);
+      const double largest = 0.5 * (a + c) + std::hypot(0.5 * (a - c), b);
+      const double angle = std::acos(
+          std::clamp(state.world_up.direction().dot(state.world_up.reference), -1.0, 1.0));
+      live_.world_up_tilt = {angle, std::sqrt(std::max(largest, 0.0))};
+    }
     if (association_) {
       live_.team_ids = association_->team_ids(live_.objects);
       live_.alignment = association_->alignment();
@@ -1322,6 +1335,14 @@ void Daemon::Impl::register_routes() {
         text.gauge("concord_disparity_offset_sigma",
                    "Standard deviation of the disparity offset estimate", robot,
                    live_.disparity_offset->second);
+      }
+      if (live_.world_up_tilt) {
+        text.gauge("concord_world_up_tilt",
+                   "Estimated tilt of the world's up axis from the start's level axis (rad)", robot,
+                   live_.world_up_tilt->first);
+        text.gauge("concord_world_up_tilt_sigma",
+                   "Largest standard deviation of the world up axis's tilt (rad)", robot,
+                   live_.world_up_tilt->second);
       }
       text.counter("concord_object_observations_rejected_total",
                    "Object observations rejected by the chi-square gate", robot,
