@@ -695,7 +695,9 @@ TEST(TeamIdsTest, AnIndexKeptUpToDateOneSourceAtATimeAgreesWithTheWholeUnionFind
 // ---- Negotiation ----
 
 /// Robots of a synthetic team exchanging messages on a complete graph, round by round, with
-/// fixed maps (each robot's map of the scene in its own frame, or in whatever frame it moved to).
+/// fixed maps (each robot's map of the scene in its own frame, or in whatever frame it moved to);
+/// with reveal_per_round > 0 a robot describes only the first reveal_per_round x (round + 1)
+/// objects of its map (a shuffled subset: the maps grow as the robots go on).
 class SyntheticTeam {
  public:
   SyntheticTeam(const Scene& scene, const std::vector<Eigen::Isometry3d>& T_own_world,
@@ -718,7 +720,13 @@ class SyntheticTeam {
   void step() {
     const int n = static_cast<int>(negotiators_.size());
     for (int r = 0; r < n; ++r) {
-      if (negotiators_[r].describes(round_)) negotiators_[r].set_own_map(maps_[r].map, round_);
+      if (!negotiators_[r].describes(round_)) continue;
+      MapDescription description = maps_[r].map;
+      if (reveal_per_round > 0) {
+        const auto shown = static_cast<std::size_t>(reveal_per_round * (round_ + 1));
+        if (description.objects.size() > shown) description.objects.resize(shown);
+      }
+      negotiators_[r].set_own_map(std::move(description), round_);
     }
     std::vector<std::vector<NegotiationMessage>> inbox(n);
     for (int r = 0; r < n; ++r)
@@ -742,6 +750,7 @@ class SyntheticTeam {
     ++round_;
   }
 
+  int reveal_per_round = 0;
   std::vector<Negotiator> negotiators_;
   std::vector<RobotMap> maps_;
   std::vector<Eigen::Isometry3d> T_frame_world_;
@@ -760,6 +769,7 @@ TEST(NegotiationTest, ThreeRobotsJoinRobotZerosFrameWithConsistentTeamIds) {
   options.association = test_options();
   options.description_interval = 2;
   options.confirmations = 2;
+  options.confirmation_new_matches = 0;  // fixed maps: the count of descriptions alone
   SyntheticTeam team(scene, T_own_world, {{0, 35}, {15, 50}, {25, 60}}, 7, options);
   team.run(12);
   // Every robot ends in robot 0's frame (the team frame), the transform right within noise.
@@ -810,6 +820,7 @@ TEST(NegotiationTest, ATransformIsActedOnOnlyAfterConfirmation) {
   options.association = test_options();
   options.description_interval = 1;
   options.confirmations = 3;
+  options.confirmation_new_matches = 0;  // fixed maps: the count of descriptions alone
   SyntheticTeam team(
       scene, {Eigen::Isometry3d::Identity(), make_transform(1.0, 0.0, Eigen::Vector3d(5, 5, 0))},
       {{0, 30}, {10, 40}}, 3, options);
@@ -819,6 +830,36 @@ TEST(NegotiationTest, ATransformIsActedOnOnlyAfterConfirmation) {
   EXPECT_EQ(team.negotiators_[1].frame(), 0);
   EXPECT_EQ(team.negotiators_[0].counters().frame_edges, 1);
   EXPECT_GT(team.negotiators_[0].counters().links_accepted, 10);
+}
+
+TEST(NegotiationTest, ATransformIsConfirmedOnlyWhileItKeepsMatchingNewObjects) {
+  // The same two robots with the default confirmation_new_matches (1). Maps that do not change
+  // between descriptions confirm nothing however often the transform is found again: a fit to
+  // a coincidental layout would be found again just as often. Maps that grow as the robots go on
+  // confirm it once its last confirming description matches objects its first did not.
+  std::mt19937 random(41);
+  const Scene scene = random_scene(60, 40.0, 2.5, 0, random);
+  NegotiationOptions options;
+  options.association = test_options();
+  options.description_interval = 1;
+  options.confirmations = 3;
+  ASSERT_EQ(options.confirmation_new_matches, 1);
+  const std::vector<Eigen::Isometry3d> T_own_world{
+      Eigen::Isometry3d::Identity(), make_transform(1.0, 0.0, Eigen::Vector3d(5, 5, 0))};
+  SyntheticTeam fixed(scene, T_own_world, {{0, 30}, {10, 40}}, 3, options);
+  fixed.run(12);
+  EXPECT_EQ(fixed.negotiators_[1].frame(), 1);
+  EXPECT_EQ(fixed.negotiators_[0].counters().frame_edges, 0);
+  EXPECT_GE(fixed.negotiators_[0].counters().aligned, 6);  // found again and again, never acted on
+  SyntheticTeam growing(scene, T_own_world, {{0, 30}, {10, 40}}, 3, options);
+  growing.reveal_per_round = 8;
+  growing.run(12);
+  EXPECT_EQ(growing.negotiators_[1].frame(), 0);
+  EXPECT_EQ(growing.negotiators_[0].counters().frame_edges, 1);
+  const lie::Vector6d error =
+      lie::se3_log(growing.T_frame_world_[1] * T_own_world[0].inverse());
+  EXPECT_LT(error.head<3>().norm(), 0.2);
+  EXPECT_LT(error.tail<3>().norm(), 0.01);
 }
 
 TEST(NegotiationTest, AWrongMergeIsSplitAndCounted) {
@@ -883,11 +924,13 @@ TEST(NegotiationTest, AWrongMergeIsSplitAndCounted) {
 TEST(NegotiationTest, OptionsAreValidatedNamingTheKey) {
   NegotiationOptions options;
   options.confirmations = 0;
+  options.confirmation_new_matches = -1;
   options.association.min_inliers = 2;
   const auto problems = options.validate();
-  ASSERT_EQ(problems.size(), 2u);
+  ASSERT_EQ(problems.size(), 3u);
   EXPECT_NE(problems[0].find("association.min_inliers"), std::string::npos);
   EXPECT_NE(problems[1].find("association.confirmations"), std::string::npos);
+  EXPECT_NE(problems[2].find("association.confirmation_new_matches"), std::string::npos);
   EXPECT_THROW(Negotiator(0, 0, options), std::invalid_argument);
 
   AssociationOptions level;

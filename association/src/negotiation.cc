@@ -53,6 +53,8 @@ std::vector<std::string> NegotiationOptions::validate() const {
   };
   require(description_interval >= 1, "description_interval", description_interval, ">= 1");
   require(confirmations >= 1, "confirmations", confirmations, ">= 1");
+  require(confirmation_new_matches >= 0, "confirmation_new_matches", confirmation_new_matches,
+          ">= 0");
   require(transform_agreement_chi2_probability > 0.0 && transform_agreement_chi2_probability < 1.0,
           "transform_agreement_chi2_probability", transform_agreement_chi2_probability,
           "in (0, 1)");
@@ -213,7 +215,18 @@ bool Negotiator::process_pair(int neighbour, const MapDescription& theirs, int r
                         pair.last_frame_b == theirs.frame &&
                         transforms_agree(*pair.last, found, bound);
     pair.streak = agrees ? pair.streak + 1 : 1;
-    const bool confirmed = pair.streak >= options_.confirmations;
+    if (pair.streak == 1) {
+      pair.streak_first_matches.clear();
+      for (const Match& match : found.matches) {
+        pair.streak_first_matches.emplace(match.id_a, match.id_b);
+      }
+    }
+    int new_matches = 0;
+    for (const Match& match : found.matches) {
+      new_matches += pair.streak_first_matches.contains({match.id_a, match.id_b}) ? 0 : 1;
+    }
+    const bool confirmed = pair.streak >= options_.confirmations &&
+                           new_matches >= options_.confirmation_new_matches;
     bool changed = false;
     if (confirmed) changed = accept_frames(pair, theirs, found, round);
     pair.last = found;

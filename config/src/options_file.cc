@@ -47,6 +47,7 @@ void for_each_association_field(Negotiation& options, Visitor&& visit) {
   visit("max_start_tilt", association.max_start_tilt);
   visit("description_interval", options.description_interval);
   visit("confirmations", options.confirmations);
+  visit("confirmation_new_matches", options.confirmation_new_matches);
   visit("transform_agreement_chi2_probability", options.transform_agreement_chi2_probability);
   visit("split_chi2_probability", options.split_chi2_probability);
   visit("split_after", options.split_after);

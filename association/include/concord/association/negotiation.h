@@ -38,6 +38,7 @@
 #include <map>
 #include <memory>
 #include <optional>
+#include <set>
 #include <string>
 #include <utility>
 #include <vector>
@@ -169,6 +170,8 @@ class Negotiator {
   /// What the owner of a pair remembers between descriptions.
   struct PairState {
     int streak = 0;  ///< consecutive agreeing transforms across frames
+    /// The correspondences of the streak's first transform (confirmation_new_matches).
+    std::set<std::pair<LandmarkId, LandmarkId>> streak_first_matches;
     std::optional<PairAlignment> last;
     int last_frame_a = kWorldFrame, last_frame_b = kWorldFrame;
     /// In one frame: consecutive sightings of each candidate correspondence (own id, their id).

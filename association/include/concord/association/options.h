@@ -85,6 +85,12 @@ struct NegotiationOptions {
   /// confirmations: consecutive descriptions in which a transform (across frames) or a
   /// correspondence (in one frame) must be found before it is acted on.
   int confirmations = 3;
+  /// confirmation_new_matches: a transform across frames is confirmed only when the last of its
+  /// confirming descriptions also matches at least this many correspondences that the first did
+  /// not (0: the count of descriptions alone). A right transform keeps predicting the objects
+  /// both robots go on to map; a wrong one fitted to a coincidental layout stops at it, and
+  /// maps that barely change between descriptions confirm it over and over.
+  int confirmation_new_matches = 1;
   /// transform_agreement_chi2_probability: two successive transforms of a pair agree when the
   /// 6-D difference is within this chi-square quantile under the sum of their covariances.
   double transform_agreement_chi2_probability = 0.999;
