@@ -813,17 +813,28 @@ TEST(NegotiationTest, ThreeRobotsJoinRobotZerosFrameWithConsistentTeamIds) {
   }
 }
 
-TEST(NegotiationTest, ATransformIsActedOnOnlyAfterConfirmation) {
-  std::mt19937 random(41);
-  const Scene scene = random_scene(60, 40.0, 2.5, 0, random);
+/// Two robots of a 60-object scene, robot 1's frame turned by 1 rad and shifted, describing every
+/// round and confirming over 3 descriptions (the confirmation tests).
+struct ConfirmationCase {
+  Scene scene;
   NegotiationOptions options;
-  options.association = test_options();
-  options.description_interval = 1;
-  options.confirmations = 3;
-  options.confirmation_new_matches = 0;  // fixed maps: the count of descriptions alone
-  SyntheticTeam team(
-      scene, {Eigen::Isometry3d::Identity(), make_transform(1.0, 0.0, Eigen::Vector3d(5, 5, 0))},
-      {{0, 30}, {10, 40}}, 3, options);
+  std::vector<Eigen::Isometry3d> T_own_world{
+      Eigen::Isometry3d::Identity(), make_transform(1.0, 0.0, Eigen::Vector3d(5, 5, 0))};
+
+  ConfirmationCase() {
+    std::mt19937 random(41);
+    scene = random_scene(60, 40.0, 2.5, 0, random);
+    options.association = test_options();
+    options.description_interval = 1;
+    options.confirmations = 3;
+  }
+  SyntheticTeam team() const { return SyntheticTeam(scene, T_own_world, {{0, 30}, {10, 40}}, 3, options); }
+};
+
+TEST(NegotiationTest, ATransformIsActedOnOnlyAfterConfirmation) {
+  ConfirmationCase confirmation;
+  confirmation.options.confirmation_new_matches = 0;  // fixed maps: the count of descriptions alone
+  SyntheticTeam team = confirmation.team();
   team.run(2);
   EXPECT_EQ(team.negotiators_[1].frame(), 1);  // found twice, not yet confirmed
   team.run(2);
@@ -837,27 +848,20 @@ TEST(NegotiationTest, ATransformIsConfirmedOnlyWhileItKeepsMatchingNewObjects) {
   // between descriptions confirm nothing however often the transform is found again: a fit to
   // a coincidental layout would be found again just as often. Maps that grow as the robots go on
   // confirm it once its last confirming description matches objects its first did not.
-  std::mt19937 random(41);
-  const Scene scene = random_scene(60, 40.0, 2.5, 0, random);
-  NegotiationOptions options;
-  options.association = test_options();
-  options.description_interval = 1;
-  options.confirmations = 3;
-  ASSERT_EQ(options.confirmation_new_matches, 1);
-  const std::vector<Eigen::Isometry3d> T_own_world{
-      Eigen::Isometry3d::Identity(), make_transform(1.0, 0.0, Eigen::Vector3d(5, 5, 0))};
-  SyntheticTeam fixed(scene, T_own_world, {{0, 30}, {10, 40}}, 3, options);
+  const ConfirmationCase confirmation;
+  ASSERT_EQ(confirmation.options.confirmation_new_matches, 1);
+  SyntheticTeam fixed = confirmation.team();
   fixed.run(12);
   EXPECT_EQ(fixed.negotiators_[1].frame(), 1);
   EXPECT_EQ(fixed.negotiators_[0].counters().frame_edges, 0);
   EXPECT_GE(fixed.negotiators_[0].counters().aligned, 6);  // found again and again, never acted on
-  SyntheticTeam growing(scene, T_own_world, {{0, 30}, {10, 40}}, 3, options);
+  SyntheticTeam growing = confirmation.team();
   growing.reveal_per_round = 8;
   growing.run(12);
   EXPECT_EQ(growing.negotiators_[1].frame(), 0);
   EXPECT_EQ(growing.negotiators_[0].counters().frame_edges, 1);
   const lie::Vector6d error =
-      lie::se3_log(growing.T_frame_world_[1] * T_own_world[0].inverse());
+      lie::se3_log(growing.T_frame_world_[1] * confirmation.T_own_world[0].inverse());
   EXPECT_LT(error.head<3>().norm(), 0.2);
   EXPECT_LT(error.tail<3>().norm(), 0.01);
 }
