@@ -362,6 +362,24 @@ TEST(Augmentation, MatchesEquation30) {
   EXPECT_TRUE(state.landmarks[1].p_linearization.isApprox(Eigen::Vector3d(1, 2, 2.9)));
 }
 
+/// Every column of H (rows of a measurement, columns of the state) against central differences
+/// of `predict` when the state moves by a small correction along that column (apply_correction:
+/// the filter's own retraction).
+template <typename Predict>
+void expect_state_columns_match(const State& state, const Eigen::MatrixXd& H, Predict&& predict) {
+  const double h = 1e-6;
+  for (int column = 0; column < state.dimension(); ++column) {
+    State plus = state, minus = state;
+    StateHelper::apply_correction(plus, h * Eigen::VectorXd::Unit(state.dimension(), column));
+    StateHelper::apply_correction(minus, -h * Eigen::VectorXd::Unit(state.dimension(), column));
+    const Eigen::VectorXd numeric = (predict(plus) - predict(minus)) / (2 * h);
+    const Eigen::VectorXd analytic = H.col(column);
+    EXPECT_LT((numeric - analytic).norm(), 1e-6 * (1.0 + analytic.norm()))
+        << "column " << column << ": numeric " << numeric.transpose() << " analytic "
+        << analytic.transpose();
+  }
+}
+
 // Two observations of in-state landmark 1 from poses 0 and 2 of a three-pose window: every
 // column of H_state (all poses, the disparity offset if there is one, all landmarks) against the
 // change of the predicted observations when the state moves by a small correction
@@ -409,17 +427,7 @@ void check_full_assembly(bool with_disparity_offset) {
     }
     return xy;
   };
-  const double h = 1e-6;
-  for (int column = 0; column < state.dimension(); ++column) {
-    State plus = state, minus = state;
-    StateHelper::apply_correction(plus, h * Eigen::VectorXd::Unit(state.dimension(), column));
-    StateHelper::apply_correction(minus, -h * Eigen::VectorXd::Unit(state.dimension(), column));
-    const Eigen::VectorXd numeric = (predict(plus) - predict(minus)) / (2 * h);
-    const Eigen::VectorXd analytic = linearized->H_state.col(column);
-    EXPECT_LT((numeric - analytic).norm(), 1e-6 * (1.0 + analytic.norm()))
-        << "column " << column << ": numeric " << numeric.transpose() << " analytic "
-        << analytic.transpose();
-  }
+  expect_state_columns_match(state, linearized->H_state, predict);
   // The residual is the observation minus the prediction.
   Eigen::VectorXd observed(8);
   for (int i = 0; i < 2; ++i) observed.segment<4>(4 * i) = track[i].xy;
@@ -468,17 +476,7 @@ TEST(Linearization, LevelMeasurementMatchesFiniteDifferencesOfTheState) {
   };
   EXPECT_TRUE(residual.isApprox(-h(state), 1e-12));
   EXPECT_GT(residual.norm(), 0.01);  // tilted against each other: the residual is not trivial
-  const double step = 1e-6;
-  for (int column = 0; column < state.dimension(); ++column) {
-    State plus = state, minus = state;
-    StateHelper::apply_correction(plus, step * Eigen::VectorXd::Unit(state.dimension(), column));
-    StateHelper::apply_correction(minus, -step * Eigen::VectorXd::Unit(state.dimension(), column));
-    const Eigen::Vector2d numeric = (h(plus) - h(minus)) / (2 * step);
-    const Eigen::Vector2d analytic = H.col(column);
-    EXPECT_LT((numeric - analytic).norm(), 1e-6 * (1.0 + analytic.norm()))
-        << "column " << column << ": numeric " << numeric.transpose() << " analytic "
-        << analytic.transpose();
-  }
+  expect_state_columns_match(state, H, [&](const State& s) -> Eigen::VectorXd { return h(s); });
   // Only the newest pose's rotation and the tilt enter.
   EXPECT_GT(H.middleCols<3>(state.pose_index(2) + 3).norm(), 0.5);
   EXPECT_GT(H.middleCols<2>(state.world_up_index()).norm(), 0.5);
