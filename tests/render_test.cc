@@ -5,7 +5,11 @@
 #include <gtest/gtest.h>
 
 #include <array>
+#include <cmath>
+#include <filesystem>
 #include <map>
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
 #include <optional>
 
 #include "frontend_test_support.h"
@@ -155,6 +159,61 @@ TEST(Render, PointTracksAreOfSurfacePointsBothCamerasSee) {
       EXPECT_EQ(again.robots[0].features[k][i].id, robot.features[k][i].id);
       EXPECT_EQ(again.robots[0].features[k][i].uv, robot.features[k][i].uv);
     }
+  }
+}
+
+// A texture's content stays where its surface puts it at every level of the mip-map: a bright
+// blob on a plane facing the camera, seen from distances that sample pyramid levels 0 to 3 (and
+// blends between them), is imaged where the blob's surface point projects. (Sampling level L
+// at x / 2^L shifted it by (2^L - 1) / 2 texels, 0.44 px in the image at level 3.)
+TEST(Render, TextureContentStaysOnItsSurfaceAtEveryMipLevel) {
+  const std::filesystem::path folder =
+      std::filesystem::path(::testing::TempDir()) / "concord_render_mip_texture";
+  std::filesystem::create_directories(folder);
+  const int side = 256;
+  const double blob_x = 97.3, blob_y = 141.7, blob_sigma = 8.0;  // texels (centres at i + 0.5)
+  cv::Mat texture(side, side, CV_8UC1);
+  for (int row = 0; row < side; ++row) {
+    for (int column = 0; column < side; ++column) {
+      const double dx = column + 0.5 - blob_x, dy = row + 0.5 - blob_y;
+      texture.at<unsigned char>(row, column) = static_cast<unsigned char>(std::lround(
+          40.0 + 200.0 * std::exp(-0.5 * (dx * dx + dy * dy) / (blob_sigma * blob_sigma))));
+    }
+  }
+  ASSERT_TRUE(cv::imwrite((folder / "blob.png").string(), texture));
+  const double focal = 200.0, texels_per_metre = 100.0;
+  const int size = 160;
+  Eigen::Matrix3d K;
+  K << focal, 0.0, 80.0, 0.0, focal, 80.0, 0.0, 0.0, 1.0;
+  for (const double level : {0.0, 1.0, 1.5, 2.0, 2.5, 3.0}) {
+    // footprint = texels_per_metre * depth / focal texels a pixel (at the image centre).
+    const double depth = std::pow(2.0, level) * focal / texels_per_metre;
+    TexturedWorld scene(folder);
+    TexturedWorld::Quad quad;
+    const double width = side / texels_per_metre;
+    // The blob straight ahead of the camera, on the optical axis.
+    quad.corner = Eigen::Vector3d(-blob_x / texels_per_metre, -blob_y / texels_per_metre, depth);
+    quad.edge_u = Eigen::Vector3d(width, 0.0, 0.0);
+    quad.edge_v = Eigen::Vector3d(0.0, width, 0.0);
+    quad.texels_per_metre = texels_per_metre;
+    scene.add_quad(quad);
+    const std::vector<std::uint8_t> image =
+        scene.render(K, Eigen::Isometry3d::Identity(), size, size, 0.0, 1);
+    // The blob's centroid over the background, in a window around the principal point.
+    const double reach = 4.0 * blob_sigma / std::pow(2.0, level) + 4.0;
+    double sum = 0.0, sum_u = 0.0, sum_v = 0.0;
+    for (int row = 0; row < size; ++row) {
+      for (int column = 0; column < size; ++column) {
+        if (std::abs(column - 80.0) > reach || std::abs(row - 80.0) > reach) continue;
+        const double weight = std::max(0.0, image[row * size + column] - 40.0);
+        sum += weight;
+        sum_u += weight * column;
+        sum_v += weight * row;
+      }
+    }
+    ASSERT_GT(sum, 0.0) << "level " << level;
+    EXPECT_NEAR(sum_u / sum, 80.0, 0.05) << "level " << level;
+    EXPECT_NEAR(sum_v / sum, 80.0, 0.05) << "level " << level;
   }
 }
 

@@ -117,13 +117,24 @@ class TexturedWorld::Textures {
                                     static_cast<double>(levels.size() - 1));
     const int lower = static_cast<int>(level);
     const double fraction = level - lower;
-    const float a = bilinear(levels[lower], x / (1 << lower), y / (1 << lower));
+    const float a = at_level(levels[lower], lower, x, y);
     if (fraction < 1e-3 || lower + 1 >= static_cast<int>(levels.size())) return a;
-    const float b = bilinear(levels[lower + 1], x / (2 << lower), y / (2 << lower));
+    const float b = at_level(levels[lower + 1], lower + 1, x, y);
     return static_cast<float>((1.0 - fraction) * a + fraction * b);
   }
 
  private:
+  /// Bilinear sample of pyramid level `level` at level-0 texel coordinates (x, y). cv::pyrDown
+  /// centres texel i of a level on texel 2i of the level below, so texel i of level L sits on
+  /// level-0 texel 2^L i: level-0 coordinates map to (x - 0.5) / 2^L + 0.5 there (texel centres
+  /// at integer + 0.5 on every level). Taking x / 2^L instead would shift level L by
+  /// (2^L - 1) / 2 level-0 texels, a shift that changes as a surface's distance moves the
+  /// sample between levels: the texture would slide on the surface by up to half a pixel.
+  static float at_level(const cv::Mat& image, int level, double x, double y) {
+    const double scale = 1.0 / static_cast<double>(1 << level);
+    return bilinear(image, (x - 0.5) * scale + 0.5, (y - 0.5) * scale + 0.5);
+  }
+
   static float bilinear(const cv::Mat& image, double x, double y) {
     // Texel centres at integer + 0.5.
     x -= 0.5;
