@@ -4,12 +4,15 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <filesystem>
 #include <map>
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+#include <opencv2/video/tracking.hpp>
 #include <optional>
 
 #include "frontend_test_support.h"
@@ -215,6 +218,59 @@ TEST(Render, TextureContentStaysOnItsSurfaceAtEveryMipLevel) {
     EXPECT_NEAR(sum_u / sum, 80.0, 0.05) << "level " << level;
     EXPECT_NEAR(sum_v / sum, 80.0, 0.05) << "level " << level;
   }
+}
+
+// A pixel averages the light over its area (supersampling): KLT follows the corners of a
+// textured wall the camera approaches (1-4 % of scale a step, as in the rendered sequences) more
+// faithfully than on images of one sample a pixel (measured: median 0.042 px against 0.049 px).
+TEST(Render, SupersampledImagesAreTrackedMoreFaithfully) {
+  TexturedWorld world(concord::testing::euroc_frames());
+  const double focal = 300.0, depth = 5.0, texels_per_metre = 80.0;  // 1.3 texels a pixel
+  TexturedWorld::Quad wall;
+  wall.corner = Eigen::Vector3d(-4.0, -3.0, depth);
+  wall.edge_u = Eigen::Vector3d(8.0, 0.0, 0.0);
+  wall.edge_v = Eigen::Vector3d(0.0, 6.0, 0.0);
+  wall.texels_per_metre = texels_per_metre;
+  world.add_quad(wall);
+  const int size = 160;
+  const float centre = 79.5f;
+  Eigen::Matrix3d K;
+  K << focal, 0.0, centre, 0.0, focal, centre, 0.0, 0.0, 1.0;
+  const auto image_of = [&](const Eigen::Isometry3d& pose, int samples) {
+    std::vector<std::uint8_t> pixels = world.render(K, pose, size, size, 0.0, 1, samples);
+    return cv::Mat(size, size, CV_8UC1, pixels.data()).clone();
+  };
+  // KLT's error against the true motion of each corner (the image scales about its centre),
+  // pooled over five steps forward: the median, pixels. (Its tail is the translation-only
+  // model's error under scale, alike with or without supersampling.)
+  const auto tracking_errors = [&](int samples) {
+    const cv::Mat before = image_of(Eigen::Isometry3d::Identity(), samples);
+    std::vector<cv::Point2f> corners;
+    cv::goodFeaturesToTrack(before, corners, 60, 0.01, 8.0, cv::noArray(), 5);
+    std::vector<double> errors;
+    for (const double forward : {0.03, 0.07, 0.11, 0.15, 0.22}) {
+      Eigen::Isometry3d moved = Eigen::Isometry3d::Identity();
+      moved.translation().z() = forward;
+      const auto scale = static_cast<float>(depth / (depth - forward));
+      std::vector<cv::Point2f> tracked;
+      std::vector<unsigned char> status;
+      std::vector<float> residuals;
+      cv::calcOpticalFlowPyrLK(before, image_of(moved, samples), corners, tracked, status,
+                               residuals, cv::Size(11, 11), 2);
+      for (std::size_t i = 0; i < corners.size(); ++i) {
+        if (!status[i]) continue;
+        const cv::Point2f truth = (corners[i] - cv::Point2f(centre, centre)) * scale +
+                                  cv::Point2f(centre, centre);
+        errors.push_back(std::hypot(tracked[i].x - truth.x, tracked[i].y - truth.y));
+      }
+    }
+    EXPECT_GE(errors.size(), 80u) << samples << " samples";
+    std::nth_element(errors.begin(), errors.begin() + errors.size() / 2, errors.end());
+    return errors[errors.size() / 2];
+  };
+  const double one = tracking_errors(1), three = tracking_errors(3);
+  EXPECT_LT(three, 0.05);
+  EXPECT_LT(three, 0.95 * one);
 }
 
 TEST(Render, InvalidOptionsAreNamed) {

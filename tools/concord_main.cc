@@ -904,6 +904,11 @@ int main(int argc, char** argv) {
                    "Pixel noise of the rendered images, grey levels (one sigma)")
       ->capture_default_str();
   sim_command
+      ->add_option("--render-supersampling", render_options.supersampling,
+                   "Samples a rendered pixel averages along each axis (its area, as a camera's "
+                   "pixel integrates the light)")
+      ->capture_default_str();
+  sim_command
       ->add_option("--render-object-size", render_options.object_size,
                    "Edge of the cube drawn for each object, metres")
       ->capture_default_str();

@@ -168,6 +168,9 @@ std::vector<std::string> RenderOptions::validate() const {
   if (!(pillar_density >= 0.0 && pillar_density <= 20.0)) {
     problems.push_back("--render-pillars: must be in [0, 20]");
   }
+  if (supersampling < 1 || supersampling > 8) {
+    problems.push_back("--render-supersampling: must be in [1, 8]");
+  }
   if (!(frame_rate > 0.0)) problems.push_back("frame rate must be > 0");
   return problems;
 }
@@ -261,8 +264,9 @@ std::optional<TexturedWorld::Hit> TexturedWorld::cast(const Eigen::Vector3d& ori
 std::vector<std::uint8_t> TexturedWorld::render(const Eigen::Matrix3d& K,
                                                 const Eigen::Isometry3d& T_world_camera, int width,
                                                 int height, double noise_sigma,
-                                                std::uint64_t noise_seed) const {
+                                                std::uint64_t noise_seed, int supersampling) const {
   if (!textures_) throw std::logic_error("TexturedWorld::render: the world has no textures");
+  if (supersampling < 1) throw std::invalid_argument("TexturedWorld::render: supersampling < 1");
   const std::size_t pixels = static_cast<std::size_t>(width) * height;
   std::vector<float> depth(pixels, std::numeric_limits<float>::infinity());
   std::vector<int> hit_quad(pixels, -1);
@@ -324,7 +328,29 @@ std::vector<std::uint8_t> TexturedWorld::render(const Eigen::Matrix3d& K,
     }
   }
 
-  // 2. Shading: trilinear texture lookup with a footprint from depth and obliquity, gain, noise.
+  // 2. Shading: trilinear texture lookup with a footprint from depth and obliquity, gain, noise;
+  //    with supersampling, the mean of samples spread over the pixel, each on the plane of the
+  //    quad its centre sees (a pixel on a quad's edge samples that quad's texture beyond it).
+  struct CameraQuad {
+    Eigen::Vector3d corner, u, v, normal;
+    double plane = 0.0, u_scale = 0.0, v_scale = 0.0;
+  };
+  std::vector<CameraQuad> in_camera;
+  if (supersampling > 1) {
+    in_camera.reserve(quads_.size());
+    for (const Quad& quad : quads_) {
+      CameraQuad q;
+      q.corner = T_camera_world * quad.corner;
+      q.u = T_camera_world.linear() * quad.edge_u;
+      q.v = T_camera_world.linear() * quad.edge_v;
+      q.normal = q.u.cross(q.v);
+      q.plane = q.normal.dot(q.corner);
+      q.u_scale = 1.0 / q.u.squaredNorm();
+      q.v_scale = 1.0 / q.v.squaredNorm();
+      in_camera.push_back(q);
+    }
+  }
+  const int samples = supersampling;
   std::vector<std::uint8_t> image(pixels, 0);
   const NoiseTable& noise = noise_table();
   for (int row = 0; row < height; ++row) {
@@ -339,11 +365,27 @@ std::vector<std::uint8_t> TexturedWorld::render(const Eigen::Matrix3d& K,
         const double cosine = std::max(std::abs(normal.dot(ray.normalized())), 0.05);
         const double metres_per_pixel = depth[pixel] * ray.norm() / (0.5 * (fx + fy));
         const double footprint = quad.texels_per_metre * metres_per_pixel / std::sqrt(cosine);
-        const double x =
-            quad.texture_offset.x() + hit_s[pixel] * quad.edge_u.norm() * quad.texels_per_metre;
-        const double y =
-            quad.texture_offset.y() + hit_t[pixel] * quad.edge_v.norm() * quad.texels_per_metre;
-        value = quad.gain * textures_->sample(quad.texture, x, y, footprint);
+        const double texels_u = quad.edge_u.norm() * quad.texels_per_metre;
+        const double texels_v = quad.edge_v.norm() * quad.texels_per_metre;
+        if (samples == 1) {
+          const double x = quad.texture_offset.x() + hit_s[pixel] * texels_u;
+          const double y = quad.texture_offset.y() + hit_t[pixel] * texels_v;
+          value = quad.gain * textures_->sample(quad.texture, x, y, footprint);
+        } else {
+          const CameraQuad& q = in_camera[hit_quad[pixel]];
+          double sum = 0.0;
+          for (int a = 0; a < samples; ++a) {
+            for (int b = 0; b < samples; ++b) {
+              const Eigen::Vector3d sub((column + (a + 0.5) / samples - 0.5 - cx) / fx,
+                                        (row + (b + 0.5) / samples - 0.5 - cy) / fy, 1.0);
+              const Eigen::Vector3d relative = q.plane / q.normal.dot(sub) * sub - q.corner;
+              const double x = quad.texture_offset.x() + relative.dot(q.u) * q.u_scale * texels_u;
+              const double y = quad.texture_offset.y() + relative.dot(q.v) * q.v_scale * texels_v;
+              sum += textures_->sample(quad.texture, x, y, footprint / samples);
+            }
+          }
+          value = quad.gain * sum / (samples * samples);
+        }
       }
       if (noise_sigma > 0.0) value += noise_sigma * noise.at(noise_seed, pixel);
       image[pixel] = static_cast<std::uint8_t>(std::clamp(std::lround(value), 0L, 255L));
@@ -568,7 +610,7 @@ void write_rendered_sequences(const dataset::Dataset& simulated, const TexturedW
                        static_cast<std::uint64_t>(side));
         std::vector<std::uint8_t> pixels =
             world.render(camera.K, side == 0 ? T_world_cam0 : T_world_cam1, options.width,
-                         options.height, options.image_noise, noise_seed);
+                         options.height, options.image_noise, noise_seed, options.supersampling);
         const cv::Mat image(options.height, options.width, CV_8UC1, pixels.data());
         const fs::path file = folder / (side == 0 ? "image_0" : "image_1") / name;
         if (!cv::imwrite(file.string(), image, png_options)) {

@@ -46,6 +46,12 @@ struct RenderOptions {
   double object_size = 0.6;
   /// Pillars per 100 square metres of the hall floor (--render-pillars).
   double pillar_density = 1.5;
+  /// Samples a pixel takes along each axis, averaged (--render-supersampling): a camera's pixel
+  /// integrates the light over its area. One sample at the pixel centre reads the texture at a
+  /// sub-pixel phase that changes from frame to frame, so its content changes with the phase
+  /// (the bilinear interpolation's blur varies with it) and tracked corners wander by a tenth of
+  /// a pixel a frame that a real camera would not add (docs/frontend.md, "Rendered images").
+  int supersampling = 3;
   /// Frame rate written to times.txt, Hz.
   double frame_rate = 20.0;
   /// Folder of the photographs used as textures (every PNG under it); the repository's EuRoC
@@ -118,10 +124,13 @@ class TexturedWorld {
                                         const Eigen::Vector3d& direction) const;
 
   /// The 8-bit grey image of a pinhole camera (K, pose T_world_camera, optical z forward) of
-  /// width x height pixels, row-major; noise of `noise_sigma` grey levels from `noise_seed`.
+  /// width x height pixels, row-major; noise of `noise_sigma` grey levels from `noise_seed`. Each
+  /// pixel is the mean of `supersampling` x `supersampling` samples spread evenly over its area
+  /// (on the surface its centre sees).
   std::vector<std::uint8_t> render(const Eigen::Matrix3d& K,
                                    const Eigen::Isometry3d& T_world_camera, int width, int height,
-                                   double noise_sigma, std::uint64_t noise_seed) const;
+                                   double noise_sigma, std::uint64_t noise_seed,
+                                   int supersampling = 1) const;
 
  private:
   class Textures;
