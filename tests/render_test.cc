@@ -281,6 +281,10 @@ TEST(Render, InvalidOptionsAreNamed) {
   ASSERT_EQ(problems.size(), 2u);
   EXPECT_NE(problems[0].find("--render-width"), std::string::npos);
   EXPECT_NE(problems[1].find("--render-object-size"), std::string::npos);
+  RenderOptions unsampled;
+  unsampled.supersampling = 0;
+  ASSERT_EQ(unsampled.validate().size(), 1u);
+  EXPECT_NE(unsampled.validate().front().find("--render-supersampling"), std::string::npos);
 }
 
 }  // namespace
