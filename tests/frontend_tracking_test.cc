@@ -99,8 +99,11 @@ TEST(FrontendRendered, TrackPositionsMatchTheTrueProjections) {
   EXPECT_LT(accuracy.left.median, 0.5);    // along the tracks
   EXPECT_LT(accuracy.right.median, 0.75);  // stereo matches
   // The tail is corners on occlusion boundaries (a box edge in front of a far wall), which slide
-  // as the view changes: 3.7-4.6 px on this small sequence depending on the texture draw.
-  EXPECT_LT(accuracy.all.p90, 5.0);
+  // as the view changes: 3.7-4.6 px on this small sequence depending on the texture draw; on the
+  // images rendered since the mip levels are read where they were built (2026-11-26), 4.4 px in
+  // the Release build and 5.1 px in the sanitizer build (whose tracker breaks ties of equal
+  // numbers differently). A tracker that loses its corners has tails of tens of pixels.
+  EXPECT_LT(accuracy.all.p90, 6.0);
 }
 
 /// Tracks the first frames with a hook that corrupts every fourth match at `stage` on frame 3: by
