@@ -101,8 +101,8 @@ TEST(FrontendRendered, TrackPositionsMatchTheTrueProjections) {
   // The tail is corners on occlusion boundaries (a box edge in front of a far wall), which slide
   // as the view changes: 3.7-4.6 px on this small sequence depending on the texture draw; on the
   // images rendered since the mip levels are read where they were built (2026-11-26), 4.4 px in
-  // the Release build and 5.1 px in the sanitizer build (whose tracker breaks ties of equal
-  // numbers differently). A tracker that loses its corners has tails of tens of pixels.
+  // the Release build and 5.1 px in the sanitizer build (the two builds' tracks differ a
+  // little). A tracker that loses its corners has tails of tens of pixels.
   EXPECT_LT(accuracy.all.p90, 6.0);
 }
 
