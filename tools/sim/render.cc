@@ -274,12 +274,29 @@ std::vector<std::uint8_t> TexturedWorld::render(const Eigen::Matrix3d& K,
   const Eigen::Isometry3d T_camera_world = T_world_camera.inverse();
   const double fx = K(0, 0), fy = K(1, 1), cx = K(0, 2), cy = K(1, 2);
 
+  // Every quad in the camera's frame: its plane and the scales of its edge coordinates, for the
+  // visibility pass and the samples of the shading pass.
+  struct CameraQuad {
+    Eigen::Vector3d corner, u, v, normal;
+    double plane = 0.0, u_scale = 0.0, v_scale = 0.0;
+  };
+  std::vector<CameraQuad> in_camera;
+  in_camera.reserve(quads_.size());
+  for (const Quad& quad : quads_) {
+    CameraQuad q;
+    q.corner = T_camera_world * quad.corner;
+    q.u = T_camera_world.linear() * quad.edge_u;
+    q.v = T_camera_world.linear() * quad.edge_v;
+    q.normal = q.u.cross(q.v);
+    q.plane = q.normal.dot(q.corner);
+    q.u_scale = 1.0 / q.u.squaredNorm();
+    q.v_scale = 1.0 / q.v.squaredNorm();
+    in_camera.push_back(q);
+  }
+
   // 1. Visibility: each quad's screen box, a ray per pixel, nearest hit wins.
   for (std::size_t index = 0; index < quads_.size(); ++index) {
-    const Quad& quad = quads_[index];
-    const Eigen::Vector3d corner = T_camera_world * quad.corner;
-    const Eigen::Vector3d u = T_camera_world.linear() * quad.edge_u;
-    const Eigen::Vector3d v = T_camera_world.linear() * quad.edge_v;
+    const auto& [corner, u, v, normal, plane, u_scale, v_scale] = in_camera[index];
     // Clip the rectangle against the near plane, then bound its projection.
     const std::array<Eigen::Vector3d, 4> polygon{corner, corner + u, corner + u + v, corner + v};
     std::vector<Eigen::Vector3d> clipped;
@@ -305,9 +322,6 @@ std::vector<std::uint8_t> TexturedWorld::render(const Eigen::Matrix3d& K,
     const int row_begin = std::max(0, static_cast<int>(std::floor(v_min)));
     const int row_end = std::min(height - 1, static_cast<int>(std::ceil(v_max)));
     if (column_begin > column_end || row_begin > row_end) continue;
-    const Eigen::Vector3d normal = u.cross(v);
-    const double plane = normal.dot(corner);
-    const double u_scale = 1.0 / u.squaredNorm(), v_scale = 1.0 / v.squaredNorm();
     for (int row = row_begin; row <= row_end; ++row) {
       const double ray_y = (row - cy) / fy;
       for (int column = column_begin; column <= column_end; ++column) {
@@ -331,26 +345,6 @@ std::vector<std::uint8_t> TexturedWorld::render(const Eigen::Matrix3d& K,
   // 2. Shading: trilinear texture lookup with a footprint from depth and obliquity, gain, noise;
   //    with supersampling, the mean of samples spread over the pixel, each on the plane of the
   //    quad its centre sees (a pixel on a quad's edge samples that quad's texture beyond it).
-  struct CameraQuad {
-    Eigen::Vector3d corner, u, v, normal;
-    double plane = 0.0, u_scale = 0.0, v_scale = 0.0;
-  };
-  std::vector<CameraQuad> in_camera;
-  if (supersampling > 1) {
-    in_camera.reserve(quads_.size());
-    for (const Quad& quad : quads_) {
-      CameraQuad q;
-      q.corner = T_camera_world * quad.corner;
-      q.u = T_camera_world.linear() * quad.edge_u;
-      q.v = T_camera_world.linear() * quad.edge_v;
-      q.normal = q.u.cross(q.v);
-      q.plane = q.normal.dot(q.corner);
-      q.u_scale = 1.0 / q.u.squaredNorm();
-      q.v_scale = 1.0 / q.v.squaredNorm();
-      in_camera.push_back(q);
-    }
-  }
-  const int samples = supersampling;
   std::vector<std::uint8_t> image(pixels, 0);
   const NoiseTable& noise = noise_table();
   for (int row = 0; row < height; ++row) {
@@ -367,24 +361,24 @@ std::vector<std::uint8_t> TexturedWorld::render(const Eigen::Matrix3d& K,
         const double footprint = quad.texels_per_metre * metres_per_pixel / std::sqrt(cosine);
         const double texels_u = quad.edge_u.norm() * quad.texels_per_metre;
         const double texels_v = quad.edge_v.norm() * quad.texels_per_metre;
-        if (samples == 1) {
+        if (supersampling == 1) {
           const double x = quad.texture_offset.x() + hit_s[pixel] * texels_u;
           const double y = quad.texture_offset.y() + hit_t[pixel] * texels_v;
           value = quad.gain * textures_->sample(quad.texture, x, y, footprint);
         } else {
           const CameraQuad& q = in_camera[hit_quad[pixel]];
           double sum = 0.0;
-          for (int a = 0; a < samples; ++a) {
-            for (int b = 0; b < samples; ++b) {
-              const Eigen::Vector3d sub((column + (a + 0.5) / samples - 0.5 - cx) / fx,
-                                        (row + (b + 0.5) / samples - 0.5 - cy) / fy, 1.0);
+          for (int a = 0; a < supersampling; ++a) {
+            for (int b = 0; b < supersampling; ++b) {
+              const Eigen::Vector3d sub((column + (a + 0.5) / supersampling - 0.5 - cx) / fx,
+                                        (row + (b + 0.5) / supersampling - 0.5 - cy) / fy, 1.0);
               const Eigen::Vector3d relative = q.plane / q.normal.dot(sub) * sub - q.corner;
               const double x = quad.texture_offset.x() + relative.dot(q.u) * q.u_scale * texels_u;
               const double y = quad.texture_offset.y() + relative.dot(q.v) * q.v_scale * texels_v;
-              sum += textures_->sample(quad.texture, x, y, footprint / samples);
+              sum += textures_->sample(quad.texture, x, y, footprint / supersampling);
             }
           }
-          value = quad.gain * sum / (samples * samples);
+          value = quad.gain * sum / (supersampling * supersampling);
         }
       }
       if (noise_sigma > 0.0) value += noise_sigma * noise.at(noise_seed, pixel);
