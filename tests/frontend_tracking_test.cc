@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+#include <map>
 #include <set>
 
 #include "concord/dataset/dataset.h"
@@ -104,6 +105,46 @@ TEST(FrontendRendered, TrackPositionsMatchTheTrueProjections) {
   // the Release build and 5.1 px in the sanitizer build (the two builds' tracks differ a
   // little). A tracker that loses its corners has tails of tens of pixels.
   EXPECT_LT(accuracy.all.p90, 6.0);
+}
+
+TEST(FrontendRendered, AnchoredAffineTracksStayCloserToTheTruthThanFrameToFrameKlt) {
+  const auto& rendered = rendered_sequence();
+  const StereoSequence sequence = read_stereo_sequence(rendered.sequence);
+  StereoCamera camera = rendered.camera;
+  camera.T_cam0_body = Eigen::Isometry3d::Identity();
+  const auto accuracy_of = [&](const std::vector<FrontendFrame>& frames) {
+    std::vector<std::vector<StereoObservation>> features;
+    for (const FrontendFrame& frame : frames) features.push_back(frame.input.features);
+    return evaluation::track_accuracy(rendered.world, camera, *sequence.groundtruth, features);
+  };
+  FrontendOptions plain;
+  plain.tracker.anchor_frames = 0;
+  plain.tracker.stereo_affine = false;
+  const FrontendOptions anchored;  // the defaults
+  ASSERT_GT(anchored.tracker.anchor_frames, 0);
+  const auto anchored_frames = run_rendered(anchored);
+  const auto with_anchors = accuracy_of(anchored_frames);
+  const auto without = accuracy_of(run_rendered(plain));
+  EXPECT_LT(with_anchors.left.median, 0.8 * without.left.median);
+  EXPECT_LT(with_anchors.right.median, 0.8 * without.right.median);
+
+  // A track anchored afresh goes on under a new id: no id spans more than anchor_frames frames,
+  // and every frame's tracks stay sorted by id (the visual odometry pairs frames by id).
+  int reanchored = 0;
+  std::map<LandmarkId, int> frames_of;
+  for (const FrontendFrame& frame : anchored_frames) {
+    reanchored += frame.counts.reanchored;
+    EXPECT_TRUE(std::is_sorted(frame.input.features.begin(), frame.input.features.end(),
+                               [](const StereoObservation& a, const StereoObservation& b) {
+                                 return a.id < b.id;
+                               }));
+    for (const StereoObservation& feature : frame.input.features) ++frames_of[feature.id];
+  }
+  EXPECT_GT(reanchored, 0);
+  int longest = 0;
+  for (const auto& [id, count] : frames_of) longest = std::max(longest, count);
+  EXPECT_LE(longest, anchored.tracker.anchor_frames);
+  EXPECT_EQ(longest, anchored.tracker.anchor_frames);
 }
 
 /// Tracks the first frames with a hook that corrupts every fourth match at `stage` on frame 3: by

@@ -3,6 +3,7 @@
 #include <charconv>
 #include <map>
 #include <memory>
+#include <type_traits>
 
 #include "concord/config/options_file.h"
 #include "concord/config/yaml_section.h"
@@ -67,7 +68,11 @@ std::string to_yaml(const FrontendOptions& options) {
       out += std::string(section) + ":\n";
       current = section;
     }
-    out += "  " + std::string(key) + ": " + number_text(static_cast<double>(field)) + "\n";
+    if constexpr (std::is_same_v<std::decay_t<decltype(field)>, bool>) {
+      out += "  " + std::string(key) + ": " + (field ? "true" : "false") + "\n";
+    } else {
+      out += "  " + std::string(key) + ": " + number_text(static_cast<double>(field)) + "\n";
+    }
   });
   return out;
 }

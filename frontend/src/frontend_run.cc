@@ -62,6 +62,7 @@ nlohmann::ordered_json summary_json(const SequenceSummary& s) {
           {"rejected_circular_per_frame", s.rejected_circular_per_frame},
           {"rejected_epipolar_per_frame", s.rejected_epipolar_per_frame},
           {"rejected_ransac_per_frame", s.rejected_ransac_per_frame},
+          {"reanchored_per_frame", s.reanchored_per_frame},
           {"odometry_outliers_per_frame", s.odometry_outliers_per_frame},
           {"odometry_failures", s.odometry_failures},
           {"odometry_translation_sigma", s.odometry_translation_sigma},
@@ -134,7 +135,7 @@ RobotRun run_sequence(const fs::path& folder, int robot, bool single,
   std::vector<double> total, total_cpu, processing_cpu, load, rectify, track, odometry_ms, objects,
       translation_sigmas, rotation_sigmas, row_sigmas;
   double track_sum = 0.0, length_sum = 0.0, circular = 0.0, epipolar = 0.0, ransac = 0.0,
-         outliers = 0.0;
+         outliers = 0.0, reanchored = 0.0;
   LandmarkId largest_id = -1;
   while (!frontend.done()) {
     FrontendFrame frame = frontend.process_next();
@@ -145,6 +146,7 @@ RobotRun run_sequence(const fs::path& folder, int robot, bool single,
     circular += frame.counts.rejected_circular;
     epipolar += frame.counts.rejected_epipolar;
     ransac += frame.counts.rejected_ransac;
+    reanchored += frame.counts.reanchored;
     for (const StereoObservation& feature : frame.input.features) {
       largest_id = std::max(largest_id, feature.id);
     }
@@ -193,6 +195,7 @@ RobotRun run_sequence(const fs::path& folder, int robot, bool single,
   s.rejected_circular_per_frame = circular / frames;
   s.rejected_epipolar_per_frame = epipolar / frames;
   s.rejected_ransac_per_frame = ransac / frames;
+  s.reanchored_per_frame = reanchored / frames;
   s.odometry_outliers_per_frame = outliers / std::max(frames - 1, 1);
   s.odometry_translation_sigma = median_of(translation_sigmas);
   s.odometry_rotation_sigma = median_of(rotation_sigmas);

@@ -30,6 +30,10 @@ void visit_option_fields(Options& options, Visitor&& visit) {
   visit("tracker", "ransac_threshold", t.ransac_threshold);
   visit("tracker", "ransac_confidence", t.ransac_confidence);
   visit("tracker", "ransac_min_parallax", t.ransac_min_parallax);
+  visit("tracker", "anchor_frames", t.anchor_frames);
+  visit("tracker", "stereo_affine", t.stereo_affine);
+  visit("tracker", "affine_window", t.affine_window);
+  visit("tracker", "affine_tolerance", t.affine_tolerance);
   auto& o = options.odometry;
   visit("odometry", "pixel_sigma", o.pixel_sigma);
   visit("odometry", "ransac_threshold", o.ransac_threshold);

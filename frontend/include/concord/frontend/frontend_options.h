@@ -51,6 +51,21 @@ struct TrackerOptions {
   double ransac_threshold = 1.0;
   double ransac_confidence = 0.999;
   double ransac_min_parallax = 2.0;
+  /// Anchored tracking (0 = off): each track's frame-to-frame KLT position is refined by
+  /// aligning the track's patch as it was in the frame the track was anchored at (its first, at
+  /// first) under an affine warp, so that the track's error neither adds up from frame to frame
+  /// nor follows the patch's change of scale and shear as the robot moves. A track keeps its
+  /// anchor for anchor_frames frames; then, or when the alignment fails, it is anchored afresh
+  /// where it is and goes on under a new id (to the estimator a new track).
+  int anchor_frames = 12;
+  /// The stereo match (left k -> right k) refined by aligning the left patch into the right image
+  /// under the rectified pair's warp (rows stay rows; a slanted surface's patch is scaled and
+  /// sheared along them), for new and continued tracks.
+  bool stereo_affine = true;
+  /// The patch of both alignments (pixels, odd), and how far (pixels) an alignment may move a
+  /// position from KLT's before it is refused.
+  int affine_window = 15;
+  double affine_tolerance = 1.0;
 
   /// Every problem with the values, each naming the field and the bad value; empty when valid.
   [[nodiscard]] std::vector<std::string> validate() const;

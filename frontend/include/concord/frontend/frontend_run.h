@@ -71,6 +71,8 @@ struct SequenceSummary {
   double rejected_circular_per_frame = 0.0;
   double rejected_epipolar_per_frame = 0.0;
   double rejected_ransac_per_frame = 0.0;
+  /// Anchored tracking: tracks anchored afresh (continued under a new id) per frame.
+  double reanchored_per_frame = 0.0;
   double odometry_outliers_per_frame = 0.0;
   /// Frames whose motion could not be measured.
   int odometry_failures = 0;

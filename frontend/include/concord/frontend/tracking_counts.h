@@ -16,6 +16,7 @@ struct TrackingCounts {
   int continued = 0;          ///< tracks that go on
   int detected = 0;           ///< new FAST corners offered (matched in rank order until enough)
   int added = 0;              ///< new tracks
+  int reanchored = 0;         ///< anchored tracking: tracks anchored afresh (under a new id)
 };
 
 }  // namespace concord::frontend

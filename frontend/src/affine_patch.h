@@ -1,0 +1,51 @@
+#pragma once
+/// \file
+/// Private to the front-end: sub-pixel alignment of an image patch under an affine warp with a
+/// gain and an offset of brightness (inverse compositional Lucas-Kanade with the brightness
+/// projected out; Baker and Matthews, "Lucas-Kanade 20 years on", parts 1 and 3).
+///
+/// cv::calcOpticalFlowPyrLK fits a translation only: a patch that grows, shrinks or shears
+/// between the two images (a robot driving towards a surface; the two views of a slanted
+/// surface) is then matched with a bias that depends on where the patch's texture lies, and a
+/// track that follows it frame to frame adds those biases up. cv::findTransformECC fits the
+/// affine warp but costs about a millisecond a patch, over a hundred milliseconds a frame for
+/// the tracker's patches; this fit, with the template's part computed once a call, costs a few
+/// microseconds an iteration.
+
+#include <opencv2/core.hpp>
+
+namespace concord::frontend {
+
+/// x_image = A x_patch + t, with x_patch relative to the patch's centre: t is where the centre
+/// lands.
+struct AffineWarp {
+  cv::Matx22f A = cv::Matx22f::eye();
+  cv::Point2f t;
+};
+
+/// Which warps are fitted.
+enum class WarpModel {
+  /// Any affine warp (six parameters): a patch followed over time.
+  kAffine,
+  /// The two views of a rectified stereo pair: a row maps to a row of the same height
+  /// (u' = a u + b v + c, v' = v + d; four parameters). A slanted surface scales and shears its
+  /// patch along the rows only.
+  kRectifiedStereo,
+};
+
+struct AffineAlignmentOptions {
+  WarpModel model = WarpModel::kAffine;
+  /// Patch side, pixels (odd).
+  int side = 15;
+  int max_iterations = 15;
+  /// Converged when the step moves the patch's corners by less than this many pixels.
+  double epsilon = 0.02;
+};
+
+/// Aligns the side x side patch of `templ` (8-bit grey) centred on `centre` into `image` (8-bit
+/// grey), starting from `warp`, which holds the result. False when the patch has too little
+/// texture to fit the warp, leaves `image`, or the fit does not converge.
+bool align_affine(const cv::Mat& templ, const cv::Point2f& centre, const cv::Mat& image,
+                  AffineWarp& warp, const AffineAlignmentOptions& options);
+
+}  // namespace concord::frontend

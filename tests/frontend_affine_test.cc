@@ -1,0 +1,144 @@
+// The affine patch alignment behind anchored tracking and the stereo refinement
+// (frontend/src/affine_patch.h), on images warped by a known affine map: the warp and the
+// position recovered, brightness changes ignored, a translation-only KLT biased where the
+// alignment is not, the rectified pair's model keeping rows at their height, and the failures.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <opencv2/imgproc.hpp>
+#include <opencv2/video/tracking.hpp>
+
+#include "affine_patch.h"
+
+namespace concord::frontend {
+namespace {
+
+/// A smooth random texture (blurred uniform noise), 8-bit, with a fixed seed.
+cv::Mat texture(int rows, int columns, unsigned seed) {
+  cv::Mat noise(rows, columns, CV_32F);
+  cv::RNG rng(seed);
+  rng.fill(noise, cv::RNG::UNIFORM, 0.0, 255.0);
+  cv::GaussianBlur(noise, noise, cv::Size(0, 0), 1.5);
+  cv::Mat image;
+  cv::normalize(noise, noise, 20.0, 235.0, cv::NORM_MINMAX);
+  noise.convertTo(image, CV_8U);
+  return image;
+}
+
+/// `source` seen through x_target = A (x_source - centre) + target_centre, times `gain` plus
+/// `offset` in brightness.
+cv::Mat warped(const cv::Mat& source, const cv::Matx22f& A, const cv::Point2f& centre,
+               const cv::Point2f& target_centre, double gain = 1.0, double offset = 0.0) {
+  const cv::Vec2f shift = cv::Vec2f(target_centre.x, target_centre.y) - A * cv::Vec2f(centre.x, centre.y);
+  const cv::Matx23f forward(A(0, 0), A(0, 1), shift[0], A(1, 0), A(1, 1), shift[1]);
+  cv::Mat target;
+  cv::warpAffine(source, target, cv::Mat(forward), source.size(), cv::INTER_CUBIC,
+                 cv::BORDER_REFLECT_101);
+  target.convertTo(target, CV_8U, gain, offset);
+  return target;
+}
+
+double distance(const cv::Point2f& a, const cv::Point2f& b) {
+  return std::hypot(static_cast<double>(a.x - b.x), static_cast<double>(a.y - b.y));
+}
+
+TEST(AffineAlignment, RecoversAKnownWarpAndPositionDespiteABrightnessChange) {
+  const cv::Mat image = texture(160, 160, 7);
+  const cv::Point2f centre(80.3f, 79.6f), truth(83.7f, 77.2f);
+  // A patch seen 12 % larger, turned by 4 degrees and sheared, 30 % brighter and offset.
+  const float c = std::cos(0.07f), s = std::sin(0.07f);
+  const cv::Matx22f A = cv::Matx22f(1.12f, 0.0f, 0.0f, 1.12f) * cv::Matx22f(c, -s, s, c) *
+                        cv::Matx22f(1.0f, 0.05f, 0.0f, 1.0f);
+  const cv::Mat target = warped(image, A, centre, truth, 1.3, -15.0);
+
+  AffineWarp warp;
+  warp.t = truth + cv::Point2f(0.6f, -0.5f);  // where a KLT might have put it
+  AffineAlignmentOptions options;
+  ASSERT_TRUE(align_affine(image, centre, target, warp, options));
+  EXPECT_LT(distance(warp.t, truth), 0.03);
+  for (int row = 0; row < 2; ++row) {
+    for (int column = 0; column < 2; ++column) EXPECT_NEAR(warp.A(row, column), A(row, column), 0.01);
+  }
+}
+
+TEST(AffineAlignment, FollowsAGrowingPatchThatTranslationOnlyKltMisplaces) {
+  // A patch whose texture fades out to its left (as around most corners, the texture lies on one
+  // side). Seen 15 % larger, translation-only KLT is pulled towards the texture.
+  const cv::Mat textured = texture(160, 160, 11);
+  cv::Mat contrast(160, 160, CV_32F);
+  for (int row = 0; row < 160; ++row) {
+    for (int column = 0; column < 160; ++column) {
+      contrast.at<float>(row, column) = std::clamp((column - 72) / 16.0f, 0.1f, 1.0f);
+    }
+  }
+  cv::Mat faded;
+  textured.convertTo(faded, CV_32F);
+  faded = (faded - 128.0f).mul(contrast) + 128.0f;
+  cv::Mat image;
+  faded.convertTo(image, CV_8U);
+  const cv::Point2f corner(80.0f, 80.0f), truth(81.4f, 78.9f);
+  const cv::Matx22f A(1.15f, 0.0f, 0.0f, 1.15f);
+  const cv::Mat target = warped(image, A, corner, truth);
+
+  AffineWarp warp;
+  warp.t = truth;
+  AffineAlignmentOptions options;
+  ASSERT_TRUE(align_affine(image, corner, target, warp, options));
+  const double affine_error = distance(warp.t, truth);
+
+  std::vector<cv::Point2f> from{corner}, to{truth};
+  std::vector<unsigned char> status;
+  std::vector<float> errors;
+  cv::calcOpticalFlowPyrLK(image, target, from, to, status, errors,
+                           cv::Size(options.side, options.side), 0,
+                           cv::TermCriteria(cv::TermCriteria::COUNT | cv::TermCriteria::EPS, 30, 0.01),
+                           cv::OPTFLOW_USE_INITIAL_FLOW);
+  ASSERT_TRUE(status[0]);
+  const double klt_error = distance(to[0], truth);
+  EXPECT_LT(affine_error, 0.06);
+  EXPECT_GT(klt_error, 4.0 * affine_error);
+  EXPECT_GT(klt_error, 0.25);
+}
+
+TEST(AffineAlignment, TheRectifiedPairsWarpKeepsRowsAtTheirHeight) {
+  const cv::Mat left = texture(160, 200, 3);
+  const cv::Point2f centre(120.2f, 80.5f), truth(88.9f, 80.7f);
+  // A slanted surface: the right view is compressed and sheared along the rows.
+  const cv::Matx22f A(0.93f, 0.06f, 0.0f, 1.0f);
+  const cv::Mat right = warped(left, A, centre, truth);
+  AffineWarp warp;
+  warp.t = truth + cv::Point2f(-0.5f, 0.2f);
+  AffineAlignmentOptions options;
+  options.model = WarpModel::kRectifiedStereo;
+  ASSERT_TRUE(align_affine(left, centre, right, warp, options));
+  EXPECT_LT(distance(warp.t, truth), 0.03);
+  EXPECT_NEAR(warp.A(0, 0), A(0, 0), 0.01);
+  EXPECT_NEAR(warp.A(0, 1), A(0, 1), 0.01);
+  // The second row of the warp is not fitted: it stays the identity's.
+  EXPECT_NEAR(warp.A(1, 0), 0.0f, 1e-6);
+  EXPECT_NEAR(warp.A(1, 1), 1.0f, 1e-6);
+}
+
+TEST(AffineAlignment, FailsOnAFlatPatchAnEdgeAndAtTheBorder) {
+  const cv::Mat flat(100, 100, CV_8U, cv::Scalar(90));
+  AffineWarp warp;
+  warp.t = cv::Point2f(50.0f, 50.0f);
+  EXPECT_FALSE(align_affine(flat, cv::Point2f(50.0f, 50.0f), flat, warp, {}));
+
+  // A vertical edge pins x, not y.
+  cv::Mat edge(100, 100, CV_8U, cv::Scalar(40));
+  edge(cv::Rect(50, 0, 50, 100)).setTo(cv::Scalar(200));
+  cv::GaussianBlur(edge, edge, cv::Size(0, 0), 1.0);
+  warp = AffineWarp{};
+  warp.t = cv::Point2f(50.3f, 50.0f);
+  EXPECT_FALSE(align_affine(edge, cv::Point2f(50.0f, 50.0f), edge, warp, {}));
+
+  const cv::Mat image = texture(100, 100, 5);
+  warp = AffineWarp{};
+  warp.t = cv::Point2f(3.0f, 50.0f);  // the patch would reach past the left border
+  EXPECT_FALSE(align_affine(image, cv::Point2f(50.0f, 50.0f), image, warp, {}));
+}
+
+}  // namespace
+}  // namespace concord::frontend
