@@ -10,19 +10,15 @@
 #include <opencv2/video/tracking.hpp>
 
 #include "affine_patch.h"
+#include "frontend_test_support.h"
 
 namespace concord::frontend {
 namespace {
 
-/// A smooth random texture (blurred uniform noise), 8-bit, with a fixed seed.
-cv::Mat texture(int rows, int columns, unsigned seed) {
-  cv::Mat noise(rows, columns, CV_32F);
-  cv::RNG rng(seed);
-  rng.fill(noise, cv::RNG::UNIFORM, 0.0, 255.0);
-  cv::GaussianBlur(noise, noise, cv::Size(0, 0), 1.5);
-  cv::Mat image;
-  cv::normalize(noise, noise, 20.0, 235.0, cv::NORM_MINMAX);
-  noise.convertTo(image, CV_8U);
+/// The tests' smooth random texture, its contrast stretched over most of the grey range.
+cv::Mat texture(int rows, int columns, int seed) {
+  cv::Mat image = testing::random_texture(cv::Size(columns, rows), seed);
+  cv::normalize(image, image, 20.0, 235.0, cv::NORM_MINMAX);
   return image;
 }
 

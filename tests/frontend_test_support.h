@@ -11,11 +11,23 @@
 #include <system_error>
 #include <vector>
 
+#include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
+
 #include "concord/dataset/dataset.h"
 #include "sim/render.h"
 #include "sim/simulator.h"
 
 namespace concord::testing {
+
+/// A smooth random texture (blurred uniform noise), the same for the same seed.
+inline cv::Mat random_texture(cv::Size size, int seed) {
+  cv::Mat texture(size, CV_8UC1);
+  cv::RNG rng(seed);
+  rng.fill(texture, cv::RNG::UNIFORM, 0, 256);
+  cv::GaussianBlur(texture, texture, cv::Size(0, 0), 1.5);
+  return texture;
+}
 
 /// The four EuRoC V1_01 stereo pairs kept in the repository (data/README.md).
 inline std::filesystem::path euroc_frames() {

@@ -24,6 +24,7 @@ namespace concord::frontend {
 namespace {
 
 namespace fs = std::filesystem;
+using testing::random_texture;
 using testing::rendered_sequence;
 
 /// The rendered sequence's left and right images of a frame.
@@ -324,15 +325,6 @@ TEST(FrontendRendered, ObjectsAtTheBorderOrWithoutAMatchAreSkipped) {
   const cv::Mat flat(left.size(), CV_8UC1, cv::Scalar(128));
   box = {0, 1, "cube", 100.0, 100.0, 160.0, 160.0};
   EXPECT_EQ(observe_object(box, left, flat, camera, {}).skipped, ObjectSkip::kNoMatch);
-}
-
-/// A smooth random texture (blurred uniform noise), the same for the same seed.
-cv::Mat random_texture(cv::Size size, int seed) {
-  cv::Mat texture(size, CV_8UC1);
-  cv::RNG rng(seed);
-  rng.fill(texture, cv::RNG::UNIFORM, 0, 256);
-  cv::GaussianBlur(texture, texture, cv::Size(0, 0), 1.5);
-  return texture;
 }
 
 TEST(FrontendObjects, AnAmbiguousOrLeftRightInconsistentMatchGivesNoObservation) {
