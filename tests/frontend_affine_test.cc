@@ -136,5 +136,46 @@ TEST(AffineAlignment, FailsOnAFlatPatchAnEdgeAndAtTheBorder) {
   EXPECT_FALSE(align_affine(image, cv::Point2f(50.0f, 50.0f), image, warp, {}));
 }
 
+TEST(AffineAlignment, APreparedTemplateFollowsItsPatchThroughASequenceOfWarps) {
+  // An anchored track: one template, prepared once, aligned frame after frame into images in
+  // which its patch grows and turns, each fit starting from the last; a template prepared afresh
+  // from the same patch at every frame gives the same warps.
+  const cv::Mat image = texture(200, 200, 11);
+  const cv::Point2f centre(100.4f, 99.7f);
+  AffineTemplate anchor;
+  ASSERT_TRUE(anchor.prepare(image, centre, WarpModel::kAffine, 15));
+  ASSERT_TRUE(anchor.valid());
+  EXPECT_GE(anchor.bytes(), 15u * 15u * 7u * sizeof(float));
+  AffineWarp kept, fresh;
+  kept.t = fresh.t = centre;
+  for (int frame = 1; frame <= 8; ++frame) {
+    const float scale = 1.0f + 0.03f * static_cast<float>(frame);
+    const float angle = 0.01f * static_cast<float>(frame);
+    const cv::Matx22f A = cv::Matx22f(scale, 0.0f, 0.0f, scale) *
+                          cv::Matx22f(std::cos(angle), -std::sin(angle), std::sin(angle),
+                                      std::cos(angle));
+    const cv::Point2f truth = centre + cv::Point2f(1.3f * static_cast<float>(frame),
+                                                   -0.7f * static_cast<float>(frame));
+    const cv::Mat target = warped(image, A, centre, truth);
+    ASSERT_TRUE(anchor.align(target, kept, 15, 0.02)) << "frame " << frame;
+    ASSERT_TRUE(align_affine(image, centre, target, fresh, {})) << "frame " << frame;
+    EXPECT_LT(distance(kept.t, truth), 0.05) << "frame " << frame;
+    EXPECT_LT(distance(kept.t, fresh.t), 1e-3) << "frame " << frame;
+    for (int row = 0; row < 2; ++row) {
+      for (int column = 0; column < 2; ++column) {
+        EXPECT_NEAR(kept.A(row, column), A(row, column), 0.01) << "frame " << frame;
+      }
+    }
+  }
+
+  // Prepared again on a flat patch, the same object is no longer valid and aligns nothing.
+  const cv::Mat flat(100, 100, CV_8U, cv::Scalar(90));
+  EXPECT_FALSE(anchor.prepare(flat, cv::Point2f(50.0f, 50.0f), WarpModel::kAffine, 15));
+  EXPECT_FALSE(anchor.valid());
+  AffineWarp warp;
+  warp.t = cv::Point2f(100.0f, 100.0f);
+  EXPECT_FALSE(anchor.align(image, warp, 15, 0.02));
+}
+
 }  // namespace
 }  // namespace concord::frontend

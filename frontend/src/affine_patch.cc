@@ -1,6 +1,6 @@
 #include "affine_patch.h"
 
-#include <array>
+#include <Eigen/Core>
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -10,6 +10,9 @@
 namespace concord::frontend {
 
 namespace {
+
+constexpr int kParameters = 6;
+using DescentMatrix = Eigen::Matrix<float, Eigen::Dynamic, kParameters>;
 
 /// Bilinear sample of an 8-bit image at (x, y); the caller keeps (x, y) inside [0, cols - 1) x
 /// [0, rows - 1).
@@ -25,21 +28,22 @@ inline float sample(const cv::Mat& image, float x, float y) {
 
 }  // namespace
 
-bool align_affine(const cv::Mat& templ, const cv::Point2f& centre, const cv::Mat& image,
-                  AffineWarp& warp, const AffineAlignmentOptions& options) {
-  const int side = options.side, half = side / 2, count = side * side;
+bool AffineTemplate::prepare(const cv::Mat& image, const cv::Point2f& centre, WarpModel model,
+                             int side) {
+  valid_ = false;
+  side_ = side;
+  const int half = side / 2, count = side * side;
   // The template with a one-pixel rim for its gradients (bilinear at a sub-pixel centre).
   thread_local cv::Mat patch;
-  cv::getRectSubPix(templ, cv::Size(side + 2, side + 2), centre, patch, CV_32F);
+  cv::getRectSubPix(image, cv::Size(side + 2, side + 2), centre, patch, CV_32F);
 
   // Steepest-descent images of the parameters (dA11, dA12, dA21, dA22, dtx, dty), with the
   // brightness's gain and offset projected out: each is made orthogonal to the constant image
   // and to the (zero-mean) template, so the fit ignores a change of brightness.
-  thread_local std::vector<std::array<float, 6>> descent;
-  thread_local std::vector<float> values;
-  descent.resize(static_cast<std::size_t>(count));
-  values.resize(static_cast<std::size_t>(count));
-  double mean = 0.0;
+  values_.resize(static_cast<std::size_t>(count));
+  descent_.resize(static_cast<std::size_t>(count) * kParameters);
+  Eigen::Map<DescentMatrix> descent(descent_.data(), count, kParameters);
+  Eigen::Map<Eigen::VectorXf> values(values_.data(), count);
   for (int row = 0; row < side; ++row) {
     const float* above = patch.ptr<float>(row);
     const float* here = patch.ptr<float>(row + 1);
@@ -49,63 +53,54 @@ bool align_affine(const cv::Mat& templ, const cv::Point2f& centre, const cv::Mat
       const float gx = 0.5f * (here[column + 2] - here[column]);
       const float gy = 0.5f * (below[column + 1] - above[column + 1]);
       const float x = static_cast<float>(column - half);
-      const std::size_t index = static_cast<std::size_t>(row * side + column);
-      descent[index] = {gx * x, gx * y, gy * x, gy * y, gx, gy};
+      const int index = row * side + column;
+      descent.row(index) << gx * x, gx * y, gy * x, gy * y, gx, gy;
       values[index] = here[column + 1];
-      mean += here[column + 1];
     }
   }
-  mean /= count;
-  double norm = 0.0;
-  for (float& value : values) {
-    value -= static_cast<float>(mean);
-    norm += static_cast<double>(value) * value;
-  }
-  if (norm <= 0.0) return false;
-  std::array<double, 6> along_mean{}, along_template{};
-  for (std::size_t index = 0; index < descent.size(); ++index) {
-    for (int p = 0; p < 6; ++p) {
-      along_mean[p] += descent[index][p];
-      along_template[p] += static_cast<double>(descent[index][p]) * values[index];
-    }
-  }
-  for (int p = 0; p < 6; ++p) {
-    along_mean[p] /= count;
-    along_template[p] /= norm;
-  }
+  values.array() -= values.mean();
+  const float norm = values.squaredNorm();
+  if (!(norm > 0.0f)) return false;
+  const Eigen::Matrix<float, 1, kParameters> along_mean = descent.colwise().mean();
+  const Eigen::Matrix<float, 1, kParameters> along_template =
+      (values.transpose() * descent) / norm;
+  descent -= Eigen::VectorXf::Ones(count) * along_mean + values * along_template;
   // The parameters fitted: a rectified pair's rows stay rows of the same height (dA21 = dA22 = 0).
-  const bool stereo = options.model == WarpModel::kRectifiedStereo;
-  const std::array<bool, 6> active{true, true, !stereo, !stereo, true, true};
-  cv::Matx<double, 6, 6> hessian = cv::Matx<double, 6, 6>::zeros();
-  for (std::size_t index = 0; index < descent.size(); ++index) {
-    std::array<float, 6>& d = descent[index];
-    for (int p = 0; p < 6; ++p) {
-      d[p] = active[p] ? d[p] - static_cast<float>(along_mean[p] + along_template[p] * values[index])
-                       : 0.0f;
-    }
-    for (int p = 0; p < 6; ++p) {
-      for (int q = p; q < 6; ++q) hessian(p, q) += static_cast<double>(d[p]) * d[q];
-    }
+  if (model == WarpModel::kRectifiedStereo) descent.middleCols<2>(2).setZero();
+
+  const Eigen::Matrix<float, kParameters, kParameters> product = descent.transpose() * descent;
+  cv::Matx<double, 6, 6> hessian;
+  for (int p = 0; p < kParameters; ++p) {
+    for (int q = 0; q < kParameters; ++q) hessian(p, q) = product(p, q);
   }
-  for (int p = 0; p < 6; ++p) {
-    if (!active[p]) hessian(p, p) = 1.0;  // a parameter left out: its step is 0
-    for (int q = 0; q < p; ++q) hessian(p, q) = hessian(q, p);
+  if (model == WarpModel::kRectifiedStereo) {  // a parameter left out: its step is 0
+    hessian(2, 2) = 1.0;
+    hessian(3, 3) = 1.0;
   }
-  cv::Matx<double, 6, 6> inverse;
-  if (cv::invert(hessian, inverse, cv::DECOMP_CHOLESKY) == 0.0) return false;
+  if (cv::invert(hessian, inverse_, cv::DECOMP_CHOLESKY) == 0.0) return false;
   // A translation the patch cannot pin down (an edge, a flat patch) makes the fit meaningless.
-  const cv::Matx22d translation_block(hessian(4, 4), hessian(4, 5), hessian(5, 4), hessian(5, 5));
-  const double trace = translation_block(0, 0) + translation_block(1, 1);
-  const double determinant = cv::determinant(translation_block);
+  const double trace = hessian(4, 4) + hessian(5, 5);
+  const double determinant = hessian(4, 4) * hessian(5, 5) - hessian(4, 5) * hessian(5, 4);
   if (determinant <= 1e-6 * trace * trace) return false;
+  valid_ = true;
+  return true;
+}
+
+bool AffineTemplate::align(const cv::Mat& image, AffineWarp& warp, int max_iterations,
+                           double epsilon) const {
+  if (!valid_) return false;
+  const int side = side_, half = side / 2, count = side * side;
+  const Eigen::Map<const DescentMatrix> descent(descent_.data(), count, kParameters);
+  thread_local std::vector<float> errors;
+  errors.resize(static_cast<std::size_t>(count));
+  const Eigen::Map<const Eigen::VectorXf> error_vector(errors.data(), count);
 
   const float limit_x = static_cast<float>(image.cols - 1) - 1e-3f;
   const float limit_y = static_cast<float>(image.rows - 1) - 1e-3f;
   const float corner = static_cast<float>(half);
   double previous_moved = std::numeric_limits<double>::infinity();
   int growing = 0;
-  for (int iteration = 0; iteration < options.max_iterations; ++iteration) {
-    std::array<float, 6> b{};
+  for (int iteration = 0; iteration < max_iterations; ++iteration) {
     for (int row = 0; row < side; ++row) {
       const float y = static_cast<float>(row - half);
       const float x0 = static_cast<float>(-half);
@@ -119,20 +114,19 @@ bool align_affine(const cv::Mat& templ, const cv::Point2f& centre, const cv::Mat
             std::max(u, u_end) < limit_x && std::max(v, v_end) < limit_y)) {
         return false;
       }
-      const std::size_t first = static_cast<std::size_t>(row * side);
+      // The template's own mean and gain are projected out of the descent images, so the
+      // error needs no normalization.
+      float* error = errors.data() + static_cast<std::ptrdiff_t>(row) * side;
+      const float* value = values_.data() + static_cast<std::ptrdiff_t>(row) * side;
       for (int column = 0; column < side; ++column, u += du, v += dv) {
-        const std::size_t index = first + static_cast<std::size_t>(column);
-        // The template's own mean and gain are projected out of the descent images, so the
-        // error needs no normalization.
-        const float error = sample(image, u, v) - values[index];
-        const std::array<float, 6>& d = descent[index];
-        for (int p = 0; p < 6; ++p) b[p] += d[p] * error;
+        error[column] = sample(image, u, v) - value[column];
       }
     }
+    const Eigen::Matrix<float, kParameters, 1> b = descent.transpose() * error_vector;
     cv::Vec<double, 6> step;
-    for (int p = 0; p < 6; ++p) {
+    for (int p = 0; p < kParameters; ++p) {
       double sum = 0.0;
-      for (int q = 0; q < 6; ++q) sum += inverse(p, q) * b[q];
+      for (int q = 0; q < kParameters; ++q) sum += inverse_(p, q) * b[q];
       step[p] = sum;
     }
     // Inverse composition: W <- W o dW^-1, dW(x) = (I + dA) x + dt.
@@ -150,7 +144,7 @@ bool align_affine(const cv::Mat& templ, const cv::Point2f& centre, const cv::Mat
     const double moved = std::abs(step[4]) + std::abs(step[5]) +
                          corner * (std::abs(step[0]) + std::abs(step[1]) + std::abs(step[2]) +
                                    std::abs(step[3]));
-    if (moved < options.epsilon) return true;
+    if (moved < epsilon) return true;
     // A fit whose steps stop shrinking is not converging (a patch across a depth edge, whose
     // two views no warp relates): give up early.
     growing = moved >= previous_moved ? growing + 1 : 0;
@@ -158,6 +152,17 @@ bool align_affine(const cv::Mat& templ, const cv::Point2f& centre, const cv::Mat
     previous_moved = moved;
   }
   return false;
+}
+
+std::size_t AffineTemplate::bytes() const {
+  return (values_.capacity() + descent_.capacity()) * sizeof(float);
+}
+
+bool align_affine(const cv::Mat& templ, const cv::Point2f& centre, const cv::Mat& image,
+                  AffineWarp& warp, const AffineAlignmentOptions& options) {
+  thread_local AffineTemplate scratch;
+  return scratch.prepare(templ, centre, options.model, options.side) &&
+         scratch.align(image, warp, options.max_iterations, options.epsilon);
 }
 
 }  // namespace concord::frontend

@@ -126,6 +126,12 @@ std::optional<float> search_disparity(const cv::Mat& left, const cv::Mat& right,
   return static_cast<float>(best_disparity) / scale;
 }
 
+/// The scratch template of the stereo refinement (the left patch of this frame, aligned once).
+AffineTemplate& stereo_patch() {
+  thread_local AffineTemplate patch;
+  return patch;
+}
+
 double distance(const cv::Point2f& a, const cv::Point2f& b) {
   return std::hypot(static_cast<double>(a.x - b.x), static_cast<double>(a.y - b.y));
 }
@@ -266,13 +272,6 @@ TrackedFrame StereoTracker::track(const cv::Mat& left, const cv::Mat& right) {
     out.observations.push_back(observation);
   }
   out.track_lengths = tracks_.lengths;
-  if (options_.anchor_frames > 0) {
-    // This frame's left image, kept for the tracks anchored at it.
-    anchor_images_.resize(static_cast<std::size_t>(options_.anchor_frames));
-    AnchorImage& kept = anchor_images_[static_cast<std::size_t>(frame_) % anchor_images_.size()];
-    kept.frame = frame_;
-    left.copyTo(kept.image);
-  }
   std::swap(previous_left_pyramid_, spare_left_pyramid_);
   std::swap(previous_right_pyramid_, spare_right_pyramid_);
   ++frame_;
@@ -307,13 +306,12 @@ void StereoTracker::continue_tracks(const std::vector<cv::Mat>& left_pyramid,
   std::vector<unsigned char> anchored(count, 0);
   if (anchoring) {
     for (std::size_t index = 0; index < count; ++index) {
-      if (!keep[index] || frame_ - tracks_.anchor_frames[index] >= options_.anchor_frames) continue;
-      const AnchorImage& anchor = anchor_images_[static_cast<std::size_t>(
-                                                     tracks_.anchor_frames[index]) %
-                                                 anchor_images_.size()];
-      if (anchor.frame != tracks_.anchor_frames[index]) continue;
-      anchored[index] = refine_affine(anchor.image, left_pyramid[0], tracks_.anchors[index],
-                                      left_now[index], tracks_.temporal_warps[index], false)
+      if (!keep[index] || !tracks_.anchors[index] ||
+          frame_ - tracks_.anchor_frames[index] >= options_.anchor_frames) {
+        continue;
+      }
+      anchored[index] = refine_affine(*tracks_.anchors[index], left_pyramid[0], left_now[index],
+                                      tracks_.temporal_warps[index])
                             ? 1
                             : 0;
     }
@@ -337,10 +335,11 @@ void StereoTracker::continue_tracks(const std::vector<cv::Mat>& left_pyramid,
   // 2b. The stereo match refined by aligning the left patch into the right image with the
   // rectified pair's warp (rows to rows); where the alignment fails the KLT match stands.
   if (options_.stereo_affine) {
+    AffineTemplate& patch = stereo_patch();
     for (std::size_t index = 0; index < count; ++index) {
-      if (keep[index]) {
-        refine_affine(left_pyramid[0], right_pyramid[0], left_now[index], right_now[index],
-                      tracks_.stereo_warps[index], true);
+      if (keep[index] && patch.prepare(left_pyramid[0], left_now[index],
+                                       WarpModel::kRectifiedStereo, options_.affine_window)) {
+        refine_affine(patch, right_pyramid[0], right_now[index], tracks_.stereo_warps[index]);
       }
     }
   }
@@ -406,7 +405,7 @@ void StereoTracker::continue_tracks(const std::vector<cv::Mat>& left_pyramid,
       tracks_.ids[index] = next_id_++;
       tracks_.lengths[index] = 1;
       tracks_.anchor_frames[index] = frame_;
-      tracks_.anchors[index] = tracks_.left[index];
+      tracks_.anchors[index] = make_anchor(left_pyramid[0], tracks_.left[index]);
       tracks_.temporal_warps[index] = cv::Matx22f::eye();
       ++out.counts.reanchored;
     }
@@ -519,17 +518,6 @@ void StereoTracker::add_features(const cv::Mat& left, const std::vector<cv::Mat>
     klt.track(left_pyramid, right_pyramid, left_points, right_points, search_level, status);
     if (hook_) hook_(MatchStage::kNewStereo, right_points);
     left_back = left_points;
-    if (options_.stereo_affine) {
-      for (std::size_t index = 0; index < batch; ++index) {
-        // The new track's stereo warp is not kept: its next frame starts again from the identity
-        // (measured better on rendered seed 2: a warp fitted from the coarse first match misleads).
-        cv::Matx22f warp = cv::Matx22f::eye();
-        if (status[index]) {
-          refine_affine(left_pyramid[0], right_pyramid[0], left_points[index], right_points[index],
-                        warp, true);
-        }
-      }
-    }
     klt.track(right_pyramid, left_pyramid, right_points, left_back, search_level, back_status);
     for (std::size_t index = 0; index < batch && out.counts.added < missing; ++index) {
       if (!status[index] || !inside(right_points[index], size)) {
@@ -541,6 +529,18 @@ void StereoTracker::add_features(const cv::Mat& left, const std::vector<cv::Mat>
         ++out.counts.rejected_circular;
         continue;
       }
+      // The match that passed the circular check refined under the rectified pair's warp (only
+      // the candidates that may be kept are refined). The new track's stereo warp is not kept:
+      // its next frame starts again from the identity (measured better on rendered seed 2: a
+      // warp fitted from the coarse first match misleads).
+      if (options_.stereo_affine) {
+        AffineTemplate& patch = stereo_patch();
+        cv::Matx22f warp = cv::Matx22f::eye();
+        if (patch.prepare(left_pyramid[0], left_points[index], WarpModel::kRectifiedStereo,
+                          options_.affine_window)) {
+          refine_affine(patch, right_pyramid[0], right_points[index], warp);
+        }
+      }
       if (!on_row_in_range(left_points[index], right_points[index])) {
         ++out.counts.rejected_epipolar;
         continue;
@@ -550,7 +550,7 @@ void StereoTracker::add_features(const cv::Mat& left, const std::vector<cv::Mat>
       tracks_.right.push_back(right_points[index]);
       tracks_.lengths.push_back(1);
       tracks_.anchor_frames.push_back(frame_);
-      tracks_.anchors.push_back(left_points[index]);
+      tracks_.anchors.push_back(make_anchor(left, left_points[index]));
       tracks_.temporal_warps.push_back(cv::Matx22f::eye());
       tracks_.stereo_warps.push_back(cv::Matx22f::eye());
       ++out.counts.added;
@@ -558,16 +558,21 @@ void StereoTracker::add_features(const cv::Mat& left, const std::vector<cv::Mat>
   }
 }
 
-bool StereoTracker::refine_affine(const cv::Mat& from_image, const cv::Mat& image,
-                                  const cv::Point2f& from, cv::Point2f& point, cv::Matx22f& warp,
-                                  bool stereo_pair) const {
+std::shared_ptr<const AffineTemplate> StereoTracker::make_anchor(const cv::Mat& image,
+                                                                 const cv::Point2f& point) const {
+  if (options_.anchor_frames == 0) return nullptr;
+  auto patch = std::make_shared<AffineTemplate>();
+  if (!patch->prepare(image, point, WarpModel::kAffine, options_.affine_window)) return nullptr;
+  return patch;
+}
+
+bool StereoTracker::refine_affine(const AffineTemplate& patch, const cv::Mat& image,
+                                  cv::Point2f& point, cv::Matx22f& warp) const {
   AffineWarp fit;
   fit.A = warp;
   fit.t = point;
-  AffineAlignmentOptions alignment;
-  alignment.side = options_.affine_window;
-  alignment.model = stereo_pair ? WarpModel::kRectifiedStereo : WarpModel::kAffine;
-  if (!align_affine(from_image, from, image, fit, alignment) ||
+  const AffineAlignmentOptions defaults;
+  if (!patch.align(image, fit, defaults.max_iterations, defaults.epsilon) ||
       distance(fit.t, point) > options_.affine_tolerance) {
     return false;
   }

@@ -17,6 +17,7 @@
 
 #include <cstdint>
 #include <functional>
+#include <memory>
 #include <opencv2/core.hpp>
 #include <span>
 #include <vector>
@@ -26,6 +27,8 @@
 #include "concord/frontend/tracking_counts.h"
 
 namespace concord::frontend {
+
+class AffineTemplate;
 
 /// The tracks of one frame.
 struct TrackedFrame {
@@ -76,11 +79,12 @@ class StereoTracker {
     std::vector<cv::Point2f> left;
     std::vector<cv::Point2f> right;
     std::vector<int> lengths;
-    /// Anchored tracking: the frame each track was anchored at, its left position there, and
-    /// the affine part of its patch's warp from there to now; the affine part of its patch's
-    /// warp from the left to the right image.
+    /// Anchored tracking: the frame each track was anchored at, its patch there (prepared for
+    /// alignment; null when anchoring is off or the patch has too little texture), and the affine
+    /// part of the patch's warp from there to now; the affine part of its patch's warp from the
+    /// left to the right image.
     std::vector<int> anchor_frames;
-    std::vector<cv::Point2f> anchors;
+    std::vector<std::shared_ptr<const AffineTemplate>> anchors;
     std::vector<cv::Matx22f> temporal_warps;
     std::vector<cv::Matx22f> stereo_warps;
     std::size_t size() const { return ids.size(); }
@@ -88,22 +92,20 @@ class StereoTracker {
     void sort_by_id();
   };
 
-  /// A past frame's left image, kept for the tracks anchored at it.
-  struct AnchorImage {
-    int frame = -1;
-    cv::Mat image;
-  };
-
   void continue_tracks(const std::vector<cv::Mat>& left_pyramid,
                        const std::vector<cv::Mat>& right_pyramid, const cv::Size& size,
                        TrackedFrame& out);
   void add_features(const cv::Mat& left, const std::vector<cv::Mat>& left_pyramid,
                     const std::vector<cv::Mat>& right_pyramid, TrackedFrame& out);
-  /// Aligns the patch of `from_image` around `from` into `image` (affine, or the rectified
-  /// pair's warp), starting at `point` with the affine part `warp`; on success updates both and
-  /// returns true. Fails when the alignment fails or lands more than affine_tolerance away.
-  bool refine_affine(const cv::Mat& from_image, const cv::Mat& image, const cv::Point2f& from,
-                     cv::Point2f& point, cv::Matx22f& warp, bool stereo_pair) const;
+  /// The patch of `image` at `point` prepared as a track's anchor (null when anchoring is off or
+  /// the patch has too little texture: the track is then anchored afresh at the next frame).
+  std::shared_ptr<const AffineTemplate> make_anchor(const cv::Mat& image,
+                                                    const cv::Point2f& point) const;
+  /// Aligns `patch` into `image`, starting at `point` with the affine part `warp`; on success
+  /// updates both and returns true. Fails when the alignment fails or lands more than
+  /// affine_tolerance away.
+  bool refine_affine(const AffineTemplate& patch, const cv::Mat& image, cv::Point2f& point,
+                     cv::Matx22f& warp) const;
   bool inside(const cv::Point2f& point, const cv::Size& size) const;
   /// The epipolar check of a rectified match: on the same row (within the tolerance), its
   /// disparity in [min_disparity, max_disparity].
@@ -117,8 +119,6 @@ class StereoTracker {
   std::vector<cv::Mat> spare_left_pyramid_;
   std::vector<cv::Mat> spare_right_pyramid_;
   cv::Mat free_mask_;
-  /// The last anchor_frames frames' left images, at frame % anchor_frames.
-  std::vector<AnchorImage> anchor_images_;
   LandmarkId next_id_ = 0;
   int frame_ = 0;
 };
