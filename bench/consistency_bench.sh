@@ -58,8 +58,11 @@ wait
 scaled_object_noise() {  # factor -> --set arguments
   python3 - "$1" <<'PY'
 import sys, yaml
-noise = yaml.safe_load(open("configs/sensors/kitti-stereo.yaml"))["object_noise"]
-print(" ".join(f"--set object_noise.{k}={v * float(sys.argv[1]):g}" for k, v in noise.items()))
+config = yaml.safe_load(open("configs/sensors/kitti-stereo.yaml"))
+# Every part of the detection error model (independent, constant, persistent) scaled alike.
+print(" ".join(f"--set {key}.{k}={v * float(sys.argv[1]):g}"
+               for key in ("object_noise", "object_noise_constant", "object_noise_persistent")
+               if key in config for k, v in config[key].items()))
 PY
 }
 # shellcheck disable=SC2046  # the --set arguments split on purpose

@@ -9,6 +9,8 @@
 #include <cmath>
 #include <filesystem>
 #include <iostream>
+#include <map>
+#include <random>
 
 #include "calibration/calibration.h"
 #include "concord/config/options_file.h"
@@ -205,6 +207,120 @@ TEST(FailureCounters, AnInconsistentNewObjectIsGatedAndCounted) {
   EXPECT_EQ(gated, 1);
   EXPECT_EQ(initialized, 0);
   EXPECT_TRUE(estimator.objects().empty());
+}
+
+/// Errors of a detection's box centre (pixels: common horizontal, common vertical, disparity,
+/// vertical disparity) made of an independent part, a part constant along the object's track and
+/// a part that follows an AR(1) process of lag-1 correlation `correlation`.
+struct DetectionErrorModel {
+  Eigen::Vector4d independent, constant, persistent;
+  double correlation = 0.0;
+};
+
+struct ObjectRunStatistics {
+  double mean_nees = 0.0;
+  double rms_error = 0.0;
+};
+
+/// A robot drives straight past one object (40 frames, exact odometry), observing it every frame
+/// with errors drawn from `truth`, filtered with `options`; over `runs` seeds: the final object's
+/// NEES (mean) and position error (RMS).
+ObjectRunStatistics object_runs(const DetectionErrorModel& truth, const EstimatorOptions& options,
+                                int runs) {
+  const StereoCamera camera = testing::kitti_like_camera();
+  const Eigen::Vector3d p_object(26.0, 4.0, 0.5);
+  double nees_sum = 0.0, squared_error_sum = 0.0;
+  int evaluated = 0;
+  for (int run = 0; run < runs; ++run) {
+    std::mt19937 random(static_cast<std::uint32_t>(1000 + run));
+    std::normal_distribution<double> normal(0.0, 1.0);
+    const auto draw = [&](const Eigen::Vector4d& sigma) {
+      return Eigen::Vector4d(sigma[0] * normal(random), sigma[1] * normal(random),
+                             sigma[2] * normal(random), sigma[3] * normal(random));
+    };
+    const Eigen::Vector4d constant = draw(truth.constant);
+    Eigen::Vector4d persistent = draw(truth.persistent);
+    Estimator estimator(options, camera, Eigen::Isometry3d::Identity());
+    Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
+    Eigen::Isometry3d step = Eigen::Isometry3d::Identity();
+    step.translation() = Eigen::Vector3d(0.5, 0.0, 0.0);
+    for (int frame = 0; frame < 40; ++frame) {
+      FrameInput input;
+      input.frame = frame;
+      if (frame > 0) {
+        input.T_previous_current = step;
+        pose = pose * step;
+        persistent = truth.correlation * persistent +
+                     std::sqrt(1.0 - truth.correlation * truth.correlation) * draw(truth.persistent);
+      }
+      const Eigen::Vector4d e = constant + persistent + draw(truth.independent);
+      // (common, vertical, disparity, vertical disparity) to (u_l, v_l, u_r, v_r).
+      const Eigen::Vector4d error(e[0] + 0.5 * e[2], e[1] + 0.5 * e[3], e[0] - 0.5 * e[2],
+                                  e[1] - 0.5 * e[3]);
+      const Eigen::Vector4d uv =
+          camera.denormalize(UpdaterHelper::project(camera, pose, p_object)->xy) + error;
+      input.objects.push_back({7, uv});
+      estimator.process(input);
+    }
+    const std::vector<ObjectEstimate> objects = estimator.objects();
+    if (objects.size() != 1) continue;
+    nees_sum += evaluation::point_nees(objects[0].p_world, objects[0].covariance, p_object);
+    squared_error_sum += (objects[0].p_world - p_object).squaredNorm();
+    ++evaluated;
+  }
+  EXPECT_EQ(evaluated, runs);
+  return {nees_sum / std::max(evaluated, 1), std::sqrt(squared_error_sum / std::max(evaluated, 1))};
+}
+
+StereoNoise as_noise(const Eigen::Vector4d& sigma) {
+  return {sigma[0], sigma[1], sigma[2], sigma[3]};
+}
+
+TEST(PersistentDetectionError, ModelledItKeepsTheObjectHonestWhereIndependentNoiseIsOverconfident) {
+  // Box centres off by an amount that stays along the track (1.5 px), plus a part that changes
+  // slowly (1 px, correlation 0.8 a frame) and a little independent jitter.
+  DetectionErrorModel truth;
+  truth.independent = Eigen::Vector4d(0.5, 0.5, 0.3, 0.3);
+  truth.constant = Eigen::Vector4d(1.5, 1.5, 0.4, 0.0);
+  truth.persistent = Eigen::Vector4d(1.0, 1.0, 0.5, 0.0);
+  truth.correlation = 0.8;
+  EstimatorOptions options;
+  options.window_size = 40;  // the whole track
+  options.use_point_features = false;
+  options.initial_position_sigma = 1e-6;
+  options.initial_rotation_sigma = 1e-6;
+  options.odometry_translation_sigma = 1e-5;
+  options.odometry_rotation_sigma = 1e-6;
+  options.object_min_distance = 1.0;
+  options.object_max_distance = 100.0;
+  options.object_init_max_reprojection_error = 50.0;
+  options.object_chi2_probability = 0.0;  // every observation counts: the model alone is tested
+  // As independent noise of the same total size per coordinate.
+  EstimatorOptions independent = options;
+  independent.object_noise = as_noise(
+      (truth.independent.array().square() + truth.constant.array().square() +
+       truth.persistent.array().square())
+          .sqrt()
+          .matrix());
+  // As it is.
+  EstimatorOptions modelled = options;
+  modelled.object_noise = as_noise(truth.independent);
+  modelled.object_noise_constant = as_noise(truth.constant);
+  modelled.object_noise_persistent = as_noise(truth.persistent);
+  modelled.object_noise_correlation = truth.correlation;
+
+  const int runs = 200;
+  const ObjectRunStatistics as_independent = object_runs(truth, independent, runs);
+  const ObjectRunStatistics as_modelled = object_runs(truth, modelled, runs);
+  const auto [low, high] = mean_interval(runs, 3, 0.99);
+  // The 40-frame window holds the whole track: the model is exact and the NEES consistent.
+  EXPECT_GT(as_modelled.mean_nees, low);
+  EXPECT_LT(as_modelled.mean_nees, high);
+  // Counted as independent, 40 observations claim far more than they know.
+  EXPECT_GT(as_independent.mean_nees, 3.0 * high);
+  // And the model's weighting is not less accurate.
+  EXPECT_LT(as_modelled.rms_error, 1.05 * as_independent.rms_error)
+      << as_modelled.rms_error << " vs " << as_independent.rms_error;
 }
 
 TEST(FailureCounters, AnUpdateWithAnIndefiniteInnovationIsRefusedAndLeavesTheState) {
@@ -647,6 +763,75 @@ TEST(Calibration, RecoversTheSimulatorsNoise) {
   EXPECT_NO_THROW(config::parse_estimator_options(yaml, "calibration"));
   options.frames = 5;
   EXPECT_THROW(calibration::calibrate(data, options), std::invalid_argument);
+}
+
+TEST(Calibration, FitsAConstantAndAPersistentPartOfTheDetectionError) {
+  // Object detections whose errors (normalized units; common horizontal, common vertical,
+  // disparity, vertical disparity) are a part constant along each object's track, an AR(1) part
+  // of correlation 0.8 a frame and a little independent noise.
+  sim::SimulationOptions simulation;
+  simulation.robots = 1;
+  simulation.frames = 400;
+  simulation.points_per_frame = 0;
+  simulation.pixel_noise = 1e-6;
+  dataset::Dataset data = sim::simulate(simulation);
+  const Eigen::Vector4d constant(0.010, 0.006, 0.004, 0.002);
+  const Eigen::Vector4d persistent(0.008, 0.008, 0.005, 0.002);
+  const Eigen::Vector4d independent(0.002, 0.002, 0.001, 0.001);
+  const double correlation = 0.8;
+  std::mt19937 random(5);
+  std::normal_distribution<double> normal(0.0, 1.0);
+  const auto draw = [&](const Eigen::Vector4d& sigma) {
+    return Eigen::Vector4d(sigma[0] * normal(random), sigma[1] * normal(random),
+                           sigma[2] * normal(random), sigma[3] * normal(random));
+  };
+  struct TrackError {
+    int frame = -10;
+    Eigen::Vector4d constant, persistent;
+  };
+  std::map<LandmarkId, TrackError> errors;
+  int observations = 0;
+  for (auto& frame_objects : data.robots.front().objects) {
+    for (StereoObservation& observation : frame_objects) {
+      TrackError& error = errors[observation.id];
+      const int frame = static_cast<int>(&frame_objects - data.robots.front().objects.data());
+      if (frame != error.frame + 1) {  // a new track
+        error.constant = draw(constant);
+        error.persistent = draw(persistent);
+      } else {
+        error.persistent = correlation * error.persistent +
+                           std::sqrt(1.0 - correlation * correlation) * draw(persistent);
+      }
+      error.frame = frame;
+      const Eigen::Vector4d e = error.constant + error.persistent + draw(independent);
+      observation.uv += Eigen::Vector4d(e[0] + 0.5 * e[2], e[1] + 0.5 * e[3], e[0] - 0.5 * e[2],
+                                        e[1] - 0.5 * e[3]);
+      ++observations;
+    }
+  }
+  ASSERT_GT(observations, 2000);
+  calibration::CalibrationOptions options;
+  options.frames = 400;
+  const calibration::CalibrationReport report = calibration::calibrate(data, options);
+  EXPECT_NEAR(report.objects.persistent_correlation, correlation, 0.1);
+  for (int c = 0; c < 3; ++c) {
+    EXPECT_NEAR(report.objects.constant(c), constant(c), 0.3 * constant(c)) << c;
+    EXPECT_NEAR(report.objects.persistent(c), persistent(c), 0.3 * persistent(c)) << c;
+  }
+  // The model's keys in the suggested config load.
+  std::string yaml = calibration::to_yaml(report, options);
+  for (const char* key : {"# object_noise: {", "# object_noise_constant: {",
+                          "# object_noise_persistent: {", "# object_noise_correlation: "}) {
+    const std::size_t at = yaml.find(key);
+    ASSERT_NE(at, std::string::npos) << key;
+    yaml.erase(at, 2);  // uncommented
+  }
+  // The white-noise equivalent (the first object_noise line) gives way to the model's.
+  const std::size_t white = yaml.find("object_noise: {");
+  yaml.erase(white, yaml.find('\n', white) + 1 - white);
+  const EstimatorOptions loaded = config::parse_estimator_options(yaml, "calibration");
+  EXPECT_NEAR(loaded.object_noise_correlation, report.objects.persistent_correlation, 1e-3);
+  EXPECT_GT(loaded.object_noise_constant.horizontal, 0.0);
 }
 
 /// A robot driving along the world's x for `frames` frames, pitching as a sine of amplitude 0.04

@@ -306,6 +306,8 @@ TEST(DaemonCheckpoint, RoundTripsTheFilterStateAndPendingObjectsAndRefusesDamage
       concord::testing::random_spd(checkpoint.state.dimension(), random, 0.05, 1.0);
   checkpoint.pending[9] = {{40, Eigen::Vector4d(0.1, 0.2, 0.05, 0.2)},
                            {41, Eigen::Vector4d(0.11, 0.2, 0.06, 0.2)}};
+  checkpoint.state.landmarks[1].used_observations = {{39, Eigen::Vector4d(0.3, -0.1, 0.25, -0.1)},
+                                                     {41, Eigen::Vector4d(0.31, -0.1, 0.26, -0.1)}};
   const std::string bytes = serialize_checkpoint(checkpoint);
   std::string error;
   const auto back = parse_checkpoint(bytes, error);
@@ -317,6 +319,11 @@ TEST(DaemonCheckpoint, RoundTripsTheFilterStateAndPendingObjectsAndRefusesDamage
             checkpoint.state.landmarks[1].p_linearization);
   EXPECT_TRUE(back->state.landmarks[0].archived);
   EXPECT_FALSE(back->state.landmarks[1].archived);
+  EXPECT_TRUE(back->state.landmarks[0].used_observations.empty());
+  ASSERT_EQ(back->state.landmarks[1].used_observations.size(), 2u);
+  EXPECT_EQ(back->state.landmarks[1].used_observations[1].frame, 41);
+  EXPECT_EQ(back->state.landmarks[1].used_observations[1].xy,
+            checkpoint.state.landmarks[1].used_observations[1].xy);
   EXPECT_TRUE(back->state.has_disparity_offset);
   EXPECT_EQ(back->state.disparity_offset, -0.2);
   ASSERT_TRUE(back->state.has_world_up);

@@ -90,6 +90,9 @@ void for_each_field(Options& options, Visitor&& visit) {
   visit("level_up_axis", options.level_up_axis);
   visit("use_objects", options.use_objects);
   visit("object_noise", options.object_noise);
+  visit("object_noise_constant", options.object_noise_constant);
+  visit("object_noise_persistent", options.object_noise_persistent);
+  visit("object_noise_correlation", options.object_noise_correlation);
   visit("object_min_observations", options.object_min_observations);
   visit("object_min_distance", options.object_min_distance);
   visit("object_max_distance", options.object_max_distance);

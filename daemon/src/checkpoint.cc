@@ -8,7 +8,7 @@ namespace concord::daemon {
 
 namespace {
 
-constexpr char kMagic[] = "CONCORD-CHECKPOINT-7\n";
+constexpr char kMagic[] = "CONCORD-CHECKPOINT-8\n";
 constexpr std::size_t kMagicBytes = sizeof(kMagic) - 1;
 
 std::uint64_t fnv1a(const char* data, std::size_t size) {
@@ -93,6 +93,11 @@ std::string serialize_checkpoint(const Checkpoint& checkpoint) {
     w.put<std::int32_t>(landmark.last_observed_frame);
     for (int i = 0; i < 3; ++i) w.put<double>(landmark.p_linearization[i]);
     w.put<std::uint8_t>(landmark.archived ? 1 : 0);
+    w.put<std::uint32_t>(static_cast<std::uint32_t>(landmark.used_observations.size()));
+    for (const TrackObservation& observation : landmark.used_observations) {
+      w.put<std::int32_t>(observation.frame);
+      for (int i = 0; i < 4; ++i) w.put<double>(observation.xy[i]);
+    }
   }
   w.put<std::uint32_t>(static_cast<std::uint32_t>(state.archived.size()));
   for (const auto& [id, object] : state.archived) {
@@ -164,7 +169,7 @@ std::optional<Checkpoint> parse_checkpoint(const std::string& bytes, std::string
     clone.frame = frame;
     state.poses.push_back(clone);
   }
-  if (!r.count(n, 8 + 24 + 4 + 24 + 1)) return fail("bad landmark count");
+  if (!r.count(n, 8 + 24 + 4 + 24 + 1 + 4)) return fail("bad landmark count");
   for (std::uint32_t i = 0; i < n; ++i) {
     ObjectLandmark landmark;
     std::int32_t last = 0;
@@ -176,6 +181,15 @@ std::optional<Checkpoint> parse_checkpoint(const std::string& bytes, std::string
       return fail("bad landmark " + std::to_string(i));
     landmark.last_observed_frame = last;
     landmark.archived = archived == 1;
+    std::uint32_t used = 0;
+    if (!r.count(used, 4 + 32)) return fail("bad landmark " + std::to_string(i));
+    for (std::uint32_t j = 0; j < used; ++j) {
+      TrackObservation observation;
+      bool ok = r.get(observation.frame);
+      for (int k = 0; ok && k < 4; ++k) ok = r.get(observation.xy[k]);
+      if (!ok) return fail("bad used observation of landmark " + std::to_string(i));
+      landmark.used_observations.push_back(observation);
+    }
     state.landmarks.push_back(landmark);
   }
   if (!r.count(n, 8 + 96 + 4)) return fail("bad archived object count");

@@ -1,5 +1,6 @@
 #include "concord/estimator/object_updater.h"
 
+#include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
 #include <Eigen/QR>
 #include <cmath>
@@ -14,9 +15,58 @@ ObjectUpdater::ObjectUpdater(const EstimatorOptions& options, const StereoCamera
                              PendingObjects pending)
     : options_(options),
       camera_(camera),
-      whitening_(UpdaterHelper::whitening(
-          UpdaterHelper::observation_covariance(options.object_noise, camera))),
-      pending_(std::move(pending)) {}
+      independent_covariance_(UpdaterHelper::observation_covariance(options.object_noise, camera)),
+      constant_covariance_(
+          UpdaterHelper::observation_covariance(options.object_noise_constant, camera)),
+      persistent_covariance_(
+          UpdaterHelper::observation_covariance(options.object_noise_persistent, camera)),
+      persistent_(!constant_covariance_.isZero(0.0) || !persistent_covariance_.isZero(0.0)),
+      pending_(std::move(pending)) {
+  whitening_ = UpdaterHelper::whitening(independent_covariance_ + constant_covariance_ +
+                                        persistent_covariance_);
+}
+
+Eigen::MatrixXd ObjectUpdater::track_noise(const std::vector<TrackObservation>& track) const {
+  const auto count = static_cast<Eigen::Index>(track.size());
+  Eigen::MatrixXd covariance(4 * count, 4 * count);
+  for (Eigen::Index i = 0; i < count; ++i) {
+    for (Eigen::Index j = 0; j < count; ++j) {
+      const double correlation =
+          std::pow(options_.object_noise_correlation, std::abs(track[i].frame - track[j].frame));
+      covariance.block<4, 4>(4 * i, 4 * j) =
+          constant_covariance_ + correlation * persistent_covariance_ +
+          (i == j ? independent_covariance_ : Eigen::Matrix4d::Zero());
+    }
+  }
+  return covariance;
+}
+
+bool ObjectUpdater::condition_on_earlier(const std::vector<TrackObservation>& track,
+                                         LinearizedTrack& linearized) const {
+  // e_new given e_earlier: mean G e_earlier, covariance S_nn - G S_en, G = S_ne S_ee^-1; the
+  // rows r_new - G r_earlier (and the same of the Jacobians) carry what the newest observation
+  // adds, with that covariance.
+  const Eigen::MatrixXd covariance = track_noise(track);
+  const Eigen::Index earlier = covariance.rows() - 4;
+  const Eigen::LLT<Eigen::MatrixXd> earlier_factor(covariance.topLeftCorner(earlier, earlier));
+  if (earlier_factor.info() != Eigen::Success) return false;
+  const Eigen::MatrixXd gain_transposed =
+      earlier_factor.solve(covariance.topRightCorner(earlier, 4));  // S_ee^-1 S_en
+  const Eigen::Matrix4d conditional =
+      covariance.bottomRightCorner<4, 4>() -
+      gain_transposed.transpose() * covariance.topRightCorner(earlier, 4);
+  const Eigen::LLT<Eigen::Matrix4d> conditional_factor(conditional);
+  if (conditional_factor.info() != Eigen::Success) return false;
+  const Eigen::Matrix4d whitening = UpdaterHelper::whitening(conditional);
+  const auto condition = [&](const Eigen::MatrixXd& rows) -> Eigen::MatrixXd {
+    return whitening * (rows.bottomRows(4) - gain_transposed.transpose() * rows.topRows(earlier));
+  };
+  linearized.H_state = condition(linearized.H_state);
+  linearized.H_point = condition(linearized.H_point);
+  linearized.residual = condition(linearized.residual);
+  linearized.newest_frame_row = 0;
+  return true;
+}
 
 double ObjectUpdater::gate(int dof) const {
   return options_.object_chi2_probability > 0.0
@@ -42,13 +92,27 @@ ObjectUpdateStats ObjectUpdater::process(State& state,
       pending_[observation.id].push_back(track_observation);
       continue;
     }
-    auto linearized = UpdaterHelper::linearize(state, camera_, {track_observation},
-                                               state.landmarks[slot].p_world, slot);
+    // With a persistent error: the object's earlier observations whose poses are in the window,
+    // then this one.
+    std::vector<TrackObservation> track;
+    if (persistent_) {
+      for (const TrackObservation& used : state.landmarks[slot].used_observations) {
+        if (used.frame < frame && state.pose_slot(used.frame) >= 0) track.push_back(used);
+      }
+    }
+    track.push_back(track_observation);
+    auto linearized =
+        UpdaterHelper::linearize(state, camera_, track, state.landmarks[slot].p_world, slot);
     if (!linearized) {
       ++stats.rejected;
       continue;
     }
-    UpdaterHelper::whiten_inplace(*linearized, whitening_);
+    if (track.size() == 1) {
+      UpdaterHelper::whiten_inplace(*linearized, whitening_);
+    } else if (!condition_on_earlier(track, *linearized)) {
+      ++stats.rejected;
+      continue;
+    }
     const Eigen::MatrixXd identity = Eigen::MatrixXd::Identity(4, 4);
     if (StateHelper::mahalanobis_squared(state, linearized->H_state, linearized->residual,
                                          identity) > gate_4dof) {
@@ -56,6 +120,7 @@ ObjectUpdateStats ObjectUpdater::process(State& state,
       continue;
     }
     state.landmarks[slot].last_observed_frame = frame;
+    if (persistent_) state.landmarks[slot].used_observations = std::move(track);
     if (state.landmarks[slot].archived) {
       state.landmarks[slot].archived = false;  // seen again: active, with every correlation it kept
       ++stats.reactivated;
@@ -134,7 +199,17 @@ ObjectUpdater::InitResult ObjectUpdater::try_initialize(State& state, LandmarkId
   // 3. Linearize, whiten and split with QR (eq. 29): Q^T H_point = [R1; 0].
   auto linearized = UpdaterHelper::linearize(state, camera_, track, *p_world);
   if (!linearized) return InitResult::kFailed;
-  UpdaterHelper::whiten_inplace(*linearized, whitening_);
+  if (persistent_) {
+    // The observations' errors are correlated: whitened by their joint covariance.
+    const Eigen::LLT<Eigen::MatrixXd> factor(track_noise(track));
+    if (factor.info() != Eigen::Success) return InitResult::kFailed;
+    const auto lower = factor.matrixL();
+    lower.solveInPlace(linearized->H_state);
+    lower.solveInPlace(linearized->H_point);
+    lower.solveInPlace(linearized->residual);
+  } else {
+    UpdaterHelper::whiten_inplace(*linearized, whitening_);
+  }
   const Eigen::Index rows = linearized->residual.size();
   const Eigen::HouseholderQR<Eigen::MatrixXd> qr(linearized->H_point);
   const Eigen::MatrixXd Qt = qr.householderQ().transpose();
@@ -180,6 +255,7 @@ ObjectUpdater::InitResult ObjectUpdater::try_initialize(State& state, LandmarkId
   const Eigen::Vector3d p_new = *p_world + R1.inverse() * residual_rotated.head<3>();
   StateHelper::augment_landmark(state, id, p_new, *p_world, track.back().frame,
                                 H_state_rotated.topRows(3), R1, Eigen::Matrix3d::Identity());
+  if (persistent_) state.landmarks[state.landmark_slot(id)].used_observations = track;
   if (rows > 3) {
     Eigen::MatrixXd H2_full = Eigen::MatrixXd::Zero(rows - 3, state.dimension());
     H2_full.leftCols(H2.cols()) = H2;

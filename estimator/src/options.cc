@@ -120,6 +120,21 @@ std::vector<std::string> EstimatorOptions::validate() const {
     problems.add("level_up_axis", level_up_axis, "a body direction of about unit length");
   }
   problems.check_stereo_noise("object_noise", object_noise);
+  for (const auto& [name, noise] : {std::pair{"object_noise_constant", &object_noise_constant},
+                                     std::pair{"object_noise_persistent", &object_noise_persistent}}) {
+    for (const auto& [part, value] : {std::pair{".horizontal", noise->horizontal},
+                                      std::pair{".vertical", noise->vertical},
+                                      std::pair{".disparity", noise->disparity},
+                                      std::pair{".vertical_disparity", noise->vertical_disparity}}) {
+      if (!(std::isfinite(value) && value >= 0.0)) {
+        problems.add(std::string(name) + part, value, "finite and >= 0");
+      }
+    }
+  }
+  if (!(object_noise_correlation >= 0.0 && object_noise_correlation < 1.0)) {
+    problems.add("object_noise_correlation", object_noise_correlation,
+                 "in [0, 1) (a constant part is object_noise_constant)");
+  }
   problems.check_at_least("object_min_observations", object_min_observations, 2);
   problems.check_distance_range("object_min_distance", object_min_distance, "object_max_distance",
                                 object_max_distance);

@@ -137,7 +137,12 @@ void StateHelper::augment_landmark(State& state, LandmarkId id, const Eigen::Vec
   P.block(0, n, n, 3) = cross;
   P.block(n, 0, 3, n) = cross.transpose();
   P.block<3, 3>(n, n) = landmark_covariance;
-  state.landmarks.push_back({id, p_world, frame, p_linearization});
+  ObjectLandmark landmark;
+  landmark.id = id;
+  landmark.p_world = p_world;
+  landmark.last_observed_frame = frame;
+  landmark.p_linearization = p_linearization;
+  state.landmarks.push_back(std::move(landmark));
   state.rebuild_landmark_index();
 }
 

@@ -41,6 +41,17 @@ struct StereoErrorSpread {
   /// view) carry less information than that, and a white noise of sigma times this factor is
   /// its equivalent over such a stretch (the effective sample size correction).
   Eigen::Vector4d correlation_inflation = Eigen::Vector4d::Ones();
+  /// The same time correlation as a model (the estimator's object_noise_constant,
+  /// object_noise_persistent, object_noise_correlation): the autocovariance of each component
+  /// within tracks at lags 1 to 20 frames (clipped as above) fitted by least squares as
+  /// constant^2 + persistent^2 correlation^lag, with one correlation for all four components
+  /// (each component's fit weighed by its variance), and independent^2 = the variance at lag 0
+  /// less both (at least 0). Standard deviations, image units; correlation 0 when no lag has
+  /// enough pairs.
+  Eigen::Vector4d independent = Eigen::Vector4d::Zero();
+  Eigen::Vector4d constant = Eigen::Vector4d::Zero();
+  Eigen::Vector4d persistent = Eigen::Vector4d::Zero();
+  double persistent_correlation = 0.0;
 };
 
 struct CalibrationReport {

@@ -53,11 +53,27 @@ class ObjectUpdater {
   /// Chi-square quantile for `dof` (infinity when the gate is off).
   double gate(int dof) const;
   void archive_stale(State& state, int frame, ObjectUpdateStats& stats) const;
+  /// The joint covariance (normalized units) of the errors of a track's observations: the
+  /// independent part on the diagonal blocks, the constant part in every block, the persistent
+  /// part correlated by object_noise_correlation^(frame difference).
+  Eigen::MatrixXd track_noise(const std::vector<TrackObservation>& track) const;
+  /// With a persistent error: replaces a linearized track (its earlier observations, then the
+  /// newest) by the whitened conditional of its newest observation given the earlier ones (four
+  /// rows of unit noise). False when their joint covariance is not positive definite.
+  bool condition_on_earlier(const std::vector<TrackObservation>& track,
+                            LinearizedTrack& linearized) const;
 
   EstimatorOptions options_;
   StereoCamera camera_;
   /// Whitens an observation's four rows (normalized units): its noise becomes the identity.
   Eigen::Matrix4d whitening_;
+  /// Covariances of an observation's independent, constant and persistent errors (normalized
+  /// units); persistent_ is false when the last two are zero (each observation is then
+  /// independent).
+  Eigen::Matrix4d independent_covariance_;
+  Eigen::Matrix4d constant_covariance_;
+  Eigen::Matrix4d persistent_covariance_;
+  bool persistent_ = false;
   /// Observations of objects not yet in the state, within the window.
   PendingObjects pending_;
 };

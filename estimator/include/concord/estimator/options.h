@@ -119,6 +119,21 @@ struct EstimatorOptions {
   /// one number (independent noise of that sigma per coordinate) or a map with the keys
   /// horizontal, vertical, disparity, vertical_disparity.
   StereoNoise object_noise = StereoNoise::isotropic(5.0);
+  /// object_noise_constant, object_noise_persistent, object_noise_correlation: parts of a
+  /// detection's error that do not change independently from frame to frame, on top of
+  /// object_noise's independent part (a detector's box is off the object's centre by about the
+  /// same amount while the view changes little: the box is the silhouette's, partly occluded,
+  /// ...). Standard deviations in image units (StereoNoise; zero, the default, leaves a part
+  /// out): a part constant along an object's track, and a part whose correlation from one frame
+  /// to the next is object_noise_correlation (rho^k after k frames). With either, each new
+  /// observation of an in-state object is weighed by what it adds to the object's earlier
+  /// observations still in the window (the conditional of the joint Gaussian of their errors),
+  /// and a new object by the joint covariance of its observations, instead of as independent.
+  /// Measure them on a calibration segment (docs/tuning.md); the window bounds what is
+  /// conditioned on, so an error that persists longer than the window is counted once a window.
+  StereoNoise object_noise_constant = StereoNoise::isotropic(0.0);
+  StereoNoise object_noise_persistent = StereoNoise::isotropic(0.0);
+  double object_noise_correlation = 0.9;
   /// object_min_observations: stereo observations in the window needed to initialize.
   int object_min_observations = 3;
   /// object_min_distance / object_max_distance: accepted depth of a new object (metres).

@@ -74,6 +74,11 @@ struct ObjectLandmark {
   /// the joint block of the robot's marginal). Observed again, it is active again, with every
   /// correlation it had.
   bool archived = false;
+  /// The observations of it that the filter has used and whose poses may still be in the window
+  /// (oldest first; normalized, as measured): with a persistent detection error
+  /// (object_noise_persistent) a new observation is weighed by what it adds to them
+  /// (ObjectUpdater). Empty without it.
+  std::vector<TrackObservation> used_observations{};
 };
 
 class State {

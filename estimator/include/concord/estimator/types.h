@@ -13,6 +13,13 @@
 
 namespace concord {
 
+/// A stereo observation at one frame in normalized image coordinates (x_l, y_l, x_r, y_r).
+struct TrackObservation {
+  int frame = 0;
+  Eigen::Vector4d xy = Eigen::Vector4d::Zero();
+};
+
+
 /// Global object id (data association is given; the same id is the same object for every robot)
 /// or a robot-private point-feature track id.
 using LandmarkId = std::int64_t;

@@ -16,12 +16,6 @@
 
 namespace concord {
 
-/// A stereo observation at one frame in normalized image coordinates (x_l, y_l, x_r, y_r).
-struct TrackObservation {
-  int frame = 0;
-  Eigen::Vector4d xy = Eigen::Vector4d::Zero();
-};
-
 /// Predicted stereo observation of a world point and its Jacobians.
 struct StereoProjection {
   Eigen::Vector4d xy = Eigen::Vector4d::Zero();  ///< normalized (x_l, y_l, x_r, y_r)
