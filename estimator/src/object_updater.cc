@@ -45,23 +45,42 @@ bool ObjectUpdater::condition_on_earlier(const std::vector<TrackObservation>& tr
                                          LinearizedTrack& linearized) const {
   // e_new given e_earlier: mean G e_earlier, covariance S_nn - G S_en, G = S_ne S_ee^-1; the
   // rows r_new - G r_earlier (and the same of the Jacobians) carry what the newest observation
-  // adds, with that covariance.
-  const Eigen::MatrixXd covariance = track_noise(track);
-  const Eigen::Index earlier = covariance.rows() - 4;
-  const Eigen::LLT<Eigen::MatrixXd> earlier_factor(covariance.topLeftCorner(earlier, earlier));
-  if (earlier_factor.info() != Eigen::Success) return false;
-  const Eigen::MatrixXd gain_transposed =
-      earlier_factor.solve(covariance.topRightCorner(earlier, 4));  // S_ee^-1 S_en
-  const Eigen::Matrix4d conditional =
-      covariance.bottomRightCorner<4, 4>() -
-      gain_transposed.transpose() * covariance.topRightCorner(earlier, 4);
-  const Eigen::LLT<Eigen::Matrix4d> conditional_factor(conditional);
-  if (conditional_factor.info() != Eigen::Success) return false;
-  const Eigen::Matrix4d whitening = UpdaterHelper::whitening(conditional);
+  // adds, with that covariance. G and the whitening depend only on the frames' pattern.
+  std::vector<int> pattern;
+  pattern.reserve(track.size() - 1);
+  for (std::size_t i = 0; i + 1 < track.size(); ++i) {
+    pattern.push_back(track.back().frame - track[i].frame);
+  }
+  auto cached = conditionals_.find(pattern);
+  if (cached == conditionals_.end()) {
+    const Eigen::MatrixXd covariance = track_noise(track);
+    const Eigen::Index earlier = covariance.rows() - 4;
+    const Eigen::LLT<Eigen::MatrixXd> earlier_factor(covariance.topLeftCorner(earlier, earlier));
+    if (earlier_factor.info() != Eigen::Success) return false;
+    const Eigen::MatrixXd gain_transposed =
+        earlier_factor.solve(covariance.topRightCorner(earlier, 4));  // S_ee^-1 S_en
+    const Eigen::Matrix4d conditional =
+        covariance.bottomRightCorner<4, 4>() -
+        gain_transposed.transpose() * covariance.topRightCorner(earlier, 4);
+    const Eigen::LLT<Eigen::Matrix4d> conditional_factor(conditional);
+    if (conditional_factor.info() != Eigen::Success) return false;
+    if (conditionals_.size() >= 4096) conditionals_.clear();  // bounded; patterns repeat
+    cached = conditionals_
+                 .emplace(std::move(pattern),
+                          Conditional{gain_transposed.transpose(),
+                                      UpdaterHelper::whitening(conditional)})
+                 .first;
+  }
+  const Conditional& c = cached->second;
+  const Eigen::Index earlier = c.gain.cols();
   const auto condition = [&](const Eigen::MatrixXd& rows) -> Eigen::MatrixXd {
-    return whitening * (rows.bottomRows(4) - gain_transposed.transpose() * rows.topRows(earlier));
+    return c.whitening * (rows.bottomRows(4) - c.gain * rows.topRows(earlier));
   };
-  linearized.H_state = condition(linearized.H_state);
+  // Only the track's pose, calibration and landmark columns are not zero.
+  const std::vector<int> columns = StateHelper::nonzero_columns(linearized.H_state);
+  Eigen::MatrixXd H_state = Eigen::MatrixXd::Zero(4, linearized.H_state.cols());
+  H_state(Eigen::all, columns) = condition(linearized.H_state(Eigen::all, columns));
+  linearized.H_state = std::move(H_state);
   linearized.H_point = condition(linearized.H_point);
   linearized.residual = condition(linearized.residual);
   linearized.newest_frame_row = 0;
@@ -204,7 +223,11 @@ ObjectUpdater::InitResult ObjectUpdater::try_initialize(State& state, LandmarkId
     const Eigen::LLT<Eigen::MatrixXd> factor(track_noise(track));
     if (factor.info() != Eigen::Success) return InitResult::kFailed;
     const auto lower = factor.matrixL();
-    lower.solveInPlace(linearized->H_state);
+    // Only the columns of the track's poses (and calibration) are not zero: whiten those.
+    const std::vector<int> columns = StateHelper::nonzero_columns(linearized->H_state);
+    Eigen::MatrixXd compact = linearized->H_state(Eigen::all, columns);
+    lower.solveInPlace(compact);
+    linearized->H_state(Eigen::all, columns) = compact;
     lower.solveInPlace(linearized->H_point);
     lower.solveInPlace(linearized->residual);
   } else {
@@ -213,7 +236,10 @@ ObjectUpdater::InitResult ObjectUpdater::try_initialize(State& state, LandmarkId
   const Eigen::Index rows = linearized->residual.size();
   const Eigen::HouseholderQR<Eigen::MatrixXd> qr(linearized->H_point);
   const Eigen::MatrixXd Qt = qr.householderQ().transpose();
-  const Eigen::MatrixXd H_state_rotated = Qt * linearized->H_state;
+  // Qt mixes the rows; only the track's pose (and calibration) columns are not zero.
+  const std::vector<int> state_columns = StateHelper::nonzero_columns(linearized->H_state);
+  Eigen::MatrixXd H_state_rotated = Eigen::MatrixXd::Zero(rows, linearized->H_state.cols());
+  H_state_rotated(Eigen::all, state_columns) = Qt * linearized->H_state(Eigen::all, state_columns);
   const Eigen::VectorXd residual_rotated = Qt * linearized->residual;
   const Eigen::Matrix3d R1 =
       qr.matrixQR().topLeftCorner<3, 3>().triangularView<Eigen::Upper>().toDenseMatrix();

@@ -74,6 +74,13 @@ class ObjectUpdater {
   Eigen::Matrix4d constant_covariance_;
   Eigen::Matrix4d persistent_covariance_;
   bool persistent_ = false;
+  /// The conditional's gain and whitening for a pattern of frames (each earlier observation's
+  /// frame relative to the newest): a continuous track repeats the same pattern frame after frame.
+  struct Conditional {
+    Eigen::MatrixXd gain;  ///< S_ne S_ee^-1, 4 x 4 (observations - 1)
+    Eigen::Matrix4d whitening;
+  };
+  mutable std::map<std::vector<int>, Conditional> conditionals_;
   /// Observations of objects not yet in the state, within the window.
   PendingObjects pending_;
 };
