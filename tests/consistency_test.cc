@@ -191,12 +191,7 @@ TEST(FailureCounters, AnInconsistentNewObjectIsGatedAndCounted) {
   step.translation() = Eigen::Vector3d(0.8, 0.0, 0.0);
   int gated = 0, initialized = 0;
   for (int frame = 0; frame < 3; ++frame) {
-    FrameInput input;
-    input.frame = frame;
-    if (frame > 0) {
-      input.T_previous_current = step;
-      truth = truth * step;
-    }
+    FrameInput input = testing::straight_drive_frame(frame, step, truth);
     Eigen::Vector4d uv = camera.denormalize(UpdaterHelper::project(camera, truth, p_object)->xy);
     if (frame == 2) uv(0) += 40.0;
     input.objects.push_back({3, uv});
@@ -245,11 +240,8 @@ ObjectRunStatistics object_runs(const DetectionErrorModel& truth, const Estimato
     Eigen::Isometry3d step = Eigen::Isometry3d::Identity();
     step.translation() = Eigen::Vector3d(0.5, 0.0, 0.0);
     for (int frame = 0; frame < 40; ++frame) {
-      FrameInput input;
-      input.frame = frame;
+      FrameInput input = testing::straight_drive_frame(frame, step, pose);
       if (frame > 0) {
-        input.T_previous_current = step;
-        pose = pose * step;
         persistent = truth.correlation * persistent +
                      std::sqrt(1.0 - truth.correlation * truth.correlation) * draw(truth.persistent);
       }

@@ -228,12 +228,7 @@ TEST(ObjectInitialization, RecoversAKnownPointFromNoiselessStereo) {
   Estimator estimator(options, camera, Eigen::Isometry3d::Identity());
   Eigen::Isometry3d truth = Eigen::Isometry3d::Identity();
   for (int frame = 0; frame < 4; ++frame) {
-    FrameInput input;
-    input.frame = frame;
-    if (frame > 0) {
-      input.T_previous_current = step;
-      truth = truth * step;
-    }
+    FrameInput input = testing::straight_drive_frame(frame, step, truth);
     const auto projection = UpdaterHelper::project(camera, truth, p_object);
     input.objects.push_back({42, camera.denormalize(projection->xy)});
     const auto report = estimator.process(input);

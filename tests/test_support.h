@@ -33,6 +33,19 @@ inline Eigen::VectorXd random_vector(int n, std::mt19937& random, double scale =
 }
 
 /// A KITTI-like rectified stereo rig: body x forward, y left, z up; camera z forward.
+/// The input of frame `frame` of a robot that moves by `step` every frame: the odometry from the
+/// second frame on, and `pose` (the true T_world_body, the identity at frame 0) moved by it.
+inline FrameInput straight_drive_frame(int frame, const Eigen::Isometry3d& step,
+                                       Eigen::Isometry3d& pose) {
+  FrameInput input;
+  input.frame = frame;
+  if (frame > 0) {
+    input.T_previous_current = step;
+    pose = pose * step;
+  }
+  return input;
+}
+
 inline StereoCamera kitti_like_camera() {
   StereoCamera camera;
   camera.K << 718.856, 0.0, 607.1928, 0.0, 718.856, 185.2157, 0.0, 0.0, 1.0;
