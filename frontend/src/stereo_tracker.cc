@@ -1,7 +1,6 @@
 #include "concord/frontend/stereo_tracker.h"
 
 #include <algorithm>
-#include <array>
 #include <cmath>
 #include <limits>
 #include <numeric>
@@ -14,6 +13,7 @@
 #include <vector>
 
 #include "affine_patch.h"
+#include "row_search.h"
 #include "concord/frontend/sequence.h"
 #include "sample_median.h"
 #include "text_lines.h"
@@ -62,68 +62,6 @@ class Klt {
 /// gradients interleave).
 const cv::Mat& pyramid_image(const std::vector<cv::Mat>& pyramid, int level) {
   return pyramid[std::min<std::size_t>(2 * static_cast<std::size_t>(level), pyramid.size() - 2)];
-}
-
-/// Disparity of a left-image point by a search along its row of the right image: zero-mean sum of
-/// absolute differences of a (2 radius + 1)^2 patch, on images at `scale` (e.g. 0.5 for pyramid
-/// level 1), disparities 0 to max_disparity (full-resolution pixels). Returns the full-resolution
-/// disparity of the best match, or nothing if the patch does not fit.
-std::optional<float> search_disparity(const cv::Mat& left, const cv::Mat& right,
-                                      const cv::Point2f& point, float scale, int radius,
-                                      double max_disparity) {
-  const int x = cvRound(point.x * scale), y = cvRound(point.y * scale);
-  if (x - radius < 0 || y - radius < 0 || x + radius >= left.cols || y + radius >= left.rows) {
-    return std::nullopt;
-  }
-  const int side = 2 * radius + 1;
-  std::array<int, 15 * 15> patch{};
-  int sum = 0;
-  for (int row = 0; row < side; ++row) {
-    const unsigned char* pixels = left.ptr<unsigned char>(y - radius + row) + (x - radius);
-    for (int column = 0; column < side; ++column) {
-      patch[row * side + column] = pixels[column];
-      sum += pixels[column];
-    }
-  }
-  const int area = side * side;
-  for (int index = 0; index < area; ++index) patch[index] = patch[index] * area - sum;
-  // (The bound is applied before the conversion: a configured disparity beyond int stays defined.)
-  const int largest =
-      static_cast<int>(std::min(max_disparity * scale, static_cast<double>(x - radius)));
-  int best_cost = std::numeric_limits<int>::max(), best_disparity = -1;
-  if (largest < 0) return std::nullopt;
-  // The right window's sum at every disparity from the columns' sums over the window's rows,
-  // slid along the row (the window at disparity d covers columns x - d - radius .. x - d + radius).
-  const int first_column = x - largest - radius;
-  const int columns = largest + side;
-  thread_local std::vector<int> column_sums;
-  column_sums.assign(static_cast<std::size_t>(columns), 0);
-  for (int row = 0; row < side; ++row) {
-    const unsigned char* pixels = right.ptr<unsigned char>(y - radius + row) + first_column;
-    for (int column = 0; column < columns; ++column) column_sums[column] += pixels[column];
-  }
-  int right_sum = 0;  // the window at disparity 0: the last `side` columns
-  for (int column = columns - side; column < columns; ++column) right_sum += column_sums[column];
-  for (int disparity = 0; disparity <= largest; ++disparity) {
-    const int right_x = x - disparity;
-    if (disparity > 0) {  // one column in on the left, one out on the right
-      const int leftmost = columns - side - disparity;
-      right_sum += column_sums[leftmost] - column_sums[leftmost + side];
-    }
-    int cost = 0;
-    for (int row = 0; row < side && cost < best_cost; ++row) {
-      const unsigned char* pixels = right.ptr<unsigned char>(y - radius + row) + (right_x - radius);
-      for (int column = 0; column < side; ++column) {
-        cost += std::abs(patch[row * side + column] - (pixels[column] * area - right_sum));
-      }
-    }
-    if (cost < best_cost) {
-      best_cost = cost;
-      best_disparity = disparity;
-    }
-  }
-  if (best_disparity < 0) return std::nullopt;
-  return static_cast<float>(best_disparity) / scale;
 }
 
 /// The scratch template of the stereo refinement (the left patch of this frame, aligned once).
@@ -505,21 +443,37 @@ void StereoTracker::add_features(const cv::Mat& left, const std::vector<cv::Mat>
     const auto needed = static_cast<std::size_t>(missing - out.counts.added);
     const std::size_t batch =
         std::min(candidates.size() - next, std::max<std::size_t>(needed + needed / 2, 16));
-    left_points.resize(batch);
-    right_points.resize(batch);
-    for (std::size_t index = 0; index < batch; ++index) {
-      left_points[index] = candidates[next + index].point;
-      const std::optional<float> disparity = search_disparity(
+    left_points.clear();
+    right_points.clear();
+    for (std::size_t index = next; index < next + batch; ++index) {
+      const cv::Point2f& point = candidates[index].point;
+      const std::optional<float> disparity = search_row(
           pyramid_image(left_pyramid, search_level), pyramid_image(right_pyramid, search_level),
-          left_points[index], search_scale, kSearchRadius, options_.max_disparity);
-      right_points[index] = left_points[index] - cv::Point2f(disparity.value_or(0.0f), 0.0f);
+          point, search_scale, kSearchRadius, options_.max_disparity, -1);
+      const cv::Point2f right = point - cv::Point2f(disparity.value_or(0.0f), 0.0f);
+      // The coarse match searched back along the left row must come back to the candidate
+      // (within a pixel at the search's resolution): about half the candidates do not (a
+      // repeated texture, a point the right camera does not see), and they are dropped here,
+      // before the two KLT fits that would find the same (counted as circular rejections).
+      if (disparity) {
+        const std::optional<float> back = search_row(
+            pyramid_image(right_pyramid, search_level), pyramid_image(left_pyramid, search_level),
+            right, search_scale, kSearchRadius, options_.max_disparity, +1);
+        if (!back || std::abs(*back - *disparity) > 1.0f / search_scale + 0.01f) {
+          ++out.counts.rejected_circular;
+          continue;
+        }
+      }
+      left_points.push_back(point);
+      right_points.push_back(right);
     }
     next += batch;
+    if (left_points.empty()) continue;
     klt.track(left_pyramid, right_pyramid, left_points, right_points, search_level, status);
     if (hook_) hook_(MatchStage::kNewStereo, right_points);
     left_back = left_points;
     klt.track(right_pyramid, left_pyramid, right_points, left_back, search_level, back_status);
-    for (std::size_t index = 0; index < batch && out.counts.added < missing; ++index) {
+    for (std::size_t index = 0; index < left_points.size() && out.counts.added < missing; ++index) {
       if (!status[index] || !inside(right_points[index], size)) {
         ++out.counts.lost_stereo;
         continue;
