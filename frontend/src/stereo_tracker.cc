@@ -192,6 +192,15 @@ TrackedFrame StereoTracker::track(const cv::Mat& left, const cv::Mat& right) {
                               cv::BORDER_CONSTANT, false);
   cv::buildOpticalFlowPyramid(right, right_pyramid, window, levels, true, cv::BORDER_REFLECT_101,
                               cv::BORDER_CONSTANT, false);
+  if (previous_left_pyramid_.empty()) {
+    // The first frame also fills the buffers the second frame will be built into: their first
+    // allocation (page faults on a few megabytes) is then part of the first frame, which starts
+    // every track anyway, not a cost the second frame alone pays.
+    cv::buildOpticalFlowPyramid(left, previous_left_pyramid_, window, levels, true,
+                                cv::BORDER_REFLECT_101, cv::BORDER_CONSTANT, false);
+    cv::buildOpticalFlowPyramid(right, previous_right_pyramid_, window, levels, true,
+                                cv::BORDER_REFLECT_101, cv::BORDER_CONSTANT, false);
+  }
 
   TrackedFrame out;
   out.frame = frame_;
