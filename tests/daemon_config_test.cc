@@ -182,6 +182,32 @@ TEST(DaemonConfig, AssociationModeLimitsAndInlineAssociationOptions) {
             std::string::npos)
       << message;
   EXPECT_NE(message.find("max_owner_records"), std::string::npos) << message;
+  // Images or ingest whose object ids are the robot's own: auto negotiates them, so lockstep.
+  const DaemonConfig own_ids = parse_daemon_config(
+      "team_key_file: k\nmembers: [0, 1]\nconsensus: {mode: lockstep}\n"
+      "source: {kind: images, images: seq, private_ids: true}\n",
+      "robot.yaml", "/");
+  EXPECT_TRUE(own_ids.source.private_ids);
+  EXPECT_FALSE(own_ids.source.unknown_start);
+  for (const std::string source :
+       {"{kind: images, images: seq, private_ids: true}",
+        "{kind: ingest, camera: c.json, unknown_start: true}"}) {
+    try {
+      message.clear();
+      (void)parse_daemon_config("team_key_file: k\nmembers: [0, 1]\nconsensus: {mode: async}\n"
+                                "source: " + source + "\n",
+                                "robot.yaml", "/");
+    } catch (const config::ConfigError& error) {
+      message = error.what();
+    }
+    EXPECT_NE(message.find("consensus.association: auto negotiates"), std::string::npos)
+        << source << ": " << message;
+  }
+  // The same with ids given to the team is an ordinary async team.
+  EXPECT_NO_THROW((void)parse_daemon_config(
+      "team_key_file: k\nmembers: [0, 1]\nconsensus: {mode: async}\n"
+      "source: {kind: images, images: seq}\n",
+      "robot.yaml", "/"));
   try {
     message.clear();
     (void)parse_daemon_config("consensus: {mode: off, association: guessed}\nsource: {dataset: d}\n",

@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+#include <fstream>
 #include <map>
 #include <set>
 
@@ -432,6 +433,112 @@ TEST(FrontendRendered, RunWritesADatasetThatReadsBack) {
   // Detections and odometry files belong to a single sequence, not to a team.
   options.detections = rendered_sequence().sequence / "detections.csv";
   EXPECT_THROW((void)run_frontend(rendered_sequence().team, out, options), FrontendError);
+}
+
+/// A team folder of `robots` copies of the rendered sequence (robot_NN), each with its
+/// detections' classes replaced by `classes[robot]` (cycled over the detections), and the
+/// rendered team's dataset.json when `declared`.
+fs::path team_of_copies(int robots, const std::vector<std::vector<std::string>>& classes,
+                        bool declared) {
+  const fs::path team = testing::temporary_folder("frontend_team");
+  for (int robot = 0; robot < robots; ++robot) {
+    const fs::path folder = team / dataset::robot_folder_name(robot);
+    fs::copy(rendered_sequence().sequence, folder, fs::copy_options::recursive);
+    auto detections = read_detections(folder / "detections.csv", 16);
+    std::size_t next = 0;
+    for (auto& frame : detections) {
+      for (Detection& detection : frame) {
+        detection.class_name = classes[robot][next++ % classes[robot].size()];
+      }
+    }
+    std::ofstream(folder / "detections.csv") << format_detections(detections);
+  }
+  if (declared) fs::copy_file(rendered_sequence().team / "dataset.json", team / "dataset.json");
+  return team;
+}
+
+TEST(FrontendRun, ATeamsDetectorIdsArePrivateAndItsStartsUnknownUnlessDeclared) {
+  FrontendRunOptions options;
+  options.max_frames = 3;
+  const std::vector<std::vector<std::string>> cubes = {{"cube"}, {"cube"}};
+  {
+    // Two robots' own detectors and no word on how their ids or frames relate.
+    const fs::path out = testing::temporary_folder("frontend_team_out");
+    const FrontendRunSummary summary = run_frontend(team_of_copies(2, cubes, false), out, options);
+    EXPECT_EQ(summary.object_ids, dataset::ObjectIds::kPrivate);
+    EXPECT_EQ(summary.start_poses, dataset::StartPoses::kUnknown);
+    const dataset::Dataset data = dataset::read_dataset(out);
+    EXPECT_EQ(data.object_ids, dataset::ObjectIds::kPrivate);
+    EXPECT_EQ(data.start_poses, dataset::StartPoses::kUnknown);
+  }
+  {
+    // The rendered team's dataset.json says its ids are global and its starts known.
+    const fs::path out = testing::temporary_folder("frontend_team_out");
+    const FrontendRunSummary summary = run_frontend(team_of_copies(2, cubes, true), out, options);
+    const dataset::Dataset data = dataset::read_dataset(out);
+    EXPECT_EQ(data.object_ids, dataset::ObjectIds::kGlobal);
+    EXPECT_EQ(data.start_poses, dataset::StartPoses::kKnown);
+    EXPECT_EQ(summary.object_ids, dataset::ObjectIds::kGlobal);
+  }
+  {
+    // What the user says wins.
+    const fs::path out = testing::temporary_folder("frontend_team_out");
+    options.object_ids = dataset::ObjectIds::kGlobal;
+    options.start_poses = dataset::StartPoses::kKnown;
+    (void)run_frontend(team_of_copies(2, cubes, false), out, options);
+    const dataset::Dataset data = dataset::read_dataset(out);
+    EXPECT_EQ(data.object_ids, dataset::ObjectIds::kGlobal);
+    EXPECT_EQ(data.start_poses, dataset::StartPoses::kKnown);
+  }
+  // One sequence has no one to associate with: global and known.
+  options = FrontendRunOptions{};
+  options.max_frames = 3;
+  const fs::path out = testing::temporary_folder("frontend_team_out");
+  (void)run_frontend(rendered_sequence().sequence, out, options);
+  const dataset::Dataset data = dataset::read_dataset(out);
+  EXPECT_EQ(data.object_ids, dataset::ObjectIds::kGlobal);
+  EXPECT_EQ(data.start_poses, dataset::StartPoses::kKnown);
+}
+
+/// The class of every object observation of a dataset, in order.
+std::vector<int> all_classes(const dataset::Dataset& data, int robot) {
+  std::vector<int> out;
+  for (const auto& frame : data.robots[robot].object_classes) out.insert(out.end(), frame.begin(), frame.end());
+  return out;
+}
+
+TEST(FrontendRun, TheDetectorsClassesAreNumberedAlikeForEveryRobot) {
+  FrontendRunOptions options;
+  options.max_frames = 3;
+  {
+    // Names: numbered in sorted order over the team (bike 0, car 1, person 2), whichever robot
+    // saw which.
+    const fs::path out = testing::temporary_folder("frontend_team_out");
+    const FrontendRunSummary summary =
+        run_frontend(team_of_copies(2, {{"car", "person"}, {"bike", "car"}}, false), out, options);
+    EXPECT_EQ(summary.classes, (std::vector<std::string>{"bike", "car", "person"}));
+    const dataset::Dataset data = dataset::read_dataset(out);
+    ASSERT_TRUE(data.robots[0].has_object_classes);
+    ASSERT_TRUE(data.robots[1].has_object_classes);
+    const std::vector<int> first = all_classes(data, 0), second = all_classes(data, 1);
+    ASSERT_FALSE(first.empty());
+    ASSERT_FALSE(second.empty());
+    for (const int c : first) EXPECT_TRUE(c == 1 || c == 2);
+    for (const int c : second) EXPECT_TRUE(c == 0 || c == 1);
+    EXPECT_NE(std::find(first.begin(), first.end(), 2), first.end());
+    EXPECT_NE(std::find(second.begin(), second.end(), 0), second.end());
+  }
+  {
+    // Numbers are kept as they are.
+    const fs::path out = testing::temporary_folder("frontend_team_out");
+    const FrontendRunSummary summary =
+        run_frontend(team_of_copies(2, {{"3", "17"}, {"17"}}, false), out, options);
+    EXPECT_TRUE(summary.classes.empty());
+    const dataset::Dataset data = dataset::read_dataset(out);
+    for (const int c : all_classes(data, 0)) EXPECT_TRUE(c == 3 || c == 17);
+    for (const int c : all_classes(data, 1)) EXPECT_EQ(c, 17);
+    EXPECT_FALSE(all_classes(data, 1).empty());
+  }
 }
 
 }  // namespace

@@ -539,7 +539,15 @@ int run_frontend_command(const fs::path& input, const fs::path& out,
               << " ms (p99); CPU without image decoding " << s.processing_cpu_ms.p50
               << " ms (p50), " << s.processing_cpu_ms.p99 << " ms (p99)\n";
   }
-  std::cout << "concord frontend: wrote " << out.string() << " (statistics in "
+  std::cout << "concord frontend: object ids " << dataset::to_string(summary.object_ids)
+            << ", start poses " << dataset::to_string(summary.start_poses)
+            << " (--object-ids, --start-poses; docs/frontend.md)";
+  if (!summary.classes.empty()) {
+    std::cout << "; classes";
+    for (std::size_t index = 0; index < summary.classes.size(); ++index)
+      std::cout << " " << index << "=" << summary.classes[index];
+  }
+  std::cout << "\nconcord frontend: wrote " << out.string() << " (statistics in "
             << (out / "frontend.json").string() << ")\n";
   return 0;
 }
@@ -1020,6 +1028,18 @@ int main(int argc, char** argv) {
       ->add_option("--config", frontend_config,
                    "Front-end options (YAML: tracker:, odometry:, objects:; docs/frontend.md)")
       ->check(CLI::ExistingFile);
+  std::string frontend_object_ids, frontend_start_poses;
+  frontend_command
+      ->add_option("--object-ids", frontend_object_ids,
+                   "How the detections' track ids are to be read: global (one id per object for "
+                   "the whole team) or private (each robot's own). Default: as the input team's "
+                   "dataset.json says; else private for a team")
+      ->check(CLI::IsMember({"global", "private"}));
+  frontend_command
+      ->add_option("--start-poses", frontend_start_poses,
+                   "known (the robots' ground truth shares one world frame) or unknown. Default: "
+                   "as the input team's dataset.json says; else unknown for a team")
+      ->check(CLI::IsMember({"known", "unknown"}));
   int frontend_threads = 0;
   frontend_command
       ->add_option("--threads", frontend_threads,
@@ -1103,6 +1123,16 @@ int main(int argc, char** argv) {
     if (frontend_eval_command->parsed()) return run_frontend_eval(dataset_dir, world_file);
     if (frontend_command->parsed()) {
       if (frames > 0) frontend_options.max_frames = frames;
+      if (!frontend_object_ids.empty()) {
+        frontend_options.object_ids = frontend_object_ids == "private"
+                                          ? dataset::ObjectIds::kPrivate
+                                          : dataset::ObjectIds::kGlobal;
+      }
+      if (!frontend_start_poses.empty()) {
+        frontend_options.start_poses = frontend_start_poses == "unknown"
+                                           ? dataset::StartPoses::kUnknown
+                                           : dataset::StartPoses::kKnown;
+      }
       if (frontend_threads > 0) frontend::set_opencv_threads(frontend_threads);
       if (!frontend_config.empty()) {
         const int features = frontend_options.frontend.tracker.target_features;

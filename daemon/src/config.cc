@@ -141,6 +141,11 @@ std::vector<std::string> DaemonConfig::validate() const {
   if (consensus.association == AssociationMode::kNegotiated &&
       consensus.mode == ConsensusMode::kAsync)
     problems.push_back("consensus.association: negotiated needs consensus.mode lockstep");
+  if (consensus.association == AssociationMode::kAuto && consensus.mode == ConsensusMode::kAsync &&
+      source.kind != SourceKind::kReplay && (source.unknown_start || source.private_ids))
+    problems.push_back(
+        "consensus.association: auto negotiates with source.unknown_start or "
+        "source.private_ids, which needs consensus.mode lockstep");
   const NegotiationLimits& limits = consensus.negotiation_limits;
   if (limits.max_description_objects < 1 || limits.max_records < 1 ||
       limits.max_links_per_record < 1 || limits.max_frame_edges_per_record < 1)
@@ -249,6 +254,7 @@ DaemonConfig parse_daemon_config(const std::string& yaml_text, const std::string
   source.read("max_translation_m", config.source.max_translation_m);
   source.read("max_rotation_rad", config.source.max_rotation_rad);
   source.read("unknown_start", config.source.unknown_start);
+  source.read("private_ids", config.source.private_ids);
   source.finish();
 
   Section network(top.child("network"), "network.", problems);

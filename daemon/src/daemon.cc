@@ -336,7 +336,8 @@ bool Daemon::Impl::load_source() {
     start_known_ = !config_.source.unknown_start;
     if (!start_known_) start_pose_ = Eigen::Isometry3d::Identity();
     negotiated_ = config_.consensus.association == AssociationMode::kNegotiated ||
-                  (config_.consensus.association == AssociationMode::kAuto && !start_known_);
+                  (config_.consensus.association == AssociationMode::kAuto &&
+                   (!start_known_ || config_.source.private_ids));
   }
   if (config_.consensus.mode == ConsensusMode::kOff) negotiated_ = false;
   if (negotiated_ && config_.consensus.mode != ConsensusMode::kLockstep) {

@@ -116,7 +116,8 @@ Eigen::Isometry3d read_json_transform(const nlohmann::json& camera, const std::s
   return transform;
 }
 
-Description read_description(const std::filesystem::path& file) {
+/// The whole of a JSON file, which must hold an object.
+nlohmann::json read_json_object(const std::filesystem::path& file) {
   const std::string text = text_parsing::read_whole_file(file);
   nlohmann::json root;
   try {
@@ -125,7 +126,31 @@ Description read_description(const std::filesystem::path& file) {
     fail_in_file(file, std::string("invalid JSON: ") + error.what());
   }
   if (!root.is_object()) fail_in_file(file, "expected a JSON object");
+  return root;
+}
 
+/// dataset.json's "object_ids" and "start_poses".
+Conventions parse_conventions(const nlohmann::json& root, const std::filesystem::path& file) {
+  Conventions conventions;
+  if (root.contains("object_ids")) {
+    const nlohmann::json& value = root["object_ids"];
+    if (!value.is_string() || (value != "global" && value != "private")) {
+      fail_in_file(file, "\"object_ids\" must be \"global\" or \"private\", got " + value.dump());
+    }
+    conventions.object_ids = value == "private" ? ObjectIds::kPrivate : ObjectIds::kGlobal;
+  }
+  if (root.contains("start_poses")) {
+    const nlohmann::json& value = root["start_poses"];
+    if (!value.is_string() || (value != "known" && value != "unknown")) {
+      fail_in_file(file, "\"start_poses\" must be \"known\" or \"unknown\", got " + value.dump());
+    }
+    conventions.start_poses = value == "unknown" ? StartPoses::kUnknown : StartPoses::kKnown;
+  }
+  return conventions;
+}
+
+Description read_description(const std::filesystem::path& file) {
+  nlohmann::json root = read_json_object(file);
   Description description;
   if (root.contains("name")) {
     if (!root["name"].is_string()) fail_in_file(file, "\"name\" must be a string");
@@ -141,20 +166,9 @@ Description read_description(const std::filesystem::path& file) {
     }
     description.robots = root["robots"].get<int>();
   }
-  if (root.contains("object_ids")) {
-    const nlohmann::json& value = root["object_ids"];
-    if (!value.is_string() || (value != "global" && value != "private")) {
-      fail_in_file(file, "\"object_ids\" must be \"global\" or \"private\", got " + value.dump());
-    }
-    description.object_ids = value == "private" ? ObjectIds::kPrivate : ObjectIds::kGlobal;
-  }
-  if (root.contains("start_poses")) {
-    const nlohmann::json& value = root["start_poses"];
-    if (!value.is_string() || (value != "known" && value != "unknown")) {
-      fail_in_file(file, "\"start_poses\" must be \"known\" or \"unknown\", got " + value.dump());
-    }
-    description.start_poses = value == "unknown" ? StartPoses::kUnknown : StartPoses::kKnown;
-  }
+  const Conventions conventions = parse_conventions(root, file);
+  description.object_ids = conventions.object_ids;
+  description.start_poses = conventions.start_poses;
   if (!root.contains("camera") || !root["camera"].is_object()) {
     fail_in_file(file, "missing \"camera\" object");
   }
@@ -451,6 +465,10 @@ std::string robot_folder_name(int index) {
 
 StereoCamera read_camera(const std::filesystem::path& dataset_json) {
   return read_description(dataset_json).camera;
+}
+
+Conventions read_conventions(const std::filesystem::path& dataset_json) {
+  return parse_conventions(read_json_object(dataset_json), dataset_json);
 }
 
 Dataset read_dataset(const std::filesystem::path& directory, const ReadOptions& options) {

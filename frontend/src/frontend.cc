@@ -121,6 +121,7 @@ class StereoFrontend::Impl {
                                                           rectifier_.camera(), options_.objects);
         if (measured.observation) {
           out.input.objects.push_back(*measured.observation);
+          out.object_class_names.push_back(detection.class_name);
           ++out.objects_observed;
         }
         out.objects_ambiguous += measured.skipped == ObjectSkip::kAmbiguous ? 1 : 0;

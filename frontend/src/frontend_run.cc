@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <charconv>
 #include <cmath>
+#include <set>
+#include <string>
 #include <nlohmann/json.hpp>
 
 #include "concord/config/options_file.h"
@@ -92,10 +94,55 @@ bool same_camera(const StereoCamera& a, const StereoCamera& b) {
 /// One robot: the front-end over its sequence, as dataset robot data plus what was measured.
 struct RobotRun {
   dataset::RobotData data;
+  /// The detector's class name of each object observation, parallel to data.objects.
+  std::vector<std::vector<std::string>> class_names;
+  /// Whether the sequence had ground truth (else data.groundtruth is a dead reckoning).
+  bool has_groundtruth = false;
   std::vector<MotionEstimate> motions;
   SequenceSummary summary;
   StereoCamera camera;
 };
+
+/// A class name that is a number (0 to 10^6) as that number.
+std::optional<int> class_number(const std::string& name) {
+  if (name.empty() || name.size() > 7 ||
+      !std::all_of(name.begin(), name.end(), [](char c) { return c >= '0' && c <= '9'; })) {
+    return std::nullopt;
+  }
+  const int number = std::stoi(name);
+  return number <= 1000000 ? std::optional<int>(number) : std::nullopt;
+}
+
+/// objects.csv's class column of every robot from the detectors' class names (`names`, per robot
+/// and frame, parallel to its objects): names that are all numbers are written as those numbers;
+/// otherwise the names are numbered 0, 1, ... in sorted order, the same for every robot of the
+/// run, and returned in that order. No class column without object observations.
+std::vector<std::string> number_classes(
+    const std::vector<std::vector<std::vector<std::string>>>& names,
+    std::vector<dataset::RobotData>& robots) {
+  std::set<std::string> distinct;
+  for (const auto& robot : names)
+    for (const auto& frame : robot) distinct.insert(frame.begin(), frame.end());
+  if (distinct.empty()) return {};
+  const bool numbers = std::all_of(distinct.begin(), distinct.end(),
+                                   [](const std::string& name) { return class_number(name); });
+  const std::vector<std::string> sorted(distinct.begin(), distinct.end());
+  for (std::size_t robot = 0; robot < robots.size(); ++robot) {
+    robots[robot].has_object_classes = true;
+    robots[robot].object_classes.clear();
+    for (const auto& frame : names[robot]) {
+      std::vector<int> classes;
+      for (const std::string& name : frame) {
+        classes.push_back(numbers ? *class_number(name)
+                                  : static_cast<int>(std::lower_bound(sorted.begin(), sorted.end(),
+                                                                      name) -
+                                                     sorted.begin()));
+      }
+      robots[robot].object_classes.push_back(std::move(classes));
+    }
+  }
+  return numbers ? std::vector<std::string>{} : sorted;
+}
 
 RobotRun run_sequence(const fs::path& folder, int robot, bool single,
                       const FrontendRunOptions& options) {
@@ -176,9 +223,11 @@ RobotRun run_sequence(const fs::path& folder, int robot, bool single,
     odometry_ms.push_back(frame.timings.odometry);
     objects.push_back(frame.timings.objects);
     run.data.objects.push_back(std::move(frame.input.objects));
+    run.class_names.push_back(std::move(frame.object_class_names));
     run.data.features.push_back(std::move(frame.input.features));
     if (options.progress) options.progress(robot, frame.input.frame, frames);
   }
+  run.has_groundtruth = groundtruth.has_value();
   if (groundtruth) {
     run.data.groundtruth = *groundtruth;
   } else {
@@ -282,8 +331,22 @@ FrontendRunSummary run_frontend(const fs::path& input, const fs::path& out,
   dataset::Dataset data;
   data.name = options.name;
   FrontendRunSummary summary;
+  // How the output's ids and starts are to be read, unless given: as the team folder's
+  // dataset.json declares them (a rendered team); else, for a team, private (a detector's track
+  // ids are its own robot's) and unknown (each robot's ground truth, if any, may be in a frame
+  // of its own). One robot: global and known (there is no one to associate with).
+  if (!single && fs::exists(input / "dataset.json")) {
+    const dataset::Conventions declared = dataset::read_conventions(input / "dataset.json");
+    summary.object_ids = declared.object_ids;
+    summary.start_poses = declared.start_poses;
+  } else if (!single && sequences.size() > 1) {
+    summary.object_ids = dataset::ObjectIds::kPrivate;
+    summary.start_poses = dataset::StartPoses::kUnknown;
+  }
+  std::vector<std::vector<std::vector<std::string>>> runs;
   for (std::size_t robot = 0; robot < sequences.size(); ++robot) {
     RobotRun run = run_sequence(sequences[robot], static_cast<int>(robot), single, options);
+    runs.push_back(std::move(run.class_names));
     if (robot == 0) {
       data.camera = run.camera;
     } else if (!same_camera(run.camera, data.camera)) {
@@ -300,10 +363,24 @@ FrontendRunSummary run_frontend(const fs::path& input, const fs::path& out,
     summary.robots.push_back(std::move(run.summary));
   }
 
+  data.object_ids = options.object_ids.value_or(summary.object_ids);
+  data.start_poses = options.start_poses.value_or(summary.start_poses);
+  summary.object_ids = data.object_ids;
+  summary.start_poses = data.start_poses;
+  summary.classes = number_classes(runs, data.robots);
+
   dataset::write_dataset(data, out);
   if (!single && fs::exists(input / "objects_gt.csv")) {
     fs::copy_file(input / "objects_gt.csv", out / "objects_gt.csv",
                   fs::copy_options::overwrite_existing);
+  }
+  // A team whose object ids are private may carry their truth (evaluation only).
+  for (std::size_t robot = 0; robot < sequences.size() && !single; ++robot) {
+    const fs::path truth = sequences[robot] / "object_ids_truth.csv";
+    if (data.object_ids == dataset::ObjectIds::kPrivate && fs::exists(truth)) {
+      fs::copy_file(truth, out / dataset::robot_folder_name(static_cast<int>(robot)) / truth.filename(),
+                    fs::copy_options::overwrite_existing);
+    }
   }
   std::string estimator_yaml =
       "# Estimator options for this dataset, written by `concord frontend`: the noise values are\n"
@@ -320,6 +397,9 @@ FrontendRunSummary run_frontend(const fs::path& input, const fs::path& out,
   document["odometry"] =
       options.odometry.empty() ? "stereo visual odometry" : options.odometry.string();
   document["options"] = options_json(options.frontend);
+  document["object_ids"] = dataset::to_string(summary.object_ids);
+  document["start_poses"] = dataset::to_string(summary.start_poses);
+  document["classes"] = summary.classes;
   document["robots"] = nlohmann::ordered_json::array();
   for (const SequenceSummary& robot : summary.robots)
     document["robots"].push_back(summary_json(robot));

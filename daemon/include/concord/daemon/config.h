@@ -74,6 +74,10 @@ struct SourceConfig {
   /// Ingest and images (source.unknown_start): the start pose is not known; the filter starts at
   /// the identity of the robot's own frame (negotiated association). Replay reads dataset.json.
   bool unknown_start = false;
+  /// Ingest and images (source.private_ids): the object ids are the robot's own (its detector's
+  /// track ids), not shared with the team; association auto then negotiates them. Replay reads
+  /// dataset.json.
+  bool private_ids = false;
   /// Ingest (source.ingest_authenticated): senders must run the authenticated channel with the
   /// team key. Required when ingest_address is not a loopback address.
   bool ingest_authenticated = false;

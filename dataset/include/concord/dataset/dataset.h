@@ -182,6 +182,17 @@ std::string robot_folder_name(int index);
 /// checks it. Throws DatasetError naming the file and the problem.
 StereoCamera read_camera(const std::filesystem::path& dataset_json);
 
+/// How a dataset names its objects and places its robots' starts.
+struct Conventions {
+  ObjectIds object_ids = ObjectIds::kGlobal;
+  StartPoses start_poses = StartPoses::kKnown;
+};
+
+/// dataset.json's "object_ids" and "start_poses" (defaults where absent), checked as read_dataset
+/// checks them; nothing else of the file is needed. Throws DatasetError naming the file and the
+/// problem.
+Conventions read_conventions(const std::filesystem::path& dataset_json);
+
 /// Writes a dataset in the same layout (dataset.json, objects_gt.csv, robot_XX/{groundtruth.kitti,
 /// odometry.kitti, objects.csv[, features.csv]}), creating the folder if needed and replacing each
 /// file atomically. Numbers are written in their shortest exact form, so read_dataset gives back

@@ -56,6 +56,8 @@ struct FrontendFrame {
   /// ambiguous or left-right inconsistent stereo match (ObjectSkip).
   int detections = 0;
   int objects_observed = 0;
+  /// The detector's class name of each object observation, parallel to input.objects.
+  std::vector<std::string> object_class_names;
   int objects_ambiguous = 0;
   int objects_inconsistent = 0;
   FrameTimings timings;

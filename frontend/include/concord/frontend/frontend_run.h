@@ -15,7 +15,9 @@
 ///     OUT/robot_NN/odometry_covariance.csv   frame,valid,inliers, then the 21 upper-triangle
 ///                                       entries of its 6x6 covariance ([rho; phi], row-major)
 ///     OUT/robot_NN/features.csv         point-feature tracks (rectified pixels)
-///     OUT/robot_NN/objects.csv          stereo object observations from the detections
+///     OUT/robot_NN/objects.csv          stereo object observations from the detections, with
+///                                       the detector's class as a number (class column)
+///     OUT/robot_NN/object_ids_truth.csv copied from a team input's robot_NN (private ids only)
 ///
 /// The input is a sequence folder (EuRoC or KITTI layout; it becomes robot_00) or a folder of
 /// robot_NN sequence folders (one robot each). A sequence's detections are `detections.csv` in its
@@ -28,6 +30,7 @@
 #include <string>
 #include <vector>
 
+#include "concord/dataset/dataset.h"
 #include "concord/estimator/options.h"
 #include "concord/estimator/types.h"
 #include "concord/frontend/frontend_options.h"
@@ -46,6 +49,13 @@ struct FrontendRunOptions {
   std::filesystem::path odometry;
   double odometry_translation_sigma = 0.05;
   double odometry_rotation_sigma = 0.01;
+  /// How the output's object ids and start poses are to be read (dataset.json "object_ids",
+  /// "start_poses"). Unset: as the input team folder's dataset.json declares them; without one,
+  /// a team's ids are private (a detector's track ids are its own robot's, and the robots
+  /// negotiate which objects are the same) and its starts unknown; one sequence is global and
+  /// known.
+  std::optional<dataset::ObjectIds> object_ids;
+  std::optional<dataset::StartPoses> start_poses;
   /// dataset.json "name" of the output (replay uses the estimator.yaml written beside it).
   std::string name = "frontend";
   /// Called after each frame with (robot, frame, frames of that robot).
@@ -99,6 +109,13 @@ struct SequenceSummary {
 
 struct FrontendRunSummary {
   std::vector<SequenceSummary> robots;
+  /// What the output's dataset.json says of its object ids and start poses
+  /// (FrontendRunOptions::object_ids, start_poses).
+  dataset::ObjectIds object_ids = dataset::ObjectIds::kGlobal;
+  dataset::StartPoses start_poses = dataset::StartPoses::kKnown;
+  /// The detectors' class names in the order of the class numbers written to objects.csv; empty
+  /// when the names were numbers already (written as they are) or there were no detections.
+  std::vector<std::string> classes;
 };
 
 /// Runs the front-end on `input` and writes the dataset to `out` (created if needed). Throws
