@@ -39,10 +39,12 @@ if [ ! -f "$rendered/world.csv" ]; then
   echo "bench: rendered" >&2
 fi
 
+# The rendered robots' body is the left camera, looking forward on a level robot: up is -y
+# (written to estimator.yaml for a negotiated association; the given-ids runs below ignore it).
 frontend="$out/frontend-tracks"
 if [ ! -f "$frontend/frontend_eval.json" ]; then
   rm -rf "$frontend"
-  $concord frontend --threads 1 --input "$rendered" --out "$frontend" \
+  $concord frontend --threads 1 --input "$rendered" --out "$frontend" --up-axis -y \
     --name sim-render-frontend >"$out/frontend-tracks.log" 2>&1
   $concord frontend-eval --dataset "$frontend" --world "$rendered/world.csv" \
     >>"$out/frontend-tracks.log" 2>&1

@@ -12,6 +12,7 @@
 #include <map>
 #include <set>
 
+#include "concord/config/options_file.h"
 #include "concord/dataset/dataset.h"
 #include "concord/estimator/lie.h"
 #include "concord/frontend/frontend.h"
@@ -489,6 +490,22 @@ TEST(FrontendRun, ATeamsDetectorIdsArePrivateAndItsStartsUnknownUnlessDeclared) 
     const dataset::Dataset data = dataset::read_dataset(out);
     EXPECT_EQ(data.object_ids, dataset::ObjectIds::kGlobal);
     EXPECT_EQ(data.start_poses, dataset::StartPoses::kKnown);
+  }
+  {
+    // The robots' up axis goes to estimator.yaml for the negotiation's tilt check.
+    const fs::path out = testing::temporary_folder("frontend_team_out");
+    FrontendRunOptions level = options;
+    level.up_axis = "-y";
+    (void)run_frontend(team_of_copies(2, cubes, false), out, level);
+    EXPECT_EQ(config::load_negotiation_options(out / "estimator.yaml").association.start_up_axis,
+              "-y");
+    EXPECT_NO_THROW((void)config::load_estimator_options(out / "estimator.yaml"));
+    level.up_axis = "up";
+    EXPECT_THROW((void)run_frontend(team_of_copies(2, cubes, false), out, level), FrontendError);
+    // Unknown (the default) writes no association section: the in-class default, unknown.
+    (void)run_frontend(team_of_copies(2, cubes, false), out, options);
+    EXPECT_EQ(config::load_negotiation_options(out / "estimator.yaml").association.start_up_axis,
+              "unknown");
   }
   // One sequence has no one to associate with: global and known.
   options = FrontendRunOptions{};

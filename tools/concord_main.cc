@@ -542,6 +542,13 @@ int run_frontend_command(const fs::path& input, const fs::path& out,
   std::cout << "concord frontend: object ids " << dataset::to_string(summary.object_ids)
             << ", start poses " << dataset::to_string(summary.start_poses)
             << " (--object-ids, --start-poses; docs/frontend.md)";
+  if (summary.robots.size() > 1 && options.up_axis == "unknown" &&
+      (summary.object_ids == dataset::ObjectIds::kPrivate ||
+       summary.start_poses == dataset::StartPoses::kUnknown)) {
+    std::cout << "\nconcord frontend: the robots' up axis is unknown (--up-axis): the "
+                 "negotiation cannot refuse an alignment that tilts one robot's frame against "
+                 "another's";
+  }
   if (!summary.classes.empty()) {
     std::cout << "; classes";
     for (std::size_t index = 0; index < summary.classes.size(); ++index)
@@ -1040,6 +1047,13 @@ int main(int argc, char** argv) {
                    "known (the robots' ground truth shares one world frame) or unknown. Default: "
                    "as the input team's dataset.json says; else unknown for a team")
       ->check(CLI::IsMember({"known", "unknown"}));
+  frontend_command
+      ->add_option("--up-axis", frontend_options.up_axis,
+                   "The body axis that points up when the robots stand level (a forward-looking "
+                   "camera in the KITTI layout: -y), written to estimator.yaml for the "
+                   "negotiation's tilt check; unknown writes nothing")
+      ->check(CLI::IsMember({"unknown", "+x", "-x", "+y", "-y", "+z", "-z"}))
+      ->capture_default_str();
   int frontend_threads = 0;
   frontend_command
       ->add_option("--threads", frontend_threads,

@@ -320,6 +320,11 @@ FrontendRunSummary run_frontend(const fs::path& input, const fs::path& out,
     for (const std::string& problem : problems) message += " " + problem + ";";
     throw FrontendError(message);
   }
+  static const std::set<std::string> kAxes = {"unknown", "+x", "-x", "+y", "-y", "+z", "-z"};
+  if (kAxes.count(options.up_axis) == 0) {
+    throw FrontendError("up axis '" + options.up_axis +
+                        "': expected unknown, +x, -x, +y, -y, +z or -z");
+  }
   const std::vector<fs::path> sequences = list_sequences(input);
   const bool single = sequences.size() == 1 && sequences.front() == input;
   if (!single && (!options.detections.empty() || !options.odometry.empty())) {
@@ -390,6 +395,10 @@ FrontendRunSummary run_frontend(const fs::path& input, const fs::path& out,
       "# limits follow from fx * baseline. See docs/frontend.md.\n";
   estimator_yaml +=
       config::to_yaml(suggested_estimator_options(summary, data.camera, options.frontend));
+  if (options.up_axis != "unknown") {
+    estimator_yaml += "# The robots' up axis (concord frontend --up-axis; docs/association.md).\n"
+                      "association:\n  start_up_axis: \"" + options.up_axis + "\"\n";
+  }
   dataset::write_file_atomically(out / "estimator.yaml", estimator_yaml);
 
   nlohmann::ordered_json document;

@@ -56,6 +56,11 @@ struct FrontendRunOptions {
   /// known.
   std::optional<dataset::ObjectIds> object_ids;
   std::optional<dataset::StartPoses> start_poses;
+  /// The body axis that points up when the robot stands level (+x, -x, +y, -y, +z, -z; for the
+  /// KITTI layout's body, a forward-looking left camera, -y), written to estimator.yaml as
+  /// association.start_up_axis: the negotiation then refuses an alignment that tilts one
+  /// robot's start frame against another's. "unknown" (the default) writes nothing.
+  std::string up_axis = "unknown";
   /// dataset.json "name" of the output (replay uses the estimator.yaml written beside it).
   std::string name = "frontend";
   /// Called after each frame with (robot, frame, frames of that robot).
