@@ -3,9 +3,9 @@
 #include <algorithm>
 #include <charconv>
 #include <cmath>
+#include <nlohmann/json.hpp>
 #include <set>
 #include <string>
-#include <nlohmann/json.hpp>
 
 #include "concord/config/options_file.h"
 #include "concord/dataset/dataset.h"
@@ -96,8 +96,6 @@ struct RobotRun {
   dataset::RobotData data;
   /// The detector's class name of each object observation, parallel to data.objects.
   std::vector<std::vector<std::string>> class_names;
-  /// Whether the sequence had ground truth (else data.groundtruth is a dead reckoning).
-  bool has_groundtruth = false;
   std::vector<MotionEstimate> motions;
   SequenceSummary summary;
   StereoCamera camera;
@@ -227,7 +225,6 @@ RobotRun run_sequence(const fs::path& folder, int robot, bool single,
     run.data.features.push_back(std::move(frame.input.features));
     if (options.progress) options.progress(robot, frame.input.frame, frames);
   }
-  run.has_groundtruth = groundtruth.has_value();
   if (groundtruth) {
     run.data.groundtruth = *groundtruth;
   } else {
