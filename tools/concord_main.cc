@@ -542,17 +542,17 @@ int run_frontend_command(const fs::path& input, const fs::path& out,
   std::cout << "concord frontend: object ids " << dataset::to_string(summary.object_ids)
             << ", start poses " << dataset::to_string(summary.start_poses)
             << " (--object-ids, --start-poses; docs/frontend.md)";
+  if (!summary.classes.empty()) {
+    std::cout << "; classes";
+    for (std::size_t index = 0; index < summary.classes.size(); ++index)
+      std::cout << " " << index << "=" << summary.classes[index];
+  }
   if (summary.robots.size() > 1 && options.up_axis == "unknown" &&
       (summary.object_ids == dataset::ObjectIds::kPrivate ||
        summary.start_poses == dataset::StartPoses::kUnknown)) {
     std::cout << "\nconcord frontend: the robots' up axis is unknown (--up-axis): the "
                  "negotiation cannot refuse an alignment that tilts one robot's frame against "
                  "another's";
-  }
-  if (!summary.classes.empty()) {
-    std::cout << "; classes";
-    for (std::size_t index = 0; index < summary.classes.size(); ++index)
-      std::cout << " " << index << "=" << summary.classes[index];
   }
   std::cout << "\nconcord frontend: wrote " << out.string() << " (statistics in "
             << (out / "frontend.json").string() << ")\n";
