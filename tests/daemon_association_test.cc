@@ -394,6 +394,22 @@ std::uint16_t association_port(int offset) {
   return static_cast<std::uint16_t>(11000 + (getpid() % 700) * 30 + offset);
 }
 
+TEST(DaemonAssociation, AnObjectsClassIsTheMostFrequentOfItsDetectionsClasses) {
+  AssociationSession session(1, 1, association::NegotiationOptions{});
+  const auto at = [](LandmarkId id) { return StereoObservation{id, Eigen::Vector4d(1, 2, 0, 2)}; };
+  session.observe({at(4), at(8)}, {2, 5});
+  session.observe({at(4), at(8)}, {3, 5});
+  session.observe({at(4)}, {3});
+  session.observe({at(9)}, {});  // a frame whose detections carry no class
+  std::vector<ObjectEstimate> objects(4);
+  objects[0].id = 4;
+  objects[1].id = 8;
+  objects[2].id = 9;
+  objects[3].id = 12;  // never detected
+  EXPECT_EQ(session.object_classes(objects),
+            (std::vector<int>{3, 5, association::kUnknownClass, association::kUnknownClass}));
+}
+
 TEST(DaemonAssociation, DaemonsInLockstepMatchTheNegotiatedReplay) {
   const fs::path out =
       fs::path(CONCORD_BINARY_DIR) / "test-out" / ("association-" + std::to_string(getpid()));

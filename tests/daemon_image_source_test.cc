@@ -99,5 +99,29 @@ TEST(DaemonImageSource, AnUnreadableSequenceStopsTheDaemonWithStatusTwo) {
   EXPECT_EQ(daemon.run(), 2);
 }
 
+TEST(DaemonImageSource, ADetectedClassOutsideTheTeamsListStopsTheDaemonWithStatusTwo) {
+  const auto& rendered = testing::rendered_sequence();
+  const fs::path out = testing::temporary_folder("daemon_images_classes");
+  // The rendered detections are all of class "cube".
+  const std::string head =
+      "source: {kind: images, images: " + rendered.sequence.string() + ", classes: [";
+  const std::string tail = "]}\nconsensus: {mode: off}\nhttp: {enabled: false}\n"
+                           "output: {directory: " + out.string() + "}\n";
+  {
+    Daemon daemon(parse_daemon_config(head + "ball, box" + tail, "robot.yaml", "/"));
+    EXPECT_EQ(daemon.run(), kExitCannotStart);
+  }
+  try {
+    (void)parse_daemon_config(head + "cube, ''" + tail, "robot.yaml", "/");
+    FAIL() << "expected a ConfigError";
+  } catch (const config::ConfigError& error) {
+    EXPECT_NE(std::string(error.what()).find("source.classes: an empty class name"),
+              std::string::npos)
+        << error.what();
+  }
+  const DaemonConfig listed = parse_daemon_config(head + "cube, ball" + tail, "robot.yaml", "/");
+  EXPECT_EQ(listed.source.classes, (std::vector<std::string>{"cube", "ball"}));
+}
+
 }  // namespace
 }  // namespace concord::daemon

@@ -8,6 +8,7 @@
 #include "allocation_counter.h"
 #include "checkpoint.h"
 #include "concord/daemon/wire.h"
+#include "concord/frontend/detections.h"
 #include "concord/v1/concord.pb.h"
 #include "test_support.h"
 
@@ -243,6 +244,36 @@ TEST(DaemonWire, SensorFrameRoundTrip) {
   EXPECT_EQ(back->objects[0].uv, frame.objects[0].uv);
   ASSERT_EQ(back->features.size(), 1u);
   EXPECT_EQ(back->features[0].id, 77);
+}
+
+TEST(DaemonWire, ASensorFrameCarriesOneClassPerObjectOrNone) {
+  FrameInput frame;
+  frame.frame = 4;
+  frame.objects.push_back({5, Eigen::Vector4d(100, 50, 90, 50)});
+  frame.objects.push_back({9, Eigen::Vector4d(200, 60, 180, 60)});
+  const std::vector<int> classes{3, frontend::kMaxClassNumber};
+  v1::SensorFrame message;
+  to_wire(frame, 0.4, message, &classes);
+  std::string error;
+  std::vector<int> back_classes{7};
+  ASSERT_TRUE(from_wire(message, error, &back_classes)) << error;
+  EXPECT_EQ(back_classes, classes);
+
+  // None is fine (the classes are then unknown); anything else must be one per object.
+  message.clear_object_classes();
+  ASSERT_TRUE(from_wire(message, error, &back_classes)) << error;
+  EXPECT_TRUE(back_classes.empty());
+  message.add_object_classes(1);
+  EXPECT_FALSE(from_wire(message, error, &back_classes));
+  EXPECT_NE(error.find("1 object classes for 2 objects"), std::string::npos) << error;
+  message.add_object_classes(2);
+  message.add_object_classes(3);
+  EXPECT_FALSE(from_wire(message, error));
+  message.clear_object_classes();
+  message.add_object_classes(1);
+  message.add_object_classes(static_cast<std::uint32_t>(frontend::kMaxClassNumber) + 1);
+  EXPECT_FALSE(from_wire(message, error));
+  EXPECT_NE(error.find("object class 1000001 above"), std::string::npos) << error;
 }
 
 TEST(DaemonWire, MalformedSensorFramesAreRejected) {

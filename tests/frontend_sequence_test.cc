@@ -272,6 +272,60 @@ TEST(FrontendDetections, ReadsPerFrameListsAndNamesBadRows) {
   EXPECT_EQ(read_detections(file, 2, true).size(), 2u);
 }
 
+TEST(FrontendClasses, NamesAreNumberedByTheSetOfNamesWhateverTheirOrder) {
+  const ClassNumbering names({"person", "car", "bike", "car"});
+  EXPECT_EQ(names.number("bike"), 0);
+  EXPECT_EQ(names.number("car"), 1);
+  EXPECT_EQ(names.number("person"), 2);
+  EXPECT_EQ(names.number("truck"), std::nullopt);
+  EXPECT_EQ(names.numbered_names(), (std::vector<std::string>{"bike", "car", "person"}));
+  const ClassNumbering reordered({"car", "bike", "person"});
+  for (const std::string name : {"bike", "car", "person"})
+    EXPECT_EQ(reordered.number(name), names.number(name)) << name;
+
+  // All numbers: the numbers themselves (up to kMaxClassNumber).
+  const ClassNumbering numbers({"17", "3", "1000000"});
+  EXPECT_EQ(numbers.number("17"), 17);
+  EXPECT_EQ(numbers.number("1000000"), 1000000);
+  EXPECT_EQ(numbers.number("4"), std::nullopt);
+  EXPECT_TRUE(numbers.numbered_names().empty());
+  // A name that is not a number (or too large a number) numbers them all by position.
+  const ClassNumbering mixed({"17", "3", "1000001"});
+  EXPECT_EQ(mixed.number("1000001"), 0);
+  EXPECT_EQ(mixed.number("17"), 1);
+  EXPECT_EQ(mixed.number("3"), 2);
+  EXPECT_THAT(error_of([] { (void)ClassNumbering({"car", ""}); }), HasSubstr("empty class name"));
+}
+
+TEST(FrontendClasses, ARobotNumbersItsDetectionsByTheTeamsListOrByTheirNumbers) {
+  const auto detections = [](std::vector<std::string> names) {
+    std::vector<std::vector<Detection>> frames(2);
+    for (std::size_t n = 0; n < names.size(); ++n) {
+      Detection detection;
+      detection.class_name = names[n];
+      frames[n % 2].push_back(detection);
+    }
+    return frames;
+  };
+  // The team's list: this robot's detections use two of its three names; numbered as the team.
+  const auto listed = robot_class_numbering(detections({"person", "car", "person"}),
+                                            {"person", "car", "bike"}, "d.csv");
+  ASSERT_TRUE(listed);
+  EXPECT_EQ(listed->number("car"), 1);
+  EXPECT_EQ(listed->number("person"), 2);
+  EXPECT_THAT(error_of([&] {
+                (void)robot_class_numbering(detections({"car", "truck"}), {"car", "bike"},
+                                            "d.csv");
+              }),
+              AllOf(HasSubstr("d.csv"), HasSubstr("class 'truck' is not one of the team's")));
+  // No list: numbers pass as themselves; names cannot be numbered alike without the list.
+  const auto numbered = robot_class_numbering(detections({"4", "12"}), {}, "d.csv");
+  ASSERT_TRUE(numbered);
+  EXPECT_EQ(numbered->number("12"), 12);
+  EXPECT_FALSE(robot_class_numbering(detections({"4", "car"}), {}, "d.csv"));
+  EXPECT_FALSE(robot_class_numbering(detections({}), {}, "d.csv"));
+}
+
 TEST(FrontendOptionsFile, ReadsWritesAndNamesEveryProblem) {
   const FrontendOptions options = parse_frontend_options(
       "tracker: {target_features: 300}\nodometry: {pixel_sigma: 0.3}\n", "x");

@@ -84,6 +84,14 @@ std::optional<Marginal> AssociationSession::accept_marginal(
   return relabelled;
 }
 
+std::vector<int> AssociationSession::object_classes(
+    const std::vector<ObjectEstimate>& objects) const {
+  std::vector<int> classes;
+  classes.reserve(objects.size());
+  for (const ObjectEstimate& object : objects) classes.push_back(tally_.object_class(object.id));
+  return classes;
+}
+
 std::vector<LandmarkId> AssociationSession::team_ids(
     const std::vector<ObjectEstimate>& objects) const {
   std::vector<LandmarkId> ids;

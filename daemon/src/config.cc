@@ -174,6 +174,9 @@ std::vector<std::string> DaemonConfig::validate() const {
       problems.push_back("source.rate_hz: expected 0 (as fast as possible) or a rate up to 10000 "
                          "frames per second, got " + std::to_string(source.rate_hz));
     if (source.max_frames < 0) problems.push_back("source.max_frames: expected >= 0");
+    for (const std::string& name : source.classes) {
+      if (name.empty()) problems.push_back("source.classes: an empty class name");
+    }
   } else {
     if (source.camera.empty()) problems.push_back("source.camera: required for ingest");
   }
@@ -255,6 +258,7 @@ DaemonConfig parse_daemon_config(const std::string& yaml_text, const std::string
   source.read("max_rotation_rad", config.source.max_rotation_rad);
   source.read("unknown_start", config.source.unknown_start);
   source.read("private_ids", config.source.private_ids);
+  source.read_strings("classes", config.source.classes);
   source.finish();
 
   Section network(top.child("network"), "network.", problems);

@@ -138,6 +138,9 @@ struct LiveState {
   /// Team id of each object (parallel to objects): the object's id when ids are given, -1 while
   /// unshared when they are negotiated.
   std::vector<LandmarkId> team_ids;
+  /// The detector's class of each object (negotiated association; association::kUnknownClass when
+  /// its detections carried none), else empty.
+  std::vector<int> object_classes;
   /// Where the estimates are (alignment.json), and the frame of each stretch of the trajectory:
   /// (first trajectory entry, frame robot or nullopt for the world).
   AlignmentState alignment;
@@ -223,6 +226,10 @@ class Daemon::Impl {
   // Source data (replay; images through the front-end).
   std::optional<dataset::RobotData> robot_;
   std::unique_ptr<frontend::StereoFrontend> frontend_;
+  /// The image source's numbering of its detections' class names, when it passes classes.
+  std::optional<frontend::ClassNumbering> class_numbering_;
+  /// The detections have class names that are not passed (no source.classes; not numbers).
+  bool unnumbered_classes_ = false;
   StereoCamera camera_;
   // The configured per-frame odometry noise, and that of a frame whose motion is unknown: any
   // motion within the plausibility limits (uniform: sigma = limit / sqrt(3) per axis).
@@ -308,6 +315,11 @@ bool Daemon::Impl::load_source() {
         detections = frontend::read_detections(detections_file, sequence.num_frames(),
                                                source.max_frames > 0);
       }
+      class_numbering_ =
+          frontend::robot_class_numbering(detections, source.classes, detections_file);
+      unnumbered_classes_ =
+          !class_numbering_ && std::any_of(detections.begin(), detections.end(),
+                                           [](const auto& frame) { return !frame.empty(); });
       if (sequence.groundtruth) {
         start_pose_ = sequence.groundtruth->front();
       } else {
@@ -349,6 +361,11 @@ bool Daemon::Impl::load_source() {
     spdlog::error("consensus.association given: the start pose is unknown, so the robots' frames "
                   "differ; use the negotiated association");
     return false;
+  }
+  if (negotiated_ && unnumbered_classes_) {
+    spdlog::warn("source: the detections' class names are not passed to the negotiated "
+                 "association, which then links objects whatever their class: set "
+                 "source.classes to the team's class names (the same list on every robot)");
   }
   if (negotiated_) {
     try {
@@ -629,7 +646,13 @@ void Daemon::Impl::image_frames() {
           static_cast<std::uint64_t>(frame.objects_ambiguous + frame.objects_inconsistent);
       live_.frontend_odometry_failures += odometry_failed ? 1 : 0;
     }
-    QueuedFrame item{std::move(frame.input), frame.timestamp, Clock::now(), {}};
+    std::vector<int> object_classes;
+    if (class_numbering_) {
+      for (const std::string& name : frame.object_class_names)
+        object_classes.push_back(*class_numbering_->number(name));
+    }
+    QueuedFrame item{std::move(frame.input), frame.timestamp, Clock::now(),
+                     std::move(object_classes)};
     if (!queue_.push(std::move(item))) return;
   }
   queue_.close();
@@ -657,7 +680,8 @@ bool Daemon::Impl::on_ingest(const v1::Envelope& envelope) {
   }
   const v1::SensorFrame& message = envelope.sensor_frame();
   std::string error;
-  std::optional<FrameInput> frame = from_wire(message, error);
+  std::vector<int> object_classes;
+  std::optional<FrameInput> frame = from_wire(message, error, &object_classes);
   const std::int64_t index = message.frame();
   auto end_if_last = [&] {
     if (!message.last()) return;
@@ -730,7 +754,8 @@ bool Daemon::Impl::on_ingest(const v1::Envelope& envelope) {
     return true;
   }
   // 4. A usable frame: bridge what was skipped.
-  QueuedFrame item{std::move(*frame), message.timestamp(), Clock::now(), {}};
+  QueuedFrame item{std::move(*frame), message.timestamp(), Clock::now(),
+                   std::move(object_classes)};
   if (ingest_started_) {
     if (missing > 0 || !item.input.T_previous_current) {
       limited("gap", fmt::format("frames {}..{} missing or without odometry: motion over the gap "
@@ -855,11 +880,13 @@ bool Daemon::Impl::process(QueuedFrame& item) {
     }
     if (association_) {
       live_.team_ids = association_->team_ids(live_.objects);
+      live_.object_classes = association_->object_classes(live_.objects);
       live_.alignment = association_->alignment();
       live_.negotiation = association_->counters();
     } else {
       live_.team_ids.clear();
       for (const ObjectEstimate& object : live_.objects) live_.team_ids.push_back(object.id);
+      live_.object_classes.clear();
     }
     const int frame = live_.alignment.frame;
     const std::optional<int> frame_robot =
@@ -1241,6 +1268,8 @@ void Daemon::Impl::register_routes() {
       const ObjectEstimate& object = live_.objects[n];
       objects.push_back({{"id", object.id},
                          {"team_id", n < live_.team_ids.size() ? live_.team_ids[n] : -1},
+                         {"class", n < live_.object_classes.size() ? live_.object_classes[n]
+                                                                   : association::kUnknownClass},
                          {"position", {object.p_world.x(), object.p_world.y(), object.p_world.z()}},
                          {"covariance", matrix_json(object.covariance)}});
     }

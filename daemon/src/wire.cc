@@ -3,6 +3,7 @@
 #include <Eigen/Cholesky>
 #include <cmath>
 
+#include "concord/frontend/detections.h"
 #include "concord/v1/concord.pb.h"
 
 namespace concord::daemon {
@@ -250,7 +251,8 @@ std::optional<Eigen::Isometry3d> from_wire(const v1::Pose& message, std::string&
   return pose;
 }
 
-void to_wire(const FrameInput& frame, double timestamp, v1::SensorFrame& out) {
+void to_wire(const FrameInput& frame, double timestamp, v1::SensorFrame& out,
+             const std::vector<int>* object_classes) {
   out.set_frame(frame.frame);
   out.set_timestamp(timestamp);
   if (frame.T_previous_current) to_wire(*frame.T_previous_current, *out.mutable_odometry());
@@ -261,9 +263,14 @@ void to_wire(const FrameInput& frame, double timestamp, v1::SensorFrame& out) {
   }
   for (const auto& observation : frame.objects) to_wire(observation, *out.add_objects());
   for (const auto& observation : frame.features) to_wire(observation, *out.add_features());
+  if (object_classes != nullptr) {
+    for (const int object_class : *object_classes)
+      out.add_object_classes(static_cast<std::uint32_t>(object_class));
+  }
 }
 
-std::optional<FrameInput> from_wire(const v1::SensorFrame& message, std::string& error) {
+std::optional<FrameInput> from_wire(const v1::SensorFrame& message, std::string& error,
+                                    std::vector<int>* object_classes) {
   FrameInput frame;
   if (message.frame() < 0 || message.frame() > std::numeric_limits<int>::max()) {
     error = "sensor frame: frame index " + std::to_string(message.frame()) + " out of range";
@@ -304,6 +311,24 @@ std::optional<FrameInput> from_wire(const v1::SensorFrame& message, std::string&
     error = "sensor frame " + std::to_string(frame.frame) + ": " + error;
     return std::nullopt;
   }
+  if (message.object_classes_size() != 0) {
+    if (message.object_classes_size() != message.objects_size()) {
+      error = "sensor frame " + std::to_string(frame.frame) + ": " +
+              std::to_string(message.object_classes_size()) + " object classes for " +
+              std::to_string(message.objects_size()) + " objects, expected one each or none";
+      return std::nullopt;
+    }
+    for (const std::uint32_t object_class : message.object_classes()) {
+      if (object_class > static_cast<std::uint32_t>(frontend::kMaxClassNumber)) {
+        error = "sensor frame " + std::to_string(frame.frame) + ": object class " +
+                std::to_string(object_class) + " above " +
+                std::to_string(frontend::kMaxClassNumber);
+        return std::nullopt;
+      }
+    }
+  }
+  if (object_classes != nullptr)
+    object_classes->assign(message.object_classes().begin(), message.object_classes().end());
   return frame;
 }
 

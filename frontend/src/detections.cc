@@ -1,5 +1,6 @@
 #include "concord/frontend/detections.h"
 
+#include <algorithm>
 #include <charconv>
 #include <set>
 
@@ -18,6 +19,61 @@ void append_number(std::string& out, double value) {
 }
 
 }  // namespace
+
+std::optional<int> class_number(const std::string& name) {
+  if (name.empty() || name.size() > 7 ||
+      !std::all_of(name.begin(), name.end(), [](char c) { return c >= '0' && c <= '9'; })) {
+    return std::nullopt;
+  }
+  const int number = std::stoi(name);
+  return number <= kMaxClassNumber ? std::optional<int>(number) : std::nullopt;
+}
+
+ClassNumbering::ClassNumbering(const std::vector<std::string>& names) {
+  const std::set<std::string> distinct(names.begin(), names.end());
+  if (distinct.contains("")) throw FrontendError("class names: an empty class name");
+  const bool numbers = std::all_of(distinct.begin(), distinct.end(),
+                                   [](const std::string& name) { return class_number(name); });
+  if (numbers) {
+    for (const std::string& name : distinct) numbers_.push_back(*class_number(name));
+    std::sort(numbers_.begin(), numbers_.end());
+  } else {
+    sorted_.assign(distinct.begin(), distinct.end());
+  }
+}
+
+std::optional<int> ClassNumbering::number(const std::string& name) const {
+  if (sorted_.empty()) {
+    const std::optional<int> value = class_number(name);
+    if (!value || !std::binary_search(numbers_.begin(), numbers_.end(), *value)) return std::nullopt;
+    return value;
+  }
+  const auto it = std::lower_bound(sorted_.begin(), sorted_.end(), name);
+  if (it == sorted_.end() || *it != name) return std::nullopt;
+  return static_cast<int>(it - sorted_.begin());
+}
+
+std::optional<ClassNumbering> robot_class_numbering(
+    const std::vector<std::vector<Detection>>& detections,
+    const std::vector<std::string>& team_classes, const std::filesystem::path& file) {
+  std::set<std::string> detected;
+  for (const auto& frame : detections)
+    for (const Detection& detection : frame) detected.insert(detection.class_name);
+  if (!team_classes.empty()) {
+    ClassNumbering numbering(team_classes);
+    for (const std::string& name : detected) {
+      if (!numbering.number(name)) {
+        throw FrontendError(file.string() + ": class '" + name +
+                            "' is not one of the team's classes");
+      }
+    }
+    return numbering;
+  }
+  const bool numbers = std::all_of(detected.begin(), detected.end(),
+                                   [](const std::string& name) { return class_number(name); });
+  if (detected.empty() || !numbers) return std::nullopt;
+  return ClassNumbering(std::vector<std::string>(detected.begin(), detected.end()));
+}
 
 std::vector<std::vector<Detection>> read_detections(const std::filesystem::path& file,
                                                     int num_frames, bool later_frames_allowed) {

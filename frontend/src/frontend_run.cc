@@ -101,45 +101,28 @@ struct RobotRun {
   StereoCamera camera;
 };
 
-/// A class name that is a number (0 to 10^6) as that number.
-std::optional<int> class_number(const std::string& name) {
-  if (name.empty() || name.size() > 7 ||
-      !std::all_of(name.begin(), name.end(), [](char c) { return c >= '0' && c <= '9'; })) {
-    return std::nullopt;
-  }
-  const int number = std::stoi(name);
-  return number <= 1000000 ? std::optional<int>(number) : std::nullopt;
-}
-
 /// objects.csv's class column of every robot from the detectors' class names (`names`, per robot
-/// and frame, parallel to its objects): names that are all numbers are written as those numbers;
-/// otherwise the names are numbered 0, 1, ... in sorted order, the same for every robot of the
-/// run, and returned in that order. No class column without object observations.
+/// and frame, parallel to its objects), numbered by ClassNumbering over every name the run's
+/// robots use; returns the names in number order (empty when the names are numbers). No class
+/// column without object observations.
 std::vector<std::string> number_classes(
     const std::vector<std::vector<std::vector<std::string>>>& names,
     std::vector<dataset::RobotData>& robots) {
-  std::set<std::string> distinct;
+  std::vector<std::string> all;
   for (const auto& robot : names)
-    for (const auto& frame : robot) distinct.insert(frame.begin(), frame.end());
-  if (distinct.empty()) return {};
-  const bool numbers = std::all_of(distinct.begin(), distinct.end(),
-                                   [](const std::string& name) { return class_number(name); });
-  const std::vector<std::string> sorted(distinct.begin(), distinct.end());
+    for (const auto& frame : robot) all.insert(all.end(), frame.begin(), frame.end());
+  if (all.empty()) return {};
+  const ClassNumbering numbering(all);
   for (std::size_t robot = 0; robot < robots.size(); ++robot) {
     robots[robot].has_object_classes = true;
     robots[robot].object_classes.clear();
     for (const auto& frame : names[robot]) {
       std::vector<int> classes;
-      for (const std::string& name : frame) {
-        classes.push_back(numbers ? *class_number(name)
-                                  : static_cast<int>(std::lower_bound(sorted.begin(), sorted.end(),
-                                                                      name) -
-                                                     sorted.begin()));
-      }
+      for (const std::string& name : frame) classes.push_back(*numbering.number(name));
       robots[robot].object_classes.push_back(std::move(classes));
     }
   }
-  return numbers ? std::vector<std::string>{} : sorted;
+  return numbering.numbered_names();
 }
 
 RobotRun run_sequence(const fs::path& folder, int robot, bool single,

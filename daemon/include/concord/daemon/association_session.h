@@ -69,6 +69,9 @@ class AssociationSession {
   int frame() const { return negotiator_.frame(); }
   /// Team id of each of `objects` (-1 while unshared).
   std::vector<LandmarkId> team_ids(const std::vector<ObjectEstimate>& objects) const;
+  /// The detector's class of each of `objects` (the most frequent of its detections' classes),
+  /// association::kUnknownClass when its detections carried none.
+  std::vector<int> object_classes(const std::vector<ObjectEstimate>& objects) const;
   const AlignmentState& alignment() const { return alignment_; }
   const association::NegotiationCounters& counters() const { return negotiator_.counters(); }
 

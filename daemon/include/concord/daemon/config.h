@@ -78,6 +78,13 @@ struct SourceConfig {
   /// track ids), not shared with the team; association auto then negotiates them. Replay reads
   /// dataset.json.
   bool private_ids = false;
+  /// Images (source.classes): the team's detector class names, the same list on every robot (in
+  /// any order). Each detection's class is numbered by its place in the sorted list
+  /// (frontend::ClassNumbering, as `concord frontend` numbers objects.csv's class column) and
+  /// passed to the negotiated association, which links only objects of one class. A detection of
+  /// a class not in the list stops the source. Empty: class names that are numbers are passed
+  /// as those numbers; others are not passed (a warning says so).
+  std::vector<std::string> classes;
   /// Ingest (source.ingest_authenticated): senders must run the authenticated channel with the
   /// team key. Required when ingest_address is not a loopback address.
   bool ingest_authenticated = false;

@@ -34,11 +34,16 @@ void to_wire(const Eigen::Isometry3d& pose, v1::Pose& out);
 [[nodiscard]] std::optional<Eigen::Isometry3d> from_wire(const v1::Pose& message,
                                                          std::string& error);
 
-/// A frame as a SensorFrame message (timestamp = frame index when none is known).
-void to_wire(const FrameInput& frame, double timestamp, v1::SensorFrame& out);
+/// A frame as a SensorFrame message (timestamp = frame index when none is known), with the class
+/// of each object observation when `object_classes` is given (parallel to frame.objects).
+void to_wire(const FrameInput& frame, double timestamp, v1::SensorFrame& out,
+             const std::vector<int>* object_classes = nullptr);
 /// The FrameInput a SensorFrame carries, or std::nullopt with `error` saying what is malformed
-/// (negative frame index, bad odometry pose, non-finite observations).
+/// (negative frame index, bad odometry pose, non-finite observations, object classes that are
+/// not one per object observation or above frontend::kMaxClassNumber). `object_classes`, when
+/// given, receives the classes (empty when the message has none).
 [[nodiscard]] std::optional<FrameInput> from_wire(const v1::SensorFrame& message,
-                                                  std::string& error);
+                                                  std::string& error,
+                                                  std::vector<int>* object_classes = nullptr);
 
 }  // namespace concord::daemon
