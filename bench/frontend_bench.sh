@@ -8,7 +8,7 @@
 #  2. The real EuRoC V1_01 frames (../shared/datasets/euroc-v101-static, 40 pairs): stereo tracks
 #     a frame and odometry drift over the 40 frames.
 #  3. Speed: milliseconds a frame on one core (OpenCV single-threaded), p50 and p99, on the
-#     rendered 752x480 sequences (about 200 tracks) and on EuRoC.
+#     rendered 752x480 sequences (about 200 tracks; medians of SPEED_RUNS runs) and on EuRoC.
 # Usage: bench/frontend_bench.sh [EUROC_DIR]
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -87,6 +87,21 @@ if [ ! -f "$euroc_out/frontend_eval.json" ]; then
   $concord frontend-eval --dataset "$euroc_out" >>"$out/frontend-euroc.log" 2>&1
   echo "bench: EuRoC" >&2
 fi
+
+# Speed: each rendered robot's sequence again, alone, SPEED_RUNS times (default 3, robots
+# alternating); the speed table quotes the median over the runs (the machine is shared: one run's
+# p99 moves by several milliseconds).
+speed="$out/frontend-speed"
+rm -rf "$speed"
+mkdir -p "$speed"
+for run in $(seq "${SPEED_RUNS:-3}"); do
+  for robot in "$rendered"/robot_*; do
+    name=$(basename "$robot")
+    $concord frontend --threads 1 --input "$robot" --out "$speed/$name-$run" \
+      >"$speed/$name-$run.log" 2>&1
+  done
+done
+echo "bench: speed" >&2
 
 python3 bench/summarize_frontend.py "$out" >docs/results-frontend.md
 cat docs/results-frontend.md

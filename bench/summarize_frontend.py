@@ -52,14 +52,36 @@ ratio = fe_con / ex_con
 euroc = euroc_run["robots"][0]
 euroc_odometry = euroc_eval["robots"][0]["odometry"]
 
-# --- Speed: the rendered team's frames (752x480, about 200 tracks), one core.
-def pooled(runs, key, stat):
-    return max(r["milliseconds_per_frame"][key][stat] for r in runs)
+# --- Speed: the rendered team's frames (752x480, about 200 tracks), one core: each robot's
+# sequence run alone several times (frontend-speed/robot_XX-N); medians over the runs.
+speed_dir = os.path.join(out, "frontend-speed")
+speed_runs = {}
+for name in sorted(os.listdir(speed_dir)):
+    match = re.fullmatch(r"(robot_\d+)-(\d+)", name)
+    if match:
+        run = load("frontend-speed", name, "frontend.json")["robots"][0]
+        speed_runs.setdefault(match.group(1), []).append(run["milliseconds_per_frame"])
 
-processing_p50 = pooled(tracks_run["robots"], "processing_cpu", "p50")
-processing_p99 = pooled(tracks_run["robots"], "processing_cpu", "p99")
-total_p50 = pooled(tracks_run["robots"], "total_cpu", "p50")
-total_p99 = pooled(tracks_run["robots"], "total_cpu", "p99")
+
+def median(values):
+    values = sorted(values)
+    middle = len(values) // 2
+    return values[middle] if len(values) % 2 else 0.5 * (values[middle - 1] + values[middle])
+
+
+def speed(robot, key, stat):
+    return median([m[key][stat] for m in speed_runs[robot]])
+
+
+def pooled(key, stat):
+    return max(speed(robot, key, stat) for robot in speed_runs)
+
+
+runs_per_robot = min(len(runs) for runs in speed_runs.values())
+processing_p50 = pooled("processing_cpu", "p50")
+processing_p99 = pooled("processing_cpu", "p99")
+total_p50 = pooled("total_cpu", "p50")
+total_p99 = pooled("total_cpu", "p99")
 euroc_ms = euroc["milliseconds_per_frame"]
 
 print("# Stereo front-end: results")
@@ -159,24 +181,29 @@ print("## Speed")
 print()
 print("CPU time of the processing thread a frame (OpenCV single-threaded, so one core), p50 / p99 "
       "in milliseconds. \"Decoded images in\" starts from the decoded images, as a robot whose camera "
-      "driver delivers them; \"with PNG decoding\" includes reading both images from disk.")
+      "driver delivers them; \"with PNG decoding\" includes reading both images from disk. Rendered "
+      f"robots: the median of {runs_per_robot} runs of each sequence alone, the robots alternating "
+      "(the p99 column adds the runs' range); EuRoC: one run.")
 print()
-print("| sequence | frames | tracks a frame | decoded images in | with PNG decoding | wall clock (shared machine) |")
-print("|---|---|---|---|---|---|")
-for run in tracks_run["robots"]:
-    m = run["milliseconds_per_frame"]
-    print(f"| rendered robot {tracks_run['robots'].index(run)} | {run['frames']} | "
-          f"{run['tracks_per_frame']:.0f} | {m['processing_cpu']['p50']:.1f} / "
-          f"{m['processing_cpu']['p99']:.1f} | {m['total_cpu']['p50']:.1f} / {m['total_cpu']['p99']:.1f} "
-          f"| {m['total']['p50']:.1f} / {m['total']['p99']:.1f} |")
+print("| sequence | frames | tracks a frame | decoded images in | p99 range of the runs | with PNG decoding | wall clock (shared machine) |")
+print("|---|---|---|---|---|---|---|")
+for index, run in enumerate(tracks_run["robots"]):
+    robot = f"robot_{index:02d}"
+    p99s = [m["processing_cpu"]["p99"] for m in speed_runs[robot]]
+    print(f"| rendered robot {index} | {run['frames']} | "
+          f"{run['tracks_per_frame']:.0f} | {speed(robot, 'processing_cpu', 'p50'):.1f} / "
+          f"{speed(robot, 'processing_cpu', 'p99'):.1f} | {min(p99s):.1f}-{max(p99s):.1f} | "
+          f"{speed(robot, 'total_cpu', 'p50'):.1f} / {speed(robot, 'total_cpu', 'p99'):.1f} "
+          f"| {speed(robot, 'total', 'p50'):.1f} / {speed(robot, 'total', 'p99'):.1f} |")
 print(f"| EuRoC | {euroc['frames']} | {euroc['tracks_per_frame']:.0f} | "
-      f"{euroc_ms['processing_cpu']['p50']:.1f} / {euroc_ms['processing_cpu']['p99']:.1f} | "
+      f"{euroc_ms['processing_cpu']['p50']:.1f} / {euroc_ms['processing_cpu']['p99']:.1f} | | "
       f"{euroc_ms['total_cpu']['p50']:.1f} / {euroc_ms['total_cpu']['p99']:.1f} | "
       f"{euroc_ms['total']['p50']:.1f} / {euroc_ms['total']['p99']:.1f} |")
 print()
 print("EuRoC's p99 over its 40 frames is its first frame, which starts every track (up to three "
-      "times a cell's share of corners are tried there); the rendered robots' p99 are frames that "
-      "replace many lost tracks after a turn.")
+      "times a cell's share of corners are tried there); the rendered robots' slowest frames start "
+      "a few tens of new tracks while the objects stage is at its slowest (docs/frontend.md, "
+      "\"Turns followed from the last frame's flow\").")
 print()
 stages = ["rectify", "track", "odometry", "objects"]
 print("Per stage (wall clock, rendered robot 0, p50 ms): " + ", ".join(

@@ -34,6 +34,9 @@ double robust_sigma_of_differences(std::vector<double> differences) {
   return 1.4826 * median_of(differences) / std::sqrt(2.0);
 }
 
+/// Tracks whose median flow predicts the next frame's (fewer: no prediction).
+constexpr std::size_t kMinFlowTracks = 16;
+
 class Klt {
  public:
   Klt(const TrackerOptions& options, int window)
@@ -234,10 +237,33 @@ void StereoTracker::continue_tracks(const std::vector<cv::Mat>& left_pyramid,
   std::vector<unsigned char> keep(count, 1), status;
   std::vector<double> row_differences;
 
-  // 1. Temporal KLT, left k-1 -> left k.
+  // 1. Temporal KLT, left k-1 -> left k, starting where the previous frame's median flow takes
+  //    each track (a constant-velocity guess: in a fast turn the image moves further in a frame
+  //    than the pyramid's reach from where the track was). A track the guess loses is tracked
+  //    again from where it was (the motion changed).
   std::vector<cv::Point2f> left_now = tracks_.left;
+  for (cv::Point2f& point : left_now) point += predicted_flow_;
   temporal.track(previous_left_pyramid_, left_pyramid, tracks_.left, left_now,
                  options_.temporal_pyramid_levels, status);
+  if (predicted_flow_ != cv::Point2f(0.0f, 0.0f)) {
+    std::vector<std::size_t> lost;
+    std::vector<cv::Point2f> from, to;
+    for (std::size_t index = 0; index < count; ++index) {
+      if (status[index] && inside(left_now[index], size)) continue;
+      lost.push_back(index);
+      from.push_back(tracks_.left[index]);
+    }
+    if (!lost.empty()) {
+      to = from;
+      std::vector<unsigned char> again;
+      temporal.track(previous_left_pyramid_, left_pyramid, from, to,
+                     options_.temporal_pyramid_levels, again);
+      for (std::size_t position = 0; position < lost.size(); ++position) {
+        left_now[lost[position]] = to[position];
+        status[lost[position]] = again[position];
+      }
+    }
+  }
   if (hook_) hook_(MatchStage::kTemporal, left_now);
   for (std::size_t index = 0; index < count; ++index) {
     if (!status[index] || !inside(left_now[index], size)) {
@@ -341,6 +367,18 @@ void StereoTracker::continue_tracks(const std::vector<cv::Mat>& left_pyramid,
       }
     }
   }
+
+  // The flow the next frame starts from: the median, per axis, of the tracks kept.
+  std::vector<double> flow_x, flow_y;
+  for (std::size_t index = 0; index < count; ++index) {
+    if (!keep[index]) continue;
+    flow_x.push_back(left_now[index].x - tracks_.left[index].x);
+    flow_y.push_back(left_now[index].y - tracks_.left[index].y);
+  }
+  predicted_flow_ = flow_x.size() >= kMinFlowTracks
+                        ? cv::Point2f(static_cast<float>(median_of(flow_x)),
+                                      static_cast<float>(median_of(flow_y)))
+                        : cv::Point2f(0.0f, 0.0f);
 
   tracks_.left = std::move(left_now);
   tracks_.right = std::move(right_now);

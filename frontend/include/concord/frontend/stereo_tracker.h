@@ -121,6 +121,9 @@ class StereoTracker {
   cv::Mat free_mask_;
   LandmarkId next_id_ = 0;
   int frame_ = 0;
+  /// The median flow of the last frame's tracks (left image, pixels): where the next frame's
+  /// temporal tracking starts from.
+  cv::Point2f predicted_flow_{0.0f, 0.0f};
 };
 
 }  // namespace concord::frontend
