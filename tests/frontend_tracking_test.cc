@@ -603,6 +603,21 @@ TEST(FrontendRun, TheDetectorsClassesAreNumberedAlikeForEveryRobot) {
     for (const int c : all_classes(data, 1)) EXPECT_EQ(c, 17);
     EXPECT_FALSE(all_classes(data, 1).empty());
   }
+  {
+    // The team's list (as the daemons get it): a robot processed alone that sees only cars numbers
+    // them as the team does (bike 0, car 1, person 2), and a class outside the list is an error.
+    const fs::path out = testing::temporary_folder("frontend_team_out");
+    options.classes = {"person", "car", "bike"};
+    const FrontendRunSummary summary =
+        run_frontend(team_of_copies(2, {{"car"}, {"car"}}, false), out, options);
+    EXPECT_EQ(summary.classes, (std::vector<std::string>{"bike", "car", "person"}));
+    const dataset::Dataset data = dataset::read_dataset(out);
+    ASSERT_FALSE(all_classes(data, 0).empty());
+    for (const int c : all_classes(data, 0)) EXPECT_EQ(c, 1);
+    options.classes = {"person", "bike"};
+    EXPECT_THROW((void)run_frontend(team_of_copies(2, {{"car"}, {"car"}}, false), out, options),
+                 FrontendError);
+  }
 }
 
 }  // namespace

@@ -1054,6 +1054,13 @@ int main(int argc, char** argv) {
                    "negotiation's tilt check; unknown writes nothing")
       ->check(CLI::IsMember({"unknown", "+x", "-x", "+y", "-y", "+z", "-z"}))
       ->capture_default_str();
+  frontend_command
+      ->add_option("--classes", frontend_options.classes,
+                   "The team's detector class names (comma-separated, any order; the list the "
+                   "daemons get as source.classes): objects.csv's classes are numbered by it, "
+                   "alike for robots processed in separate runs. Default: the names the "
+                   "detections use")
+      ->delimiter(',');
   int frontend_threads = 0;
   frontend_command
       ->add_option("--threads", frontend_threads,

@@ -102,17 +102,24 @@ struct RobotRun {
 };
 
 /// objects.csv's class column of every robot from the detectors' class names (`names`, per robot
-/// and frame, parallel to its objects), numbered by ClassNumbering over every name the run's
-/// robots use; returns the names in number order (empty when the names are numbers). No class
-/// column without object observations.
+/// and frame, parallel to its objects), numbered by ClassNumbering over the team's list when one
+/// is given (a name not in it throws), else over every name the run's robots use; returns the
+/// names in number order (empty when the names are numbers). No class column without object
+/// observations.
 std::vector<std::string> number_classes(
     const std::vector<std::vector<std::vector<std::string>>>& names,
-    std::vector<dataset::RobotData>& robots) {
+    const std::vector<std::string>& team_classes, std::vector<dataset::RobotData>& robots) {
   std::vector<std::string> all;
   for (const auto& robot : names)
     for (const auto& frame : robot) all.insert(all.end(), frame.begin(), frame.end());
   if (all.empty()) return {};
-  const ClassNumbering numbering(all);
+  const ClassNumbering numbering(team_classes.empty() ? all : team_classes);
+  for (const std::string& name : all) {
+    if (!numbering.number(name)) {
+      throw FrontendError("detections: class '" + name + "' is not one of the team's classes (" +
+                          std::to_string(team_classes.size()) + " given)");
+    }
+  }
   for (std::size_t robot = 0; robot < robots.size(); ++robot) {
     robots[robot].has_object_classes = true;
     robots[robot].object_classes.clear();
@@ -352,7 +359,7 @@ FrontendRunSummary run_frontend(const fs::path& input, const fs::path& out,
   data.start_poses = options.start_poses.value_or(summary.start_poses);
   summary.object_ids = data.object_ids;
   summary.start_poses = data.start_poses;
-  summary.classes = number_classes(runs, data.robots);
+  summary.classes = number_classes(runs, options.classes, data.robots);
 
   dataset::write_dataset(data, out);
   if (!single && fs::exists(input / "objects_gt.csv")) {

@@ -61,6 +61,11 @@ struct FrontendRunOptions {
   /// association.start_up_axis: the negotiation then refuses an alignment that tilts one
   /// robot's start frame against another's. "unknown" (the default) writes nothing.
   std::string up_axis = "unknown";
+  /// The team's detector class names (any order), the list a daemon's image source is given
+  /// (source.classes): objects.csv's class column numbers them by it, so that robots processed
+  /// in separate runs, and daemons, number the classes alike. A detected class not in it is an
+  /// error. Empty: the names the run's detections use (frontend::ClassNumbering).
+  std::vector<std::string> classes;
   /// dataset.json "name" of the output (replay uses the estimator.yaml written beside it).
   std::string name = "frontend";
   /// Called after each frame with (robot, frame, frames of that robot).
