@@ -53,26 +53,30 @@ std::optional<int> ClassNumbering::number(const std::string& name) const {
   return static_cast<int>(it - sorted_.begin());
 }
 
+void ClassNumbering::require_all(const std::vector<std::string>& names,
+                                 const std::string& where) const {
+  for (const std::string& name : names) {
+    if (!number(name))
+      throw FrontendError(where + ": class '" + name + "' is not one of the team's classes");
+  }
+}
+
 std::optional<ClassNumbering> robot_class_numbering(
     const std::vector<std::vector<Detection>>& detections,
     const std::vector<std::string>& team_classes, const std::filesystem::path& file) {
-  std::set<std::string> detected;
+  std::set<std::string> distinct;
   for (const auto& frame : detections)
-    for (const Detection& detection : frame) detected.insert(detection.class_name);
+    for (const Detection& detection : frame) distinct.insert(detection.class_name);
+  const std::vector<std::string> detected(distinct.begin(), distinct.end());
   if (!team_classes.empty()) {
     ClassNumbering numbering(team_classes);
-    for (const std::string& name : detected) {
-      if (!numbering.number(name)) {
-        throw FrontendError(file.string() + ": class '" + name +
-                            "' is not one of the team's classes");
-      }
-    }
+    numbering.require_all(detected, file.string());
     return numbering;
   }
   const bool numbers = std::all_of(detected.begin(), detected.end(),
                                    [](const std::string& name) { return class_number(name); });
   if (detected.empty() || !numbers) return std::nullopt;
-  return ClassNumbering(std::vector<std::string>(detected.begin(), detected.end()));
+  return ClassNumbering(detected);
 }
 
 std::vector<std::vector<Detection>> read_detections(const std::filesystem::path& file,

@@ -114,12 +114,7 @@ std::vector<std::string> number_classes(
     for (const auto& frame : robot) all.insert(all.end(), frame.begin(), frame.end());
   if (all.empty()) return {};
   const ClassNumbering numbering(team_classes.empty() ? all : team_classes);
-  for (const std::string& name : all) {
-    if (!numbering.number(name)) {
-      throw FrontendError("detections: class '" + name + "' is not one of the team's classes (" +
-                          std::to_string(team_classes.size()) + " given)");
-    }
-  }
+  numbering.require_all(all, "detections");
   for (std::size_t robot = 0; robot < robots.size(); ++robot) {
     robots[robot].has_object_classes = true;
     robots[robot].object_classes.clear();

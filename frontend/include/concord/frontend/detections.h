@@ -44,6 +44,9 @@ class ClassNumbering {
 
   /// The number of `name`, or nullopt when it is not one of the names.
   [[nodiscard]] std::optional<int> number(const std::string& name) const;
+  /// Throws FrontendError, starting with `where`, for the first of `names` that is not one of
+  /// the names.
+  void require_all(const std::vector<std::string>& names, const std::string& where) const;
   /// The distinct names in number order when they are numbered by position; empty when the names
   /// are numbers.
   [[nodiscard]] const std::vector<std::string>& numbered_names() const { return sorted_; }
