@@ -192,10 +192,21 @@ TEST(FieldNetns, RateLimitedLinksUnderALinkBudgetTrimMarginalsAndKeepTheFrameRat
   EXPECT_TRUE(
       eventually([&] { return metric(*lab, 1, "concord_marginals_fused_total") > 0; }, 20s));
   EXPECT_GT(metric(*lab, 0, "concord_consensus_budget_landmarks_dropped_total"), 0);
-  // The frame rate is kept: frames never pile up in the queue while the links are saturated.
+  // The frame rate is kept: the estimator is never held up by the saturated links, so its queue
+  // stays (nearly) empty. A machine busy with other work can delay a few frames for a moment, so
+  // the check is that the queue is found short while the links stay saturated, not at one
+  // instant; an estimator that waited on the links would keep it full (64 frames).
   EXPECT_TRUE(
       eventually([&] { return metric(*lab, 0, "concord_frames_processed_total") >= 150; }, 30s));
-  EXPECT_LE(metric(*lab, 0, "concord_frame_queue_depth"), 2);
+  // (Robot 0 has 300 frames: found while frames are still coming, not after the run.)
+  EXPECT_TRUE(eventually(
+      [&] {
+        const double depth = metric(*lab, 0, "concord_frame_queue_depth");
+        const double processed = metric(*lab, 0, "concord_frames_processed_total");
+        return depth >= 0 && depth <= 2 && processed >= 0 && processed < 280;
+      },
+      20s))
+      << "queue depth " << metric(*lab, 0, "concord_frame_queue_depth");
   // Consensus stays within its budget: rate x elapsed + the one-second burst (+ a few control
   // messages that may overdraw it).
   const double elapsed = std::chrono::duration<double>(Clock::now() - start).count();
