@@ -3,7 +3,9 @@
 // half resolution, whatever the brightness offset; the limits and the refused arguments.
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <opencv2/imgproc.hpp>
+#include <utility>
 
 #include "frontend_test_support.h"
 #include "row_search.h"
@@ -93,6 +95,66 @@ TEST(RowSearch, RefusesArgumentsItCannotUse) {
   cv::Mat colour;
   cv::cvtColor(pair.right, colour, cv::COLOR_GRAY2BGR);
   EXPECT_THROW(search_row(pair.left, colour, point, 1.0f, 4, 64.0, -1), std::invalid_argument);
+}
+
+// The object matcher's scores (row_search.h, scores_between): a few positions scored directly are
+// cv::matchTemplate's, flat regions included; many positions are cv::matchTemplate's own.
+TEST(RowMatch, ScoresOfAFewPositionsAreThoseOfMatchTemplate) {
+  const Pair pair = shifted_pair(24, 30);
+  const cv::Mat strip = pair.right(cv::Rect(40, 30, 200, 40));
+  const cv::Mat templ = pair.left(cv::Rect(150, 30, 40, 40));
+  cv::Mat reference;
+  cv::matchTemplate(strip, templ, reference, cv::TM_CCOEFF_NORMED);
+  for (const auto& [lo, hi] : {std::pair{0, 6}, std::pair{80, 95}, std::pair{150, 160},
+                                std::pair{0, 160}}) {
+    const cv::Mat scores = scores_between(strip, templ, lo, hi);
+    ASSERT_EQ(scores.cols, hi - lo + 1);
+    for (int x = lo; x <= hi; ++x) {
+      EXPECT_NEAR(scores.at<float>(0, x - lo), reference.at<float>(0, x), 1e-4) << "at " << x;
+    }
+  }
+  // A flat template, or a flat region of the strip, scores 0 (as cv::matchTemplate).
+  cv::Mat flat_strip = strip.clone();
+  flat_strip(cv::Rect(100, 0, 60, 40)).setTo(90);
+  cv::matchTemplate(flat_strip, templ, reference, cv::TM_CCOEFF_NORMED);
+  const cv::Mat flat_scores = scores_between(flat_strip, templ, 105, 115);
+  for (int x = 105; x <= 115; ++x) {
+    EXPECT_NEAR(flat_scores.at<float>(0, x - 105), reference.at<float>(0, x), 1e-4);
+  }
+  EXPECT_EQ(flat_scores.at<float>(0, 10), 0.0f);
+  const cv::Mat flat_template(40, 40, CV_8UC1, cv::Scalar(90));
+  EXPECT_EQ(scores_between(strip, flat_template, 10, 12).at<float>(0, 1), 0.0f);
+}
+
+// Coarse to fine: the match of a region along its row at every shift parity and template size
+// (small templates are searched in full), to the pixel; a repeated copy is the rival.
+TEST(RowMatch, FindsTheShiftAndReportsARepeatedCopyAsTheRival) {
+  for (const int disparity : {23, 24, 57}) {
+    const Pair pair = shifted_pair(disparity, 0);
+    for (const int side : {8, 20, 41}) {
+      const cv::Rect region(230, 40, side, side);
+      const int start = 100;
+      const cv::Rect strip(start, region.y, region.x + region.width - start, region.height);
+      const RowMatch match =
+          match_along_row(pair.right(strip), pair.left(region), std::max(2, side / 2));
+      EXPECT_EQ(start + match.x, region.x - disparity) << "side " << side;
+      EXPECT_GT(match.score, 0.99);
+      EXPECT_LT(match.second, 0.9 * match.score) << "side " << side;
+      ASSERT_TRUE(std::isfinite(match.before) && std::isfinite(match.after));
+      EXPECT_LT(match.before, match.score);
+      EXPECT_LT(match.after, match.score);
+    }
+  }
+  // The region again 80 px further along the row: the best and the rival score alike.
+  Pair pair = shifted_pair(24, 0);
+  const cv::Rect region(230, 40, 30, 30);
+  pair.left(region).copyTo(pair.right(cv::Rect(region.x - 24 - 80, region.y, 30, 30)));
+  const cv::Rect strip(60, region.y, region.x + region.width - 60, region.height);
+  const RowMatch repeated = match_along_row(pair.right(strip), pair.left(region), 15);
+  EXPECT_GT(repeated.second, 0.99);
+  const int found = strip.x + repeated.x;
+  EXPECT_TRUE(found == region.x - 24 || found == region.x - 104) << found;
+  EXPECT_THROW(match_along_row(pair.left(region), pair.right(strip), 15), std::invalid_argument);
 }
 
 }  // namespace

@@ -5,6 +5,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "concord/frontend/sequence.h"
+#include "row_search.h"
 #include "text_lines.h"
 
 namespace concord::frontend {
@@ -57,52 +58,39 @@ ObjectMeasurement observe_object(const Detection& box, const cv::Mat& left, cons
   const int search_start = std::max(0, region.x - max_disparity);
   const cv::Rect strip(search_start, region.y, region.x + region.width - search_start,
                        region.height);
-  cv::Mat scores;
-  cv::matchTemplate(right(strip), left(region), scores, cv::TM_CCOEFF_NORMED);
-  double best = 0.0;
-  cv::Point best_at;
-  cv::minMaxLoc(scores, nullptr, &best, nullptr, &best_at);
-  result.score = best;
-  if (!(best >= options.min_match_score)) {
+  const int exclusion = std::max(2, region.width / 2);
+  const RowMatch match = match_along_row(right(strip), left(region), exclusion);
+  result.score = match.score;
+  if (!(match.score >= options.min_match_score)) {
     result.skipped = ObjectSkip::kNoMatch;
     return result;
   }
   // 3. Checks of the match: no other peak along the row nearly as good (a repeated or weak
   //    texture), and the matched right region matches back to the box's region (left-right
   //    consistency; a region partly covered by another surface fails it).
-  const int exclusion = std::max(2, region.width / 2);
-  double second = -1.0;
-  for (int x = 0; x < scores.cols; ++x) {
-    if (std::abs(x - best_at.x) > exclusion) {
-      second = std::max(second, static_cast<double>(scores.at<float>(0, x)));
-    }
-  }
-  if (best > 0.0 && second >= options.ambiguity_ratio * best) {
+  if (match.score > 0.0 && match.second >= options.ambiguity_ratio * match.score) {
     result.skipped = ObjectSkip::kAmbiguous;
     return result;
   }
-  const int right_x = search_start + best_at.x;
+  const int right_x = search_start + match.x;
   const int back_end = std::min(left.cols, right_x + region.width + max_disparity);
   const cv::Rect back_strip(right_x, region.y, back_end - right_x, region.height);
-  cv::Mat back_scores;
-  cv::matchTemplate(left(back_strip),
-                    right(cv::Rect(right_x, region.y, region.width, region.height)), back_scores,
-                    cv::TM_CCOEFF_NORMED);
-  cv::Point back_at;
-  cv::minMaxLoc(back_scores, nullptr, nullptr, nullptr, &back_at);
-  if (std::abs(right_x + back_at.x - region.x) > options.left_right_tolerance) {
+  const RowMatch back =
+      match_along_row(left(back_strip),
+                      right(cv::Rect(right_x, region.y, region.width, region.height)), exclusion);
+  if (std::abs(right_x + back.x - region.x) > options.left_right_tolerance) {
     result.skipped = ObjectSkip::kInconsistent;
     return result;
   }
   // Sub-pixel peak: a parabola through the best score and its neighbours.
   double offset = 0.0;
-  if (best_at.x > 0 && best_at.x < scores.cols - 1) {
-    const double before = scores.at<float>(0, best_at.x - 1);
-    const double after = scores.at<float>(0, best_at.x + 1);
-    const double curvature = before - 2.0 * best + after;
-    if (curvature < 0.0) offset = std::clamp(0.5 * (before - after) / curvature, -0.5, 0.5);
+  if (std::isfinite(match.before) && std::isfinite(match.after)) {
+    const double curvature = match.before - 2.0 * match.score + match.after;
+    if (curvature < 0.0) {
+      offset = std::clamp(0.5 * (match.before - match.after) / curvature, -0.5, 0.5);
+    }
   }
-  const double surface_disparity = region.x - (search_start + best_at.x + offset);
+  const double surface_disparity = region.x - (search_start + match.x + offset);
   if (!(surface_disparity > 0.0)) {
     result.skipped = ObjectSkip::kNoMatch;
     return result;

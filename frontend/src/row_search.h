@@ -1,9 +1,11 @@
 #pragma once
 /// \file
-/// Private to the front-end: the coarse stereo search along an image row (block matching), which
-/// gives KLT its starting disparity.
+/// Private to the front-end: searches along an image row. The coarse stereo search (block
+/// matching), which gives KLT its starting disparity, and the template match of an object's
+/// region (normalized cross-correlation, coarse to fine).
 
 #include <opencv2/core.hpp>
+#include <limits>
 #include <optional>
 
 namespace concord::frontend {
@@ -17,5 +19,32 @@ namespace concord::frontend {
 /// when the patch does not fit in `from`. Both images 8-bit grey, of one size.
 std::optional<float> search_row(const cv::Mat& from, const cv::Mat& to, const cv::Point2f& point,
                                 float scale, int radius, double max_disparity, int sign);
+
+/// The best match of `templ` along `strip` (both of one height): its position (the template's
+/// left column in the strip), normalized cross-correlation score and the scores one position
+/// either side (NaN at the strip's ends), and the best score of another peak more than
+/// `exclusion` positions away (-1 if none).
+struct RowMatch {
+  int x = 0;
+  double score = -1.0;
+  double before = std::numeric_limits<double>::quiet_NaN();
+  double after = std::numeric_limits<double>::quiet_NaN();
+  double second = -1.0;
+};
+
+/// Normalized cross-correlation (cv::TM_CCOEFF_NORMED) of `templ` at positions lo..hi
+/// (inclusive; the template's left column) of `strip`, both of one height: one row of hi - lo + 1
+/// scores. A few positions of 8-bit images are scored directly (cv::matchTemplate correlates by
+/// DFT, whose set-up costs far more than a few sums), with cv::matchTemplate's rule for flat
+/// regions.
+cv::Mat scores_between(const cv::Mat& strip, const cv::Mat& templ, int lo, int hi);
+
+/// The best match of `templ` along `strip`, coarse to fine: searched at every position at half
+/// resolution (both Gaussian-filtered and decimated, cv::pyrDown), then the best few coarse
+/// peaks (local maxima more than half of `exclusion` apart) are scored at full resolution a few
+/// pixels around their position; the best full-resolution peak is the match and the best of the
+/// others more than `exclusion` from it its rival (`second`). Small templates or searches are
+/// scored at every full-resolution position.
+RowMatch match_along_row(const cv::Mat& strip, const cv::Mat& templ, int exclusion);
 
 }  // namespace concord::frontend
