@@ -324,6 +324,38 @@ TEST(SimulatorTest, NoiseHasTheConfiguredStandardDeviations) {
   EXPECT_NEAR(std::sqrt(squares / (2.0 * count)), options.pixel_noise, 0.03 * options.pixel_noise);
 }
 
+// --object-noise: the object observations carry their own noise, the point features keep
+// --pixel-noise (a detector's box centres against tracked corners).
+TEST(SimulatorTest, ObjectObservationsHaveTheirOwnNoiseWhenGiven) {
+  SimulationOptions options = small_options();
+  options.robots = 1;
+  options.frames = 2000;
+  options.points_per_frame = 10;
+  options.pixel_noise = 0.002;
+  options.object_noise = 0.008;
+  const dataset::Dataset data = simulate(options);
+  // The vertical coordinates of a noiseless rectified pair are equal: v_left - v_right has
+  // twice the variance of one coordinate.
+  const auto spread = [](const auto& frames) {
+    double squares = 0.0;
+    long long count = 0;
+    for (const auto& frame : frames) {
+      for (const auto& observation : frame) {
+        const double difference = observation.uv(1) - observation.uv(3);
+        squares += difference * difference;
+        ++count;
+      }
+    }
+    EXPECT_GT(count, 5000);
+    return std::sqrt(squares / (2.0 * static_cast<double>(count)));
+  };
+  EXPECT_NEAR(spread(data.robots[0].objects), 0.008, 0.05 * 0.008);
+  EXPECT_NEAR(spread(data.robots[0].features), 0.002, 0.05 * 0.002);
+  // Unset, objects take the pixel noise.
+  options.object_noise.reset();
+  EXPECT_NEAR(spread(simulate(options).robots[0].objects), 0.002, 0.05 * 0.002);
+}
+
 TEST(SimulatorTest, TrackIdsArePrivateToARobotAndNeverReusedAfterAGap) {
   SimulationOptions options = small_options();
   options.point_track_loss = 0.1;
@@ -381,6 +413,7 @@ TEST(SimulatorTest, ValidationNamesEveryBadParameter) {
       {"--odometry-rotation-noise",
        [](SimulationOptions& o) { o.odometry_rotation_noise = std::nan(""); }},
       {"--pixel-noise", [](SimulationOptions& o) { o.pixel_noise = -1.0; }},
+      {"--object-noise", [](SimulationOptions& o) { o.object_noise = -0.01; }},
       {"--point-track-loss", [](SimulationOptions& o) { o.point_track_loss = 1.0; }},
       {"--baseline", [](SimulationOptions& o) { o.baseline = 0.0; }},
       {"--horizontal-fov", [](SimulationOptions& o) { o.horizontal_fov_degrees = 180.0; }},

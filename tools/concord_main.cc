@@ -17,6 +17,7 @@
 ///   concord keygen --out FILE      (a new team key, mode 0600; never overwrites)
 ///   concord sim --robots N --out DIR [--seed S] [--frames F] [--objects M] [--points-per-frame P]
 ///               [--odometry-translation-noise T] [--odometry-rotation-noise R] [--pixel-noise S]
+///               [--object-noise S]
 ///               ... (camera, path and object-placement parameters: concord sim --help)
 
 #include <malloc.h>
@@ -833,6 +834,9 @@ int main(int argc, char** argv) {
       ->add_option("--pixel-noise", sim_options.pixel_noise,
                    "Observation noise per coordinate, normalized image units (one sigma)")
       ->capture_default_str();
+  sim_command->add_option("--object-noise", sim_options.object_noise,
+                          "Object observations' noise per coordinate, normalized image units (one "
+                          "sigma; default: --pixel-noise)");
   sim_command->add_option("--baseline", sim_options.baseline, "Stereo baseline, metres")
       ->capture_default_str();
   sim_command

@@ -324,7 +324,7 @@ void observe(const SimulationOptions& options, const StereoCamera& camera,
     for (std::size_t id = 0; id < object_positions.size(); ++id) {
       if (const auto xy = viewer.project(object_positions[id])) {
         robot.objects[k].push_back(
-            {static_cast<LandmarkId>(id), noisy(*xy, options.pixel_noise, object_noise)});
+            {static_cast<LandmarkId>(id), noisy(*xy, options.object_pixel_noise(), object_noise)});
         if (robot.has_object_classes) robot.object_classes[k].push_back(object_classes[id]);
       }
     }
@@ -348,7 +348,8 @@ void observe(const SimulationOptions& options, const StereoCamera& camera,
       for (Phantom& phantom : phantoms) {
         const auto xy = viewer.project(phantom.p_world);
         if (!xy) continue;
-        robot.objects[k].push_back({phantom.id, noisy(*xy, options.pixel_noise, false_random)});
+        robot.objects[k].push_back(
+            {phantom.id, noisy(*xy, options.object_pixel_noise(), false_random)});
         if (robot.has_object_classes) robot.object_classes[k].push_back(phantom.object_class);
         if (--phantom.frames_left > 0) phantoms_kept.push_back(phantom);
       }
@@ -389,6 +390,7 @@ std::vector<std::string> SimulationOptions::validate() const {
   problems.check_non_negative("odometry-translation-noise", odometry_translation_noise);
   problems.check_non_negative("odometry-rotation-noise", odometry_rotation_noise);
   problems.check_non_negative("pixel-noise", pixel_noise);
+  if (object_noise) problems.check_non_negative("object-noise", *object_noise);
   problems.check_int("classes", classes, 0, 1'000'000);
   if (!(false_detection_rate >= 0.0 && false_detection_rate <= 0.5)) {
     problems.add("false-detections", false_detection_rate, "in [0, 0.5]");
@@ -611,6 +613,7 @@ std::string to_json(const SimulationOptions& options) {
   json["odometry_translation_noise"] = options.odometry_translation_noise;
   json["odometry_rotation_noise"] = options.odometry_rotation_noise;
   json["pixel_noise"] = options.pixel_noise;
+  json["object_noise"] = options.object_pixel_noise();
   json["point_track_loss"] = options.point_track_loss;
   json["baseline"] = options.baseline;
   json["horizontal_fov_degrees"] = options.horizontal_fov_degrees;

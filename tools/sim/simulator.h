@@ -53,6 +53,12 @@ struct SimulationOptions {
   /// Noise of every observed coordinate (u_left, v_left, u_right, v_right), normalized image
   /// units (--pixel-noise).
   double pixel_noise = 0.01;
+  /// Noise of the object observations' coordinates alone, normalized image units
+  /// (--object-noise): a detector's box centres are less precise than tracked corners. Unset:
+  /// pixel_noise.
+  std::optional<double> object_noise;
+  /// The object observations' noise: object_noise, else pixel_noise.
+  double object_pixel_noise() const { return object_noise.value_or(pixel_noise); }
 
   // --- Stereo camera (K = identity; body x right, y forward, z up; camera looks along body y) ---
   /// Distance of the right camera along the left camera's x axis, metres (--baseline).
