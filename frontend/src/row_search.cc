@@ -175,7 +175,8 @@ RowMatch match_along_row(const cv::Mat& strip, const cv::Mat& templ, int exclusi
   std::sort(peaks.begin(), peaks.end(), std::greater<>());
   const int coarse_exclusion = std::max(1, exclusion / 2);
   std::vector<RowMatch> refined;
-  for (const auto& [value, x] : peaks) {
+  for (const auto& peak_entry : peaks) {
+    const int x = peak_entry.second;  // a variable: clang 14 cannot capture a structured binding
     if (static_cast<int>(refined.size()) == kCandidates) break;
     const bool apart = std::all_of(refined.begin(), refined.end(), [&](const RowMatch& other) {
       return std::abs(2 * x - other.x) > 2 * coarse_exclusion;
