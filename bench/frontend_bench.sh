@@ -80,6 +80,55 @@ run frontend-team-consensus "$frontend"
 run frontend-exact-separate "$rendered" --separate --config "$exact_config"
 run frontend-exact-consensus "$rendered" --config "$exact_config"
 
+# Inputs swapped between the two teams (a diagnosis of where the gap comes from): the front-end's
+# tracks and odometry with the simulator's object observations (normalized -> pixels), and the
+# simulator's tracks and odometry with the front-end's object observations (pixels -> normalized;
+# the exact config with the front-end's stated object noise, 1.41 px a coordinate).
+swap_tracks="$out/frontend-swap-fe-tracks"
+swap_objects="$out/frontend-swap-fe-objects"
+swap_config="$out/frontend-swap.yaml"
+python3 - "$frontend" "$rendered" "$swap_tracks" "$swap_objects" "$exact_config" "$swap_config" <<'PY'
+import csv, json, os, re, shutil, sys
+frontend, rendered, swap_tracks, swap_objects, exact_config, swap_config = sys.argv[1:]
+K = json.load(open(f"{frontend}/dataset.json"))["camera"]["K"]
+fx, cx, fy, cy = K[0][0], K[0][2], K[1][1], K[1][2]
+def convert(source, target, to_pixels):
+    rows = list(csv.reader(open(source)))
+    with open(target, "w") as out:
+        out.write("frame,id,u_left,v_left,u_right,v_right\n")
+        for row in rows[1:]:
+            u, v, ur, vr = map(float, row[2:6])
+            if to_pixels:
+                values = (fx * u + cx, fy * v + cy, fx * ur + cx, fy * vr + cy)
+            else:
+                values = ((u - cx) / fx, (v - cy) / fy, (ur - cx) / fx, (vr - cy) / fy)
+            out.write(",".join([row[0], row[1]] + [repr(x) for x in values]) + "\n")
+for folder in (swap_tracks, swap_objects):
+    shutil.rmtree(folder, ignore_errors=True)
+shutil.copytree(frontend, swap_tracks)
+os.makedirs(swap_objects)
+for name in ("dataset.json", "objects_gt.csv"):
+    shutil.copy(f"{rendered}/{name}", f"{swap_objects}/{name}")
+robots = json.load(open(f"{rendered}/dataset.json"))["robots"]
+for r in range(robots):
+    robot = f"robot_{r:02d}"
+    convert(f"{rendered}/{robot}/objects.csv", f"{swap_tracks}/{robot}/objects.csv", True)
+    os.makedirs(f"{swap_objects}/{robot}")
+    for name in ("features.csv", "groundtruth.kitti", "odometry.kitti"):
+        shutil.copy(f"{rendered}/{robot}/{name}", f"{swap_objects}/{robot}/{name}")
+    convert(f"{frontend}/{robot}/objects.csv", f"{swap_objects}/{robot}/objects.csv", False)
+sigma = 2.0 / 2 ** 0.5 / fx  # objects.detection_sigma (2 px an edge) on a box centre
+text = open(exact_config).read()
+text = re.sub(r"^object_noise: .*$", f"object_noise: {sigma:.6g}", text, flags=re.M)
+text = re.sub(r"^object_init_max_reprojection_error: .*$",
+              f"object_init_max_reprojection_error: {5 * sigma:.6g}", text, flags=re.M)
+open(swap_config, "w").write(text)
+PY
+run frontend-swap-fe-tracks-separate "$swap_tracks" --separate
+run frontend-swap-fe-tracks-consensus "$swap_tracks"
+run frontend-swap-fe-objects-separate "$swap_objects" --separate --config "$swap_config"
+run frontend-swap-fe-objects-consensus "$swap_objects" --config "$swap_config"
+
 euroc_out="$out/frontend-euroc"
 if [ ! -f "$euroc_out/frontend_eval.json" ]; then
   rm -rf "$euroc_out"
