@@ -6,6 +6,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <fstream>
@@ -363,6 +364,71 @@ TEST(FrontendRendered, DetectionsBecomeStereoObservationsOfTheObjectCentres) {
   }
 }
 
+TEST(FrontendRendered, UprightObjectsCentresAreCloserToTheTruthThanTheBoxesMiddle) {
+  // The rendered robots are level and the cubes stand on the floor: with `upright` the
+  // observations' centres come from the silhouette model, without it from the boxes' middles.
+  const auto& rendered = rendered_sequence();
+  const StereoSequence sequence = read_stereo_sequence(rendered.sequence);
+  StereoCamera camera = rendered.camera;
+  camera.T_cam0_body = Eigen::Isometry3d::Identity();
+  const auto accuracy = [&](bool upright) {
+    FrontendOptions options;
+    options.objects.upright = upright;
+    std::vector<std::vector<StereoObservation>> objects;
+    for (const FrontendFrame& frame : run_rendered(options)) objects.push_back(frame.input.objects);
+    return evaluation::object_observation_accuracy(camera, *sequence.groundtruth, objects,
+                                                   rendered.simulated.objects_groundtruth);
+  };
+  const auto middle = accuracy(false);
+  const auto upright = accuracy(true);
+  ASSERT_GT(middle.centre.count, 20);
+  EXPECT_EQ(upright.centre.count, middle.centre.count);
+  EXPECT_LT(upright.centre.median, 0.75 * middle.centre.median);
+  EXPECT_LE(upright.disparity.median, middle.disparity.median * 1.1);
+}
+
+TEST(FrontendObjects, TheSilhouetteOfAnUprightBoxGivesItsCentreRowAndDepth) {
+  // A box as deep as wide (centre_depth_fraction 0.5), faces parallel to the camera's axes, at
+  // positions on and off the optical axis: its silhouette (the bounding box of its eight
+  // corners' projections) and its near face's depth give its centre's row and depth exactly.
+  StereoCamera camera;
+  camera.K << 500.0, 0.0, 320.0, 0.0, 500.0, 240.0, 0.0, 0.0, 1.0;
+  camera.T_cam0_cam1.translation() = Eigen::Vector3d(0.5, 0.0, 0.0);
+  ObjectOptions options;
+  options.upright = true;
+  const double half = 0.4;  // metres
+  int off_axis = 0;
+  for (const Eigen::Vector3d centre :
+       {Eigen::Vector3d(0.0, 0.0, 6.0), Eigen::Vector3d(2.0, 1.2, 5.0),
+        Eigen::Vector3d(-3.0, -1.5, 7.0), Eigen::Vector3d(0.2, 1.5, 4.0),
+        Eigen::Vector3d(-2.5, 0.1, 9.0)}) {
+    Detection box{0, 1, "box", 1e9, 1e9, -1e9, -1e9};
+    for (int corner = 0; corner < 8; ++corner) {
+      const Eigen::Vector3d p =
+          centre + half * Eigen::Vector3d(corner & 1 ? 1 : -1, corner & 2 ? 1 : -1, corner & 4 ? 1 : -1);
+      const Eigen::Vector3d image = camera.K * p / p.z();
+      box.x_min = std::min(box.x_min, image.x());
+      box.x_max = std::max(box.x_max, image.x());
+      box.y_min = std::min(box.y_min, image.y());
+      box.y_max = std::max(box.y_max, image.y());
+    }
+    const double true_row = camera.K(1, 1) * centre.y() / centre.z() + camera.K(1, 2);
+    const ObjectCentre found = object_centre(box, centre.z() - half, camera, options);
+    EXPECT_NEAR(found.depth, centre.z(), 1e-9) << centre.transpose();
+    EXPECT_NEAR(found.v, true_row, 1e-9) << centre.transpose();
+    EXPECT_DOUBLE_EQ(found.u, box.centre_x());  // the middle column: the yaw is unknown
+    // The box's middle row is off by perspective wherever the box is off the axis vertically.
+    if (std::abs(box.centre_y() - true_row) > 0.5) ++off_axis;
+    // Without `upright`, the middle row; the depth is the same.
+    ObjectOptions level = options;
+    level.upright = false;
+    const ObjectCentre middle = object_centre(box, centre.z() - half, camera, level);
+    EXPECT_DOUBLE_EQ(middle.v, box.centre_y());
+    EXPECT_NEAR(middle.depth, centre.z(), 1e-9);
+  }
+  EXPECT_GE(off_axis, 3);
+}
+
 TEST(FrontendRendered, ObjectsAtTheBorderOrWithoutAMatchAreSkipped) {
   const StereoSequence sequence = read_stereo_sequence(rendered_sequence().sequence);
   const auto [left, right] = images(sequence, 0);
@@ -481,6 +547,40 @@ TEST(FrontendRendered, RunWritesADatasetThatReadsBack) {
   // Detections and odometry files belong to a single sequence, not to a team.
   options.detections = rendered_sequence().sequence / "detections.csv";
   EXPECT_THROW((void)run_frontend(rendered_sequence().team, out, options), FrontendError);
+}
+
+TEST(FrontendRun, AnUpAxisAlongTheCamerasVerticalMakesObjectsUpright) {
+  // The rendered body is the left camera looking forward on a level robot: up is -y, the
+  // camera's vertical; +z (forward) is not. The objects' rows follow (ObjectOptions::upright),
+  // and frontend.json reports the options used.
+  const auto run = [](const std::string& up_axis) {
+    const fs::path out = testing::temporary_folder("frontend_up_" + up_axis.substr(1));
+    FrontendRunOptions options;
+    options.max_frames = 4;
+    options.up_axis = up_axis;
+    (void)run_frontend(rendered_sequence().team, out, options);
+    std::ifstream file(out / "frontend.json");
+    const auto document = nlohmann::json::parse(file);
+    return std::pair{document.at("options").at("objects").at("upright").get<bool>(),
+                     dataset::read_dataset(out).robots.at(0)};
+  };
+  const auto [upright, level] = run("-y");
+  const auto [not_upright, forward] = run("+z");
+  EXPECT_TRUE(upright);
+  EXPECT_FALSE(not_upright);
+  int moved = 0, observations = 0;
+  for (int frame = 0; frame < 4; ++frame) {
+    const auto a = level.frame_input(frame).objects;
+    const auto b = forward.frame_input(frame).objects;
+    ASSERT_EQ(a.size(), b.size());
+    for (std::size_t i = 0; i < a.size(); ++i) {
+      ++observations;
+      EXPECT_DOUBLE_EQ(a[i].uv(0), b[i].uv(0));  // the same column
+      if (std::abs(a[i].uv(1) - b[i].uv(1)) > 1e-6) ++moved;
+    }
+  }
+  EXPECT_GT(observations, 0);
+  EXPECT_EQ(moved, observations);
 }
 
 /// A team folder of `robots` copies of the rendered sequence (robot_NN), each with its

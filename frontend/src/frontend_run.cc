@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <charconv>
 #include <cmath>
+#include <numbers>
 #include <nlohmann/json.hpp>
 #include <set>
 #include <string>
@@ -127,6 +128,21 @@ std::vector<std::string> number_classes(
   return numbering.numbered_names();
 }
 
+/// The front-end's options for a rig: objects are upright in the camera's rows when the robot's
+/// up axis (a body axis, or "unknown") is the left camera's vertical within 10 degrees.
+FrontendOptions options_for_rig(const FrontendOptions& options, const std::string& up_axis,
+                                const Eigen::Isometry3d& T_cam0_body) {
+  FrontendOptions out = options;
+  if (up_axis == "unknown" || up_axis.size() != 2) return out;
+  Eigen::Vector3d up = Eigen::Vector3d::Zero();
+  up(up_axis[1] - 'x') = up_axis[0] == '-' ? -1.0 : 1.0;
+  const Eigen::Vector3d up_camera = T_cam0_body.linear() * up;
+  if (std::abs(up_camera.y()) >= std::cos(10.0 * std::numbers::pi / 180.0) * up_camera.norm()) {
+    out.objects.upright = true;
+  }
+  return out;
+}
+
 RobotRun run_sequence(const fs::path& folder, int robot, bool single,
                       const FrontendRunOptions& options) {
   SequenceReadOptions read_options;
@@ -152,7 +168,8 @@ RobotRun run_sequence(const fs::path& folder, int robot, bool single,
     odometry = std::move(given);
   }
   const std::optional<std::vector<Eigen::Isometry3d>> groundtruth = sequence.groundtruth;
-  StereoFrontend frontend(std::move(sequence), options.frontend, std::move(detections),
+  const FrontendOptions frontend_options = options_for_rig(options.frontend, options.up_axis, sequence.rig.T_cam0_body);
+  StereoFrontend frontend(std::move(sequence), frontend_options, std::move(detections),
                           std::move(odometry));
 
   RobotRun run;
@@ -387,7 +404,8 @@ FrontendRunSummary run_frontend(const fs::path& input, const fs::path& out,
   document["input"] = input.string();
   document["odometry"] =
       options.odometry.empty() ? "stereo visual odometry" : options.odometry.string();
-  document["options"] = options_json(options.frontend);
+  document["options"] =
+      options_json(options_for_rig(options.frontend, options.up_axis, data.camera.T_cam0_body));
   document["object_ids"] = dataset::to_string(summary.object_ids);
   document["start_poses"] = dataset::to_string(summary.start_poses);
   document["classes"] = summary.classes;

@@ -30,6 +30,59 @@ std::vector<std::string> ObjectOptions::validate() const {
   return problems;
 }
 
+namespace {
+
+/// One image axis of the silhouette model: the extent (centre X and size w, metres, in the
+/// camera frame) of a box-shaped object whose near face is at depth `near` and whose depth is
+/// depth + depth_per_width * w, from its silhouette's edges `low` < `high` (normalized image
+/// coordinates along the axis). A silhouette wholly on one side of the optical axis spans the
+/// near face's outer edge and the far face's inner edge; one that straddles the axis spans the
+/// near face.
+struct AxisExtent {
+  double centre = 0.0;
+  double size = 0.0;
+};
+
+AxisExtent silhouette_extent(double low, double high, double near, double depth,
+                             double depth_per_width) {
+  const AxisExtent straddling{0.5 * (low + high) * near, (high - low) * near};
+  if (low > 0.0) {
+    // centre + w/2 = high * near; centre - w/2 = low * (near + depth + depth_per_width * w).
+    const double size = ((high - low) * near - low * depth) / (1.0 + low * depth_per_width);
+    if (!(size > 0.0)) return straddling;
+    return {high * near - 0.5 * size, size};
+  }
+  if (high < 0.0) {
+    // centre - w/2 = low * near; centre + w/2 = high * (near + depth + depth_per_width * w).
+    const double size = ((high - low) * near + high * depth) / (1.0 - high * depth_per_width);
+    if (!(size > 0.0)) return straddling;
+    return {low * near + 0.5 * size, size};
+  }
+  return straddling;
+}
+
+}  // namespace
+
+ObjectCentre object_centre(const Detection& box, double surface_depth, const StereoCamera& camera,
+                           const ObjectOptions& options) {
+  const double fx = camera.K(0, 0), fy = camera.K(1, 1);
+  const double cx = camera.K(0, 2), cy = camera.K(1, 2);
+  const double depth_per_width = 2.0 * options.centre_depth_fraction;
+  const AxisExtent across = silhouette_extent((box.x_min - cx) / fx, (box.x_max - cx) / fx,
+                                              surface_depth, 0.0, depth_per_width);
+  const double object_depth = depth_per_width * across.size;
+  ObjectCentre centre;
+  centre.depth = surface_depth + 0.5 * object_depth;
+  centre.u = box.centre_x();
+  centre.v = box.centre_y();
+  if (options.upright) {
+    const AxisExtent up = silhouette_extent((box.y_min - cy) / fy, (box.y_max - cy) / fy,
+                                            surface_depth, object_depth, 0.0);
+    centre.v = cy + fy * up.centre / centre.depth;
+  }
+  return centre;
+}
+
 ObjectMeasurement observe_object(const Detection& box, const cv::Mat& left, const cv::Mat& right,
                                  const StereoCamera& camera, const ObjectOptions& options) {
   ObjectMeasurement result;
@@ -95,18 +148,15 @@ ObjectMeasurement observe_object(const Detection& box, const cv::Mat& left, cons
     result.skipped = ObjectSkip::kNoMatch;
     return result;
   }
-  // 4. From the surface to the centre: depth + fraction * the box's width in metres.
-  const double fx = camera.K(0, 0);
-  const double focal_baseline = fx * camera.baseline();
-  const double surface_depth = focal_baseline / surface_disparity;
-  const double width_metres = (box.x_max - box.x_min) * surface_depth / fx;
-  const double centre_depth = surface_depth + options.centre_depth_fraction * width_metres;
+  // 4. From the surface to the object's centre (object_centre's silhouette model).
+  const double focal_baseline = camera.K(0, 0) * camera.baseline();
+  const ObjectCentre centre =
+      object_centre(box, focal_baseline / surface_disparity, camera, options);
   result.surface_disparity = surface_disparity;
-  result.centre_disparity = focal_baseline / centre_depth;
+  result.centre_disparity = focal_baseline / centre.depth;
   StereoObservation observation;
   observation.id = box.track_id;
-  observation.uv =
-      Eigen::Vector4d(centre_x, centre_y, centre_x - result.centre_disparity, centre_y);
+  observation.uv = Eigen::Vector4d(centre.u, centre.v, centre.u - result.centre_disparity, centre.v);
   result.observation = observation;
   return result;
 }

@@ -53,6 +53,7 @@ void visit_option_fields(Options& options, Visitor&& visit) {
   visit("objects", "ambiguity_ratio", b.ambiguity_ratio);
   visit("objects", "left_right_tolerance", b.left_right_tolerance);
   visit("objects", "centre_depth_fraction", b.centre_depth_fraction);
+  visit("objects", "upright", b.upright);
   visit("objects", "border", b.border);
   visit("objects", "detection_sigma", b.detection_sigma);
 }

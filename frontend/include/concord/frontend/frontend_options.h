@@ -117,10 +117,18 @@ struct ObjectOptions {
   /// must land within this many pixels of the box's region; else the match is refused (an
   /// occluded or partly covered region whose right-image match is another surface's).
   double left_right_tolerance = 2.0;
-  /// The disparity measures the object's visible surface; its centre lies deeper. The centre's
-  /// depth is taken as surface depth + centre_depth_fraction * (the box's width in metres): 0.5
-  /// for objects about as deep as they are wide, 0 for the surface itself.
+  /// The disparity measures the object's visible surface; its centre lies deeper. The object is
+  /// taken as a box whose depth is 2 * centre_depth_fraction times its width (0.5: about as deep
+  /// as wide; 0: the surface itself), its near face at the measured depth, and the detection as
+  /// that box's silhouette: off the optical axis the silhouette also shows the object's side,
+  /// so the object is narrower than the detection's width at that depth (object_centre).
   double centre_depth_fraction = 0.5;
+  /// Objects stand upright in the camera's rows (a level camera on a ground robot, objects on
+  /// the floor): the detection's top or bottom edge is then the far edge of the top or bottom
+  /// face the camera sees, and the centre's row is taken from that model instead of the box's
+  /// middle row (object_centre). `concord frontend --up-axis` sets it when the up axis is the
+  /// camera's vertical. Off: the box's middle row.
+  bool upright = false;
   /// Boxes closer than this to the image border (pixels) are skipped (truncated boxes do not
   /// centre on the object).
   int border = 2;

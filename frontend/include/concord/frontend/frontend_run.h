@@ -59,7 +59,9 @@ struct FrontendRunOptions {
   /// The body axis that points up when the robot stands level (+x, -x, +y, -y, +z, -z; for the
   /// KITTI layout's body, a forward-looking left camera, -y), written to estimator.yaml as
   /// association.start_up_axis: the negotiation then refuses an alignment that tilts one
-  /// robot's start frame against another's. "unknown" (the default) writes nothing.
+  /// robot's start frame against another's; and when it is the left camera's vertical, objects
+  /// are taken as upright in the camera's rows (ObjectOptions::upright). "unknown" (the default)
+  /// does neither.
   std::string up_axis = "unknown";
   /// The team's detector class names (any order), the list a daemon's image source is given
   /// (source.classes): objects.csv's class column numbers them by it, so that robots processed

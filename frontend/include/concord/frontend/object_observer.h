@@ -33,6 +33,26 @@ struct ObjectMeasurement {
   double score = 0.0;
 };
 
+/// The centre of a detected object in the rectified left image (pixels) and its depth (metres).
+struct ObjectCentre {
+  double u = 0.0;
+  double v = 0.0;
+  double depth = 0.0;
+};
+
+/// The centre of the object whose detection is `box` (rectified left-image pixels) and whose
+/// visible surface lies at `surface_depth`, under ObjectOptions' model: a box-shaped object as
+/// deep as centre_depth_fraction makes it, its near face at surface_depth, seen as its silhouette.
+/// Along the image's x axis, a detection wholly to one side of the optical axis spans the near
+/// face's outer edge and the far face's inner edge (the object's side shows), which gives the
+/// object's width w (the detection's width at that depth when it straddles the axis) and its
+/// centre's depth, surface_depth + centre_depth_fraction * w. u is the detection's middle column
+/// (an object of unknown yaw shows as much of one side as of the other on average). With
+/// `upright`, v follows the same model along the rows with the depth found from x (the top or
+/// bottom face seen from above or below); without it, the detection's middle row.
+[[nodiscard]] ObjectCentre object_centre(const Detection& box, double surface_depth,
+                                         const StereoCamera& camera, const ObjectOptions& options);
+
 /// Measures one detection whose box is in rectified left-image pixels, on a rectified pair.
 [[nodiscard]] ObjectMeasurement observe_object(const Detection& box, const cv::Mat& left,
                                                const cv::Mat& right, const StereoCamera& camera,
