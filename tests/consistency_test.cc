@@ -15,6 +15,7 @@
 #include "calibration/calibration.h"
 #include "concord/config/options_file.h"
 #include "concord/dataset/result_io.h"
+#include "concord/estimator/consensus.h"
 #include "concord/estimator/estimator.h"
 #include "concord/estimator/lie.h"
 #include "concord/estimator/state_helper.h"
@@ -313,6 +314,120 @@ TEST(PersistentDetectionError, ModelledItKeepsTheObjectHonestWhereIndependentNoi
   // And the model's weighting is not less accurate.
   EXPECT_LT(as_modelled.rms_error, 1.05 * as_independent.rms_error)
       << as_modelled.rms_error << " vs " << as_independent.rms_error;
+}
+
+TEST(DetectionOffset, AStateForAnOffsetThatStaysAlongTheTrackKeepsTheObjectHonest) {
+  // Box centres off by an amount that stays along the track (1.5 px in x and y, the same in
+  // both images), plus independent jitter: the offset, as a state of the robot's filter, is
+  // this error's exact model.
+  DetectionErrorModel truth;
+  truth.independent = Eigen::Vector4d(0.5, 0.5, 0.3, 0.3);
+  truth.constant = Eigen::Vector4d(1.5, 1.5, 0.0, 0.0);
+  truth.persistent = Eigen::Vector4d::Zero();
+  EstimatorOptions options;
+  options.window_size = 40;
+  options.use_point_features = false;
+  options.initial_position_sigma = 1e-6;
+  options.initial_rotation_sigma = 1e-6;
+  options.odometry_translation_sigma = 1e-5;
+  options.odometry_rotation_sigma = 1e-6;
+  options.object_min_distance = 1.0;
+  options.object_max_distance = 100.0;
+  options.object_init_max_reprojection_error = 50.0;
+  options.object_chi2_probability = 0.0;
+  options.object_noise = as_noise(truth.independent);
+  EstimatorOptions with_offset = options;
+  with_offset.object_offset_sigma = {1.5, 1.5, 0.01, 0.0};
+  ASSERT_TRUE(with_offset.validate().empty());
+
+  const int runs = 200;
+  const ObjectRunStatistics without = object_runs(truth, options, runs);
+  const ObjectRunStatistics offset = object_runs(truth, with_offset, runs);
+  const auto [low, high] = mean_interval(runs, 3, 0.99);
+  EXPECT_GT(offset.mean_nees, low);
+  EXPECT_LT(offset.mean_nees, high);
+  EXPECT_GT(without.mean_nees, 3.0 * high);
+  EXPECT_LT(offset.rms_error, 1.05 * without.rms_error)
+      << offset.rms_error << " vs " << without.rms_error;
+}
+
+TEST(DetectionOffset, IsTheRobotsOwnStateNotAnObjectAndLeavesWithItsObject) {
+  const StereoCamera camera = testing::kitti_like_camera();
+  EstimatorOptions options;
+  options.use_point_features = false;
+  options.object_noise = StereoNoise::isotropic(1.0);
+  options.object_offset_sigma = StereoNoise::isotropic(2.0);
+  options.object_offset_walk = StereoNoise::isotropic(0.2);
+  options.object_archive_after_frames = 3;
+  options.object_archive_mode = "marginal";
+  Estimator estimator(options, camera, Eigen::Isometry3d::Identity());
+  const Eigen::Vector3d p_object(15.0, 3.0, 0.5);
+  Eigen::Isometry3d truth = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d step = Eigen::Isometry3d::Identity();
+  step.translation() = Eigen::Vector3d(0.5, 0.0, 0.0);
+  int frame = 0;
+  double offset_variance = 0.0;
+  for (; frame < 8; ++frame) {
+    FrameInput input = testing::straight_drive_frame(frame, step, truth);
+    input.objects.push_back(
+        {3, camera.denormalize(UpdaterHelper::project(camera, truth, p_object)->xy)});
+    (void)estimator.process(input);
+    const State& state = estimator.state();
+    if (state.landmark_slot(3) < 0) continue;
+    // In the joint state beside its object, correlated with it, and nowhere in the outputs.
+    const int slot = state.offset_slot(3);
+    ASSERT_GE(slot, 0) << frame;
+    EXPECT_TRUE(state.landmarks[slot].detection_offset);
+    const int index = state.landmark_index(slot);
+    const int object = state.landmark_index(state.landmark_slot(3));
+    const Eigen::Matrix3d cross = state.covariance.block<3, 3>(index, object);
+    EXPECT_GT(cross.norm(), 0.0);
+    offset_variance = state.covariance(index, index);
+    EXPECT_EQ(estimator.objects().size(), 1u);
+    EXPECT_EQ(state.object_ids(), std::vector<LandmarkId>{3});
+    const Marginal marginal = Consensus::marginal(state, {3});
+    ASSERT_EQ(marginal.ids, std::vector<LandmarkId>{3});
+    EXPECT_EQ(marginal.mean.size(), 3);
+  }
+  EXPECT_GT(offset_variance, 0.0);
+  // Moving the state into another frame moves the object, not the offset (image units).
+  {
+    State moved = estimator.state();
+    const int slot = moved.offset_slot(3);
+    const Eigen::Vector3d offset = moved.landmarks[slot].p_world;
+    const Eigen::Matrix3d offset_covariance =
+        moved.covariance.block<3, 3>(moved.landmark_index(slot), moved.landmark_index(slot));
+    Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+    T.linear() = Eigen::AngleAxisd(0.7, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+    T.translation() = Eigen::Vector3d(4.0, -2.0, 0.3);
+    StateHelper::reanchor(moved, T, lie::Matrix6d::Identity() * 1e-4);
+    EXPECT_EQ(moved.landmarks[slot].p_world, offset);
+    const int index = moved.landmark_index(slot);
+    const Eigen::Matrix3d after = moved.covariance.block<3, 3>(index, index);
+    EXPECT_TRUE(after.isApprox(offset_covariance, 1e-12));
+  }
+  // Not observed: the object is archived and its offset leaves the state.
+  for (; frame < 14; ++frame) {
+    (void)estimator.process(testing::straight_drive_frame(frame, step, truth));
+  }
+  EXPECT_LT(estimator.state().landmark_slot(3), 0);
+  EXPECT_LT(estimator.state().offset_slot(3), 0);
+  EXPECT_EQ(estimator.state().num_landmarks(), 0);
+  EXPECT_EQ(estimator.objects().size(), 1u);  // archived
+}
+
+TEST(DetectionOffset, OptionsRefuseTwoModelsOfOneError) {
+  EstimatorOptions options;
+  options.object_offset_sigma = StereoNoise::isotropic(1.0);
+  EXPECT_TRUE(options.validate().empty());
+  options.object_noise_persistent = StereoNoise::isotropic(1.0);
+  EXPECT_FALSE(options.validate().empty());
+  EstimatorOptions walk_only;
+  walk_only.object_offset_walk = StereoNoise::isotropic(1.0);
+  EXPECT_FALSE(walk_only.validate().empty());
+  EstimatorOptions negative;
+  negative.object_offset_sigma.vertical = -1.0;
+  EXPECT_FALSE(negative.validate().empty());
 }
 
 TEST(FailureCounters, AnUpdateWithAnIndefiniteInnovationIsRefusedAndLeavesTheState) {

@@ -317,6 +317,26 @@ TEST(DaemonWire, MalformedSensorFramesAreRejected) {
 namespace concord::daemon {
 namespace {
 
+TEST(DaemonCheckpoint, KeepsADetectionOffsetApartFromItsObject) {
+  std::mt19937 random(9);
+  Checkpoint checkpoint;
+  checkpoint.robot_id = 1;
+  checkpoint.state = concord::testing::random_state(2, 2, random);
+  checkpoint.state.landmarks[1].id = checkpoint.state.landmarks[0].id;  // object 100's offset
+  checkpoint.state.landmarks[1].detection_offset = true;
+  checkpoint.state.rebuild_landmark_index();
+  std::string error;
+  const auto back = parse_checkpoint(serialize_checkpoint(checkpoint), error);
+  ASSERT_TRUE(back) << error;
+  ASSERT_EQ(back->state.landmarks.size(), 2u);
+  EXPECT_FALSE(back->state.landmarks[0].detection_offset);
+  EXPECT_TRUE(back->state.landmarks[1].detection_offset);
+  EXPECT_FALSE(back->state.landmarks[1].archived);
+  EXPECT_EQ(back->state.landmark_slot(100), 0);
+  EXPECT_EQ(back->state.offset_slot(100), 1);
+  EXPECT_EQ(back->state.object_ids(), std::vector<LandmarkId>{100});
+}
+
 TEST(DaemonCheckpoint, RoundTripsTheFilterStateAndPendingObjectsAndRefusesDamage) {
   std::mt19937 random(8);
   Checkpoint checkpoint;

@@ -140,6 +140,7 @@ void own_member(const State& state, double weight, std::vector<const ObjectEstim
   member.locations.clear();
   archived.clear();
   for (int slot = 0; slot < state.num_landmarks(); ++slot) {
+    if (state.landmarks[slot].detection_offset) continue;  // the robot's own, not an object
     member.locations.push_back({state.landmarks[slot].id, {slot, 0, state.landmark_index(slot)}});
   }
   for (const auto& [id, estimate] : state.archived) {

@@ -24,6 +24,56 @@ ObjectUpdater::ObjectUpdater(const EstimatorOptions& options, const StereoCamera
       pending_(std::move(pending)) {
   whitening_ = UpdaterHelper::whitening(independent_covariance_ + constant_covariance_ +
                                         persistent_covariance_);
+  // Image units to normalized: x and disparity by fx, y by fy.
+  const auto normalized_variances = [&](const StereoNoise& noise) {
+    const double fx = camera.K(0, 0), fy = camera.K(1, 1);
+    return Eigen::Vector3d(noise.horizontal / fx, noise.vertical / fy, noise.disparity / fx)
+        .cwiseAbs2()
+        .eval();
+  };
+  offset_prior_ = normalized_variances(options.object_offset_sigma);
+  offset_walk_ = normalized_variances(options.object_offset_walk);
+}
+
+void ObjectUpdater::walk_offsets(State& state) const {
+  for (int slot = 0; slot < state.num_landmarks(); ++slot) {
+    if (!state.landmarks[slot].detection_offset) continue;
+    const int index = state.landmark_index(slot);
+    state.covariance.block<3, 3>(index, index).diagonal() += offset_walk_;
+  }
+}
+
+int ObjectUpdater::add_offset(State& state, LandmarkId id, int frame,
+                              ObjectUpdateStats& stats) const {
+  const int n = state.dimension();
+  state.covariance.conservativeResize(n + 3, n + 3);
+  state.covariance.rightCols<3>().setZero();
+  state.covariance.bottomRows<3>().setZero();
+  state.covariance.block<3, 3>(n, n).diagonal() = offset_prior_;
+  ObjectLandmark offset;
+  offset.id = id;
+  offset.detection_offset = true;
+  offset.last_observed_frame = frame;
+  state.landmarks.push_back(std::move(offset));
+  state.rebuild_landmark_index();
+  ++stats.offsets_added;
+  return state.num_landmarks() - 1;
+}
+
+void ObjectUpdater::apply_offset(const State& state, int offset_slot,
+                                 LinearizedTrack& linearized) {
+  // d(u_left, v_left, u_right, v_right) / d(du, dv, dd).
+  Eigen::Matrix<double, 4, 3> jacobian;
+  jacobian << 1.0, 0.0, 0.0,  //
+      0.0, 1.0, 0.0,          //
+      1.0, 0.0, -1.0,         //
+      0.0, 1.0, 0.0;
+  const int index = state.landmark_index(offset_slot);
+  const Eigen::Vector4d predicted = jacobian * state.landmarks[offset_slot].p_world;
+  for (Eigen::Index row = 0; row < linearized.residual.size(); row += 4) {
+    linearized.residual.segment<4>(row) -= predicted;
+    linearized.H_state.block<4, 3>(row, index) = jacobian;
+  }
 }
 
 Eigen::MatrixXd ObjectUpdater::track_noise(const std::vector<TrackObservation>& track) const {
@@ -99,6 +149,18 @@ ObjectUpdateStats ObjectUpdater::process(State& state,
   const int frame = state.newest_pose().frame;
   const double gate_4dof = gate(4);
 
+  // 0. Detection offsets: each walks a frame; an in-state object observed without one (an
+  //    archived consider state seen again) gets one, before any row is linearized against the
+  //    state's dimension.
+  if (has_offsets()) {
+    walk_offsets(state);
+    for (const StereoObservation& observation : objects) {
+      if (state.landmark_slot(observation.id) >= 0 && state.offset_slot(observation.id) < 0) {
+        (void)add_offset(state, observation.id, frame, stats);
+      }
+    }
+  }
+
   // 1. Collect gated observations of in-state objects. Objects not in the state (new or
   //    archived) wait for initialization.
   std::vector<LinearizedTrack> accepted;
@@ -126,6 +188,8 @@ ObjectUpdateStats ObjectUpdater::process(State& state,
       ++stats.rejected;
       continue;
     }
+    const int offset_slot = state.offset_slot(observation.id);
+    if (offset_slot >= 0) apply_offset(state, offset_slot, *linearized);
     if (track.size() == 1) {
       UpdaterHelper::whiten_inplace(*linearized, whitening_);
     } else if (!condition_on_earlier(track, *linearized)) {
@@ -139,6 +203,7 @@ ObjectUpdateStats ObjectUpdater::process(State& state,
       continue;
     }
     state.landmarks[slot].last_observed_frame = frame;
+    if (offset_slot >= 0) state.landmarks[offset_slot].last_observed_frame = frame;
     if (persistent_) state.landmarks[slot].used_observations = std::move(track);
     if (state.landmarks[slot].archived) {
       state.landmarks[slot].archived = false;  // seen again: active, with every correlation it kept
@@ -215,13 +280,28 @@ ObjectUpdater::InitResult ObjectUpdater::try_initialize(State& state, LandmarkId
       newest->depth_left > options_.object_max_distance) {
     return InitResult::kFailed;
   }
+  // With detection offsets the new object's comes first, so that its rows (the new object's
+  // and the others') carry it and the new object's cross-covariances include it; a refused
+  // initialization takes it out again.
+  const int existing_offset = state.offset_slot(id);
+  const bool new_offset = has_offsets() && existing_offset < 0;
+  const int offset_slot =
+      new_offset ? add_offset(state, id, track.back().frame, stats) : existing_offset;
+  const auto give_up = [&](InitResult result) {
+    if (new_offset) {
+      StateHelper::remove_landmarks(state, {offset_slot});
+      --stats.offsets_added;
+    }
+    return result;
+  };
   // 3. Linearize, whiten and split with QR (eq. 29): Q^T H_point = [R1; 0].
   auto linearized = UpdaterHelper::linearize(state, camera_, track, *p_world);
-  if (!linearized) return InitResult::kFailed;
+  if (!linearized) return give_up(InitResult::kFailed);
+  if (offset_slot >= 0) apply_offset(state, offset_slot, *linearized);
   if (persistent_) {
     // The observations' errors are correlated: whitened by their joint covariance.
     const Eigen::LLT<Eigen::MatrixXd> factor(track_noise(track));
-    if (factor.info() != Eigen::Success) return InitResult::kFailed;
+    if (factor.info() != Eigen::Success) return give_up(InitResult::kFailed);
     const auto lower = factor.matrixL();
     // Only the columns of the track's poses (and calibration) are not zero: whiten those.
     const std::vector<int> columns = StateHelper::nonzero_columns(linearized->H_state);
@@ -243,7 +323,7 @@ ObjectUpdater::InitResult ObjectUpdater::try_initialize(State& state, LandmarkId
   const Eigen::VectorXd residual_rotated = Qt * linearized->residual;
   const Eigen::Matrix3d R1 =
       qr.matrixQR().topLeftCorner<3, 3>().triangularView<Eigen::Upper>().toDenseMatrix();
-  if (std::abs(R1.determinant()) < 1e-12) return InitResult::kFailed;
+  if (std::abs(R1.determinant()) < 1e-12) return give_up(InitResult::kFailed);
 
   // 4. The rows that do not involve the new object must agree with the state: chi-square test
   //    under their full innovation covariance (a wrong association or an outlier fails it).
@@ -255,7 +335,7 @@ ObjectUpdater::InitResult ObjectUpdater::try_initialize(State& state, LandmarkId
     const auto dof = static_cast<int>(rows - 3);
     if (StateHelper::mahalanobis_squared(state, H2, r2, Eigen::MatrixXd::Identity(dof, dof)) >
         gate(dof)) {
-      return InitResult::kGated;
+      return give_up(InitResult::kGated);
     }
   }
 
@@ -273,7 +353,7 @@ ObjectUpdater::InitResult ObjectUpdater::try_initialize(State& state, LandmarkId
     const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eigen(covariance, Eigen::EigenvaluesOnly);
     const double largest_sigma = std::sqrt(std::max(eigen.eigenvalues().maxCoeff(), 0.0));
     if (!(largest_sigma <= options_.object_max_relative_sigma * newest->depth_left)) {
-      return InitResult::kFailed;
+      return give_up(InitResult::kFailed);
     }
   }
 
@@ -317,13 +397,14 @@ ObjectUpdater::InitResult ObjectUpdater::try_initialize(State& state, LandmarkId
 
 void ObjectUpdater::archive_stale(State& state, int frame, ObjectUpdateStats& stats) const {
   if (options_.object_archive_after_frames <= 0) return;
-  std::vector<int> stale;
+  // Stale detection offsets leave the state in either mode (a view seen again is a new view).
+  std::vector<int> stale, stale_offsets;
   for (int slot = 0; slot < state.num_landmarks(); ++slot) {
     if (frame - state.landmarks[slot].last_observed_frame > options_.object_archive_after_frames) {
-      stale.push_back(slot);
+      (state.landmarks[slot].detection_offset ? stale_offsets : stale).push_back(slot);
     }
   }
-  if (stale.empty()) return;
+  if (stale.empty() && stale_offsets.empty()) return;
   if (options_.object_archive_mode == "consider") {
     // Kept in the joint covariance as consider states (State, StateHelper::update).
     int archived = 0;
@@ -332,6 +413,7 @@ void ObjectUpdater::archive_stale(State& state, int frame, ObjectUpdateStats& st
       state.landmarks[slot].archived = true;
     }
     stats.archived += archived;
+    StateHelper::remove_landmarks(state, stale_offsets);
     return;
   }
   for (int slot : stale) {
@@ -341,8 +423,9 @@ void ObjectUpdater::archive_stale(State& state, int frame, ObjectUpdateStats& st
                                    state.covariance.block<3, 3>(index, index)};
     state.archived_last_observed[landmark.id] = landmark.last_observed_frame;
   }
-  StateHelper::remove_landmarks(state, stale);
   stats.archived += static_cast<int>(stale.size());
+  stale.insert(stale.end(), stale_offsets.begin(), stale_offsets.end());
+  StateHelper::remove_landmarks(state, stale);
 }
 
 }  // namespace concord

@@ -121,7 +121,9 @@ std::vector<std::string> EstimatorOptions::validate() const {
   }
   problems.check_stereo_noise("object_noise", object_noise);
   for (const auto& [name, noise] : {std::pair{"object_noise_constant", &object_noise_constant},
-                                     std::pair{"object_noise_persistent", &object_noise_persistent}}) {
+                                     std::pair{"object_noise_persistent", &object_noise_persistent},
+                                     std::pair{"object_offset_sigma", &object_offset_sigma},
+                                     std::pair{"object_offset_walk", &object_offset_walk}}) {
     for (const auto& [part, value] : {std::pair{".horizontal", noise->horizontal},
                                       std::pair{".vertical", noise->vertical},
                                       std::pair{".disparity", noise->disparity},
@@ -130,6 +132,20 @@ std::vector<std::string> EstimatorOptions::validate() const {
         problems.add(std::string(name) + part, value, "finite and >= 0");
       }
     }
+  }
+  const auto any = [](const StereoNoise& n) {
+    return n.horizontal > 0.0 || n.vertical > 0.0 || n.disparity > 0.0;
+  };
+  if (any(object_offset_sigma) &&
+      (any(object_noise_constant) || object_noise_constant.vertical_disparity > 0.0 ||
+       any(object_noise_persistent) || object_noise_persistent.vertical_disparity > 0.0)) {
+    problems.add("object_offset_sigma", object_offset_sigma.horizontal,
+                 "zero with object_noise_constant or object_noise_persistent (two models of one "
+                 "error)");
+  }
+  if (any(object_offset_walk) && !any(object_offset_sigma)) {
+    problems.add("object_offset_walk", object_offset_walk.horizontal,
+                 "zero without object_offset_sigma (the offset is not a state)");
   }
   if (!(object_noise_correlation >= 0.0 && object_noise_correlation < 1.0)) {
     problems.add("object_noise_correlation", object_noise_correlation,

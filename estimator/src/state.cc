@@ -33,15 +33,25 @@ int State::landmark_slot(LandmarkId id) const {
   return it == landmark_slots_.end() ? -1 : it->second;
 }
 
+int State::offset_slot(LandmarkId id) const {
+  const auto it = offset_slots_.find(id);
+  return it == offset_slots_.end() ? -1 : it->second;
+}
+
 void State::rebuild_landmark_index() {
   landmark_slots_.clear();
-  for (int slot = 0; slot < num_landmarks(); ++slot) landmark_slots_[landmarks[slot].id] = slot;
+  offset_slots_.clear();
+  for (int slot = 0; slot < num_landmarks(); ++slot) {
+    (landmarks[slot].detection_offset ? offset_slots_ : landmark_slots_)[landmarks[slot].id] = slot;
+  }
 }
 
 std::vector<LandmarkId> State::object_ids() const {
   std::vector<LandmarkId> ids;
   ids.reserve(landmarks.size() + archived.size());
-  for (const auto& landmark : landmarks) ids.push_back(landmark.id);
+  for (const auto& landmark : landmarks) {
+    if (!landmark.detection_offset) ids.push_back(landmark.id);
+  }
   for (const auto& [id, estimate] : archived) ids.push_back(id);
   std::sort(ids.begin(), ids.end());
   return ids;
@@ -51,6 +61,7 @@ std::vector<ObjectEstimate> State::objects() const {
   std::vector<ObjectEstimate> out;
   out.reserve(landmarks.size() + archived.size());
   for (int slot = 0; slot < num_landmarks(); ++slot) {
+    if (landmarks[slot].detection_offset) continue;
     const int index = landmark_index(slot);
     out.push_back(
         {landmarks[slot].id, landmarks[slot].p_world, covariance.block<3, 3>(index, index)});

@@ -187,6 +187,7 @@ void StateHelper::reanchor(State& state, const Eigen::Isometry3d& T_new_old,
     pose.T_world_body = lie::orthonormalized(T_new_old * pose.T_world_body);
   }
   for (ObjectLandmark& landmark : state.landmarks) {
+    if (landmark.detection_offset) continue;  // image units: no frame
     landmark.p_world = T_new_old * landmark.p_world;
     landmark.p_linearization = T_new_old * landmark.p_linearization;
   }
@@ -213,6 +214,7 @@ void StateHelper::reanchor(State& state, const Eigen::Isometry3d& T_new_old,
     J.middleRows(index, 6).setIdentity();
   }
   for (int slot = 0; slot < state.num_landmarks(); ++slot) {
+    if (state.landmarks[slot].detection_offset) continue;
     const int index = state.landmark_index(slot);
     P.middleRows(index, 3) = (R * P.middleRows(index, 3)).eval();
     P.middleCols(index, 3) = (P.middleCols(index, 3) * R.transpose()).eval();

@@ -24,6 +24,7 @@ struct ObjectUpdateStats {
                             ///< rejoined the state, fused back by CI)
   int archived = 0;         ///< objects archived this frame (object_archive_mode)
   int update_failures = 0;  ///< Kalman updates refused (innovation not positive definite)
+  int offsets_added = 0;    ///< detection offsets added to the state (object_offset_sigma)
 };
 
 /// Observations of objects not yet in the state, by object id (normalized coordinates).
@@ -53,6 +54,14 @@ class ObjectUpdater {
   /// Chi-square quantile for `dof` (infinity when the gate is off).
   double gate(int dof) const;
   void archive_stale(State& state, int frame, ObjectUpdateStats& stats) const;
+  /// Detection offsets (object_offset_sigma): whether they are states; each one's random walk
+  /// over a frame; appending object `id`'s (zero, with its prior, uncorrelated); its Jacobian on
+  /// a linearized track's rows (each 4-row block: +du on both x, +dv on both y, -dd on the right
+  /// x) with its value taken out of the residuals.
+  bool has_offsets() const { return offset_prior_.squaredNorm() > 0.0; }
+  void walk_offsets(State& state) const;
+  int add_offset(State& state, LandmarkId id, int frame, ObjectUpdateStats& stats) const;
+  static void apply_offset(const State& state, int offset_slot, LinearizedTrack& linearized);
   /// The joint covariance (normalized units) of the errors of a track's observations: the
   /// independent part on the diagonal blocks, the constant part in every block, the persistent
   /// part correlated by object_noise_correlation^(frame difference).
@@ -74,6 +83,9 @@ class ObjectUpdater {
   Eigen::Matrix4d constant_covariance_;
   Eigen::Matrix4d persistent_covariance_;
   bool persistent_ = false;
+  /// Detection offsets' prior and walk variances a frame (normalized units: du, dv, dd).
+  Eigen::Vector3d offset_prior_ = Eigen::Vector3d::Zero();
+  Eigen::Vector3d offset_walk_ = Eigen::Vector3d::Zero();
   /// The conditional's gain and whitening for a pattern of frames (each earlier observation's
   /// frame relative to the newest): a continuous track repeats the same pattern frame after frame.
   struct Conditional {

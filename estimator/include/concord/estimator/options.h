@@ -134,6 +134,20 @@ struct EstimatorOptions {
   StereoNoise object_noise_constant = StereoNoise::isotropic(0.0);
   StereoNoise object_noise_persistent = StereoNoise::isotropic(0.0);
   double object_noise_correlation = 0.9;
+  /// object_offset_sigma, object_offset_walk: an offset of this robot's detections of each
+  /// object, a state of the filter (ObjectLandmark::detection_offset): [du, dv, dd] added to the
+  /// predicted box centre's left x and y and subtracted from its disparity, for as long as the
+  /// object stays in the joint state. It starts at zero with standard deviations
+  /// object_offset_sigma (image units; the horizontal, vertical and disparity components of a
+  /// StereoNoise, vertical_disparity unused) and moves as a random walk of object_offset_walk a
+  /// frame. It is the part of a detector's box error that follows the robot's view of the object
+  /// (which side of it shows, how much of its top): an error of this robot's, not of the object,
+  /// so the object's marginal that consensus averages leaves it out and a neighbour's better
+  /// object does not drag the robot's poses to fit its own biased boxes. Zero (the default)
+  /// leaves it out. Not with object_noise_constant or object_noise_persistent (two models of one
+  /// error).
+  StereoNoise object_offset_sigma = StereoNoise::isotropic(0.0);
+  StereoNoise object_offset_walk = StereoNoise::isotropic(0.0);
   /// object_min_observations: stereo observations in the window needed to initialize.
   int object_min_observations = 3;
   /// object_min_distance / object_max_distance: accepted depth of a new object (metres).

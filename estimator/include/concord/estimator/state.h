@@ -79,6 +79,11 @@ struct ObjectLandmark {
   /// (object_noise_persistent) a new observation is weighed by what it adds to them
   /// (ObjectUpdater). Empty without it.
   std::vector<TrackObservation> used_observations{};
+  /// Not an object but the offset of this robot's detections of object `id` (object_offset_sigma):
+  /// p_world holds [du, dv, dd], normalized image units, added to every observation's predicted
+  /// left x, y and subtracted from its disparity. It is this robot's own state: outputs,
+  /// marginals and the world frame leave it out (State::objects, Consensus, reanchor).
+  bool detection_offset = false;
 };
 
 class State {
@@ -129,12 +134,15 @@ class State {
 
   /// Slot of the pose of a frame in the window, or -1.
   int pose_slot(int frame) const;
-  /// Slot of an in-state landmark, or -1.
+  /// Slot of an in-state object landmark, or -1.
   int landmark_slot(LandmarkId id) const;
+  /// Slot of the detection offset of object `id` (ObjectLandmark::detection_offset), or -1.
+  int offset_slot(LandmarkId id) const;
 
   const PoseClone& newest_pose() const { return poses.back(); }
 
-  /// Every object the robot holds, joint and archived, sorted by id.
+  /// Every object the robot holds, joint and archived, sorted by id (detection offsets are not
+  /// objects).
   std::vector<LandmarkId> object_ids() const;
   /// Estimates of every object the robot holds, sorted by id.
   std::vector<ObjectEstimate> objects() const;
@@ -144,6 +152,7 @@ class State {
 
  private:
   std::map<LandmarkId, int> landmark_slots_;
+  std::map<LandmarkId, int> offset_slots_;
 };
 
 }  // namespace concord
