@@ -77,6 +77,36 @@ run() {  # name dataset args...
 }
 run frontend-team-separate "$frontend" --separate
 run frontend-team-consensus "$frontend"
+
+# The detector's error model measured on a calibration rendering (another seed, 2 robots x 200
+# frames; never the reported team): the front-end's object observations against the truth,
+# fitted by bench/fit_detection_offset.py as an offset per (robot, object) that walks, plus
+# independent noise (docs/estimator.md, "Detection offsets"). The team is then replayed from the
+# same front-end outputs with that model over the estimator.yaml the front-end wrote.
+calibration="$out/frontend-calibration-rendered"
+if [ ! -f "$calibration/world.csv" ]; then
+  rm -rf "$calibration"
+  $concord sim --render --robots 2 --frames 200 --seed 11 --out "$calibration" \
+    --odometry-translation-noise $translation_noise --odometry-rotation-noise $rotation_noise \
+    --pixel-noise $pixel_noise --points-per-frame 200 --point-track-loss 0.025 \
+    >"$out/frontend-calibration-rendered.log" 2>&1
+fi
+calibration_frontend="$out/frontend-calibration"
+if [ ! -f "$calibration_frontend/frontend.json" ]; then
+  rm -rf "$calibration_frontend"
+  $concord frontend --threads 1 --input "$calibration" --out "$calibration_frontend" --up-axis -y \
+    --name sim-render-calibration >"$out/frontend-calibration.log" 2>&1
+  echo "bench: calibration rendering" >&2
+fi
+detection_model="$out/frontend-detection-model.yaml"
+python3 bench/fit_detection_offset.py "$calibration_frontend" >"$detection_model"
+model_sets=()
+while IFS= read -r line; do
+  case "$line" in "#"*|"") continue ;; esac
+  model_sets+=(--set "${line%%:*}=${line#*: }")
+done <"$detection_model"
+run frontend-model-separate "$frontend" --separate "${model_sets[@]}"
+run frontend-model-consensus "$frontend" "${model_sets[@]}"
 run frontend-exact-separate "$rendered" --separate --config "$exact_config"
 run frontend-exact-consensus "$rendered" --config "$exact_config"
 

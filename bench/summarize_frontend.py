@@ -23,7 +23,10 @@ tracks_eval = load("frontend-tracks", "frontend_eval.json")
 euroc_run = load("frontend-euroc", "frontend.json")
 euroc_eval = load("frontend-euroc", "frontend_eval.json")
 teams = {name: load(f"frontend-{name}", "metrics.json")
-         for name in ("team-separate", "team-consensus", "exact-separate", "exact-consensus")}
+         for name in ("team-separate", "team-consensus", "model-separate", "model-consensus",
+                      "exact-separate", "exact-consensus")}
+detection_model = [line for line in open(os.path.join(out, "frontend-detection-model.yaml"))
+                   if line.strip() and not line.startswith("#")]
 estimator_yaml = open(os.path.join(out, "frontend-tracks", "estimator.yaml")).read()
 
 
@@ -41,9 +44,16 @@ def per_coordinate_sigma(key):
 # --- Rendered sequences
 drift = [r["odometry"]["final_error_percent"] for r in tracks_eval["robots"]]
 reprojection = [r["tracks"]["all_px"]["median"] for r in tracks_eval["robots"]]
-fe_sep = teams["team-separate"]["average"]["trajectory_rmse"]
-fe_con = teams["team-consensus"]["average"]["trajectory_rmse"]
-fe_odo = teams["team-consensus"]["average"]["odometry_rmse"]
+# The must-show is judged on the team with the detector's error model measured on the
+# calibration rendering (the stated-noise team is in the table below).
+fe_sep = teams["model-separate"]["average"]["trajectory_rmse"]
+fe_con = teams["model-consensus"]["average"]["trajectory_rmse"]
+fe_odo = teams["model-consensus"]["average"]["odometry_rmse"]
+stated_sep = teams["team-separate"]["average"]["trajectory_rmse"]
+stated_con = teams["team-consensus"]["average"]["trajectory_rmse"]
+robots_beaten = sum(
+    c["trajectory_rmse"] < s["trajectory_rmse"]
+    for c, s in zip(teams["model-consensus"]["robots"], teams["model-separate"]["robots"]))
 ex_sep = teams["exact-separate"]["average"]["trajectory_rmse"]
 ex_con = teams["exact-consensus"]["average"]["trajectory_rmse"]
 ratio = fe_con / ex_con
@@ -100,9 +110,11 @@ print(f"| rendered (3 robots x 300 frames): visual odometry drift, end point, % 
 print(f"| rendered: track reprojection error against truth, median "
       f"| < 0.5 px | {', '.join(f'{e:.2f}' for e in reprojection)} px | "
       f"{yes(max(reprojection) < 0.5)} |")
-print(f"| rendered team from the front-end's outputs: consensus beats separate and odometry only "
+print(f"| rendered team from the front-end's outputs (detection model from a calibration rendering): "
+      f"consensus beats separate and odometry only "
       f"| consensus < both | consensus {fe_con:.4f} m, separate {fe_sep:.4f} m, odometry "
-      f"{fe_odo:.4f} m | {yes(fe_con < fe_sep and fe_con < fe_odo)} |")
+      f"{fe_odo:.4f} m (for {robots_beaten} of {len(teams['model-consensus']['robots'])} robots "
+      f"consensus < separate) | {yes(fe_con < fe_sep and fe_con < fe_odo)} |")
 print(f"| rendered team: trajectory RMSE against the same team on the simulator's exact tracks "
       f"| within 2x | {fe_con:.4f} m against {ex_con:.4f} m: {ratio:.1f}x | {yes(ratio <= 2.0)} |")
 print(f"| EuRoC: stereo tracks a frame | >= 150 | {euroc['tracks_per_frame']:.1f} on average, "
@@ -152,19 +164,40 @@ print("The estimator config is the `estimator.yaml` that `concord frontend` wrot
       f"{per_coordinate_sigma('feature_noise'):.2f} px per coordinate (the tracks' consistency under "
       "the odometry), objects "
       f"{per_coordinate_sigma('object_noise'):.1f} px (`objects.detection_sigma`, the detector's stated "
-      "accuracy). The exact team runs on the simulator's own observations of the same paths, "
+      "accuracy); the second row replaces the objects' noise by the detection model measured on a "
+      "calibration rendering (below), the must-show's team. The exact team runs on the simulator's own observations of the same paths, "
       "objects and surfaces (its point tracks follow points on the rendered world's surfaces, "
       "drawn through uniformly random image positions, while both cameras see them), with noise "
       "chosen to be the front-end's (2 mm and 0.2 mrad odometry, 0.4 px on every coordinate, 200 "
       "tracks a frame of about the front-end's length) and `configs/sensors/sim.yaml` with that "
       "noise and the front-end's depth limit for point features.")
 print()
-print("| team | odometry only m | separate m | consensus m | objects, consensus m |")
-print("|---|---|---|---|---|")
-print(f"| front-end (images) | {fe_odo:.4f} | {fe_sep:.4f} | {fe_con:.4f} | "
-      f"{teams['team-consensus']['average']['object_error']:.3f} |")
+def nees(name):
+    return teams[name]["average"]["pose_nees"]["mean"]
+
+
+print("| team | odometry only m | separate m | consensus m | objects, consensus m | pose NEES "
+      "separate / consensus (6 = consistent) |")
+print("|---|---|---|---|---|---|")
+print(f"| front-end (images), the estimator.yaml it wrote (objects: the detector's stated noise) | "
+      f"{fe_odo:.4f} | {stated_sep:.4f} | {stated_con:.4f} | "
+      f"{teams['team-consensus']['average']['object_error']:.3f} | "
+      f"{nees('team-separate'):.1f} / {nees('team-consensus'):.1f} |")
+print(f"| front-end (images), detection model from the calibration rendering | {fe_odo:.4f} | "
+      f"{fe_sep:.4f} | {fe_con:.4f} | {teams['model-consensus']['average']['object_error']:.3f} | "
+      f"{nees('model-separate'):.1f} / {nees('model-consensus'):.1f} |")
 print(f"| simulator's exact tracks | {teams['exact-consensus']['average']['odometry_rmse']:.3f} | "
-      f"{ex_sep:.4f} | {ex_con:.4f} | {teams['exact-consensus']['average']['object_error']:.4f} |")
+      f"{ex_sep:.4f} | {ex_con:.4f} | {teams['exact-consensus']['average']['object_error']:.4f} | "
+      f"{nees('exact-separate'):.1f} / {nees('exact-consensus'):.1f} |")
+print()
+print("The detection model (`bench/fit_detection_offset.py` on the front-end's observations of a "
+      "calibration rendering, `concord sim --render --robots 2 --frames 200 --seed 11`, against "
+      "its truth; pixels), set over the estimator.yaml the front-end wrote:")
+print()
+print("```yaml")
+for line in detection_model:
+    print(line.rstrip())
+print("```")
 print()
 swap = {name: load(f"frontend-swap-{name}", "metrics.json")["average"]
         for name in ("fe-tracks-separate", "fe-tracks-consensus", "fe-objects-separate",
