@@ -29,23 +29,31 @@ translation_noise=0.002
 rotation_noise=0.0002
 pixel_noise=0.00075
 
-rendered="$out/frontend-rendered"
-if [ ! -f "$rendered/world.csv" ]; then
-  rm -rf "$rendered"
-  $concord sim --render --robots 3 --frames 300 --seed 1 --out "$rendered" \
+render() {  # folder robots frames seed: a rendered team with the noise above, unless there
+  local folder=$1
+  [ -f "$folder/world.csv" ] && return 0
+  rm -rf "$folder"
+  $concord sim --render --robots "$2" --frames "$3" --seed "$4" --out "$folder" \
     --odometry-translation-noise $translation_noise --odometry-rotation-noise $rotation_noise \
     --pixel-noise $pixel_noise --points-per-frame 200 --point-track-loss 0.025 \
-    >"$out/frontend-rendered.log" 2>&1
-  echo "bench: rendered" >&2
-fi
+    >"$folder.log" 2>&1
+  echo "bench: rendered $(basename "$folder")" >&2
+}
+rendered="$out/frontend-rendered"
+render "$rendered" 3 300 1
+frontend_of() {  # rendered-team output name: the front-end on a rendered team, unless there
+  [ -f "$2/frontend.json" ] && return 0
+  rm -rf "$2"
+  $concord frontend --threads 1 --input "$1" --out "$2" --up-axis -y --name "$3" >"$2.log" 2>&1
+  echo "bench: front-end on $(basename "$1")" >&2
+}
 
 # The rendered robots' body is the left camera, looking forward on a level robot: up is -y
 # (written to estimator.yaml for a negotiated association; the given-ids runs below ignore it).
 frontend="$out/frontend-tracks"
 if [ ! -f "$frontend/frontend_eval.json" ]; then
   rm -rf "$frontend"
-  $concord frontend --threads 1 --input "$rendered" --out "$frontend" --up-axis -y \
-    --name sim-render-frontend >"$out/frontend-tracks.log" 2>&1
+  frontend_of "$rendered" "$frontend" sim-render-frontend
   $concord frontend-eval --dataset "$frontend" --world "$rendered/world.csv" \
     >>"$out/frontend-tracks.log" 2>&1
   echo "bench: front-end on the rendered team" >&2
@@ -84,20 +92,9 @@ run frontend-team-consensus "$frontend"
 # independent noise (docs/estimator.md, "Detection offsets"). The team is then replayed from the
 # same front-end outputs with that model over the estimator.yaml the front-end wrote.
 calibration="$out/frontend-calibration-rendered"
-if [ ! -f "$calibration/world.csv" ]; then
-  rm -rf "$calibration"
-  $concord sim --render --robots 2 --frames 200 --seed 11 --out "$calibration" \
-    --odometry-translation-noise $translation_noise --odometry-rotation-noise $rotation_noise \
-    --pixel-noise $pixel_noise --points-per-frame 200 --point-track-loss 0.025 \
-    >"$out/frontend-calibration-rendered.log" 2>&1
-fi
+render "$calibration" 2 200 11
 calibration_frontend="$out/frontend-calibration"
-if [ ! -f "$calibration_frontend/frontend.json" ]; then
-  rm -rf "$calibration_frontend"
-  $concord frontend --threads 1 --input "$calibration" --out "$calibration_frontend" --up-axis -y \
-    --name sim-render-calibration >"$out/frontend-calibration.log" 2>&1
-  echo "bench: calibration rendering" >&2
-fi
+frontend_of "$calibration" "$calibration_frontend" sim-render-calibration
 detection_model="$out/frontend-detection-model.yaml"
 python3 bench/fit_detection_offset.py "$calibration_frontend" >"$detection_model"
 model_sets=()

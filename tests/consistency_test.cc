@@ -265,6 +265,41 @@ ObjectRunStatistics object_runs(const DetectionErrorModel& truth, const Estimato
   return {nees_sum / std::max(evaluated, 1), std::sqrt(squared_error_sum / std::max(evaluated, 1))};
 }
 
+/// Options for object_runs: a window that holds the whole track, exact poses, every
+/// observation counted (no gate): the detection model alone is tested.
+EstimatorOptions single_object_options() {
+  EstimatorOptions options;
+  options.window_size = 40;
+  options.use_point_features = false;
+  options.initial_position_sigma = 1e-6;
+  options.initial_rotation_sigma = 1e-6;
+  options.odometry_translation_sigma = 1e-5;
+  options.odometry_rotation_sigma = 1e-6;
+  options.object_min_distance = 1.0;
+  options.object_max_distance = 100.0;
+  options.object_init_max_reprojection_error = 50.0;
+  options.object_chi2_probability = 0.0;
+  return options;
+}
+
+/// 200 runs past one object with errors drawn from `truth`: filtered with `modelled` (the
+/// window holds the whole track, so an exact model is consistent) the object's NEES lies in the
+/// chi-square interval; with `independent` (the errors taken as independent) 40 observations
+/// claim far more than they know; and the model's weighting is not less accurate.
+void expect_the_model_honest_where_independent_noise_is_not(const DetectionErrorModel& truth,
+                                                           const EstimatorOptions& modelled,
+                                                           const EstimatorOptions& independent) {
+  const int runs = 200;
+  const ObjectRunStatistics as_independent = object_runs(truth, independent, runs);
+  const ObjectRunStatistics as_modelled = object_runs(truth, modelled, runs);
+  const auto [low, high] = mean_interval(runs, 3, 0.99);
+  EXPECT_GT(as_modelled.mean_nees, low);
+  EXPECT_LT(as_modelled.mean_nees, high);
+  EXPECT_GT(as_independent.mean_nees, 3.0 * high);
+  EXPECT_LT(as_modelled.rms_error, 1.05 * as_independent.rms_error)
+      << as_modelled.rms_error << " vs " << as_independent.rms_error;
+}
+
 StereoNoise as_noise(const Eigen::Vector4d& sigma) {
   return {sigma[0], sigma[1], sigma[2], sigma[3]};
 }
@@ -277,17 +312,7 @@ TEST(PersistentDetectionError, ModelledItKeepsTheObjectHonestWhereIndependentNoi
   truth.constant = Eigen::Vector4d(1.5, 1.5, 0.4, 0.0);
   truth.persistent = Eigen::Vector4d(1.0, 1.0, 0.5, 0.0);
   truth.correlation = 0.8;
-  EstimatorOptions options;
-  options.window_size = 40;  // the whole track
-  options.use_point_features = false;
-  options.initial_position_sigma = 1e-6;
-  options.initial_rotation_sigma = 1e-6;
-  options.odometry_translation_sigma = 1e-5;
-  options.odometry_rotation_sigma = 1e-6;
-  options.object_min_distance = 1.0;
-  options.object_max_distance = 100.0;
-  options.object_init_max_reprojection_error = 50.0;
-  options.object_chi2_probability = 0.0;  // every observation counts: the model alone is tested
+  EstimatorOptions options = single_object_options();
   // As independent noise of the same total size per coordinate.
   EstimatorOptions independent = options;
   independent.object_noise = as_noise(
@@ -301,19 +326,7 @@ TEST(PersistentDetectionError, ModelledItKeepsTheObjectHonestWhereIndependentNoi
   modelled.object_noise_constant = as_noise(truth.constant);
   modelled.object_noise_persistent = as_noise(truth.persistent);
   modelled.object_noise_correlation = truth.correlation;
-
-  const int runs = 200;
-  const ObjectRunStatistics as_independent = object_runs(truth, independent, runs);
-  const ObjectRunStatistics as_modelled = object_runs(truth, modelled, runs);
-  const auto [low, high] = mean_interval(runs, 3, 0.99);
-  // The 40-frame window holds the whole track: the model is exact and the NEES consistent.
-  EXPECT_GT(as_modelled.mean_nees, low);
-  EXPECT_LT(as_modelled.mean_nees, high);
-  // Counted as independent, 40 observations claim far more than they know.
-  EXPECT_GT(as_independent.mean_nees, 3.0 * high);
-  // And the model's weighting is not less accurate.
-  EXPECT_LT(as_modelled.rms_error, 1.05 * as_independent.rms_error)
-      << as_modelled.rms_error << " vs " << as_independent.rms_error;
+  expect_the_model_honest_where_independent_noise_is_not(truth, modelled, independent);
 }
 
 TEST(DetectionOffset, AStateForAnOffsetThatStaysAlongTheTrackKeepsTheObjectHonest) {
@@ -324,31 +337,12 @@ TEST(DetectionOffset, AStateForAnOffsetThatStaysAlongTheTrackKeepsTheObjectHones
   truth.independent = Eigen::Vector4d(0.5, 0.5, 0.3, 0.3);
   truth.constant = Eigen::Vector4d(1.5, 1.5, 0.0, 0.0);
   truth.persistent = Eigen::Vector4d::Zero();
-  EstimatorOptions options;
-  options.window_size = 40;
-  options.use_point_features = false;
-  options.initial_position_sigma = 1e-6;
-  options.initial_rotation_sigma = 1e-6;
-  options.odometry_translation_sigma = 1e-5;
-  options.odometry_rotation_sigma = 1e-6;
-  options.object_min_distance = 1.0;
-  options.object_max_distance = 100.0;
-  options.object_init_max_reprojection_error = 50.0;
-  options.object_chi2_probability = 0.0;
+  EstimatorOptions options = single_object_options();
   options.object_noise = as_noise(truth.independent);
   EstimatorOptions with_offset = options;
   with_offset.object_offset_sigma = {1.5, 1.5, 0.01, 0.0};
   ASSERT_TRUE(with_offset.validate().empty());
-
-  const int runs = 200;
-  const ObjectRunStatistics without = object_runs(truth, options, runs);
-  const ObjectRunStatistics offset = object_runs(truth, with_offset, runs);
-  const auto [low, high] = mean_interval(runs, 3, 0.99);
-  EXPECT_GT(offset.mean_nees, low);
-  EXPECT_LT(offset.mean_nees, high);
-  EXPECT_GT(without.mean_nees, 3.0 * high);
-  EXPECT_LT(offset.rms_error, 1.05 * without.rms_error)
-      << offset.rms_error << " vs " << without.rms_error;
+  expect_the_model_honest_where_independent_noise_is_not(truth, with_offset, options);
 }
 
 TEST(DetectionOffset, IsTheRobotsOwnStateNotAnObjectAndLeavesWithItsObject) {
