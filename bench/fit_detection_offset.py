@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Fits the estimator's detection-error model to a calibration dataset with ground truth.
 
-usage: fit_detection_offset.py DATASET [--gap FRAMES] [--max-lag N]
+usage: fit_detection_offset.py DATASET [--robot R] [--frames N] [--gap FRAMES] [--max-lag N]
 
 DATASET is a dataset folder in pixels whose object observations came from a detector (e.g.
 `concord frontend` on a rendered calibration team) and that holds the truth: objects_gt.csv and
@@ -13,7 +13,8 @@ errors are modelled as an offset that starts with standard deviation `sigma` and
     var(e[k+n] - e[k]) = 2 independent^2 + n walk^2        (fitted over lags 1..max-lag)
     var(e at a track's first observation) = sigma^2 + independent^2
 
-Errors beyond 3 robust standard deviations (median absolute deviation) are left out (a wrong
+The vertical disparity (v_left - v_right) is taken as independent noise of its robust standard
+deviation. Errors beyond 3 robust standard deviations (median absolute deviation) are left out (a wrong
 match is the chi-square gate's business); the independent part gets a floor of 10 % of the
 component's robust standard deviation (a fit to lags 1..max-lag says little about it), as
 `concord calibrate` does for the persistent model. Prints the three estimator keys (object_noise,
@@ -58,6 +59,9 @@ def main():
     parser.add_argument("--gap", type=int, default=5,
                         help="frames without an observation that end a track (default 5)")
     parser.add_argument("--max-lag", type=int, default=10)
+    parser.add_argument("--robot", type=int, help="only this robot (default: every robot)")
+    parser.add_argument("--frames", type=int,
+                        help="only each robot's first FRAMES frames (a calibration segment)")
     args = parser.parse_args()
 
     meta = json.load(open(f"{args.dataset}/dataset.json"))
@@ -70,14 +74,17 @@ def main():
              for row in csv.DictReader(open(f"{args.dataset}/objects_gt.csv"))}
 
     tracks = []  # lists of (frame, [du, dv, dd])
-    for robot in range(meta["robots"]):
+    vertical_disparities = []  # v_left - v_right: independent noise only (no offset part)
+    robots = range(meta["robots"]) if args.robot is None else [args.robot]
+    for robot in robots:
         folder = f"{args.dataset}/robot_{robot:02d}"
         poses = [list(map(float, line.split())) for line in open(f"{folder}/groundtruth.kitti")
                  if line.strip()]
         by_object = {}
         for row in csv.DictReader(open(f"{folder}/objects.csv")):
             frame, object_id = int(row["frame"]), int(row["id"])
-            if object_id not in truth or frame >= len(poses):
+            if object_id not in truth or frame >= len(poses) or \
+                    (args.frames is not None and frame >= args.frames):
                 continue
             r, t = invert(poses[frame])  # world -> body
             p = truth[object_id]
@@ -88,6 +95,7 @@ def main():
             u_true, v_true = fx * c[0] / c[2] + cx, fy * c[1] / c[2] + cy
             u, v, u_right = float(row["u_left"]), float(row["v_left"]), float(row["u_right"])
             error = [u - u_true, v - v_true, (u - u_right) - focal_baseline / c[2]]
+            vertical_disparities.append(v - float(row["v_right"]))
             by_object.setdefault(object_id, []).append((frame, error))
         for observations in by_object.values():
             observations.sort()
@@ -133,8 +141,9 @@ def main():
         }
 
     h, v, d = (fitted[n] for n in names)
-    # The front-end puts both images' box centres on one row: no vertical disparity of its own.
-    floor = 0.1 * v["independent"]
+    # Vertical disparity (zero for a rectified pair's true point): independent noise, its robust
+    # sigma, with the same floor (the front-end puts both centres on one row).
+    floor = max(robust_sigma(clipped(vertical_disparities)), 0.1 * v["independent"])
     print(f"# fit_detection_offset.py on {args.dataset}: {h['tracks']} tracks, lags 1-{args.max_lag}")
     print(f"object_noise: {{horizontal: {h['independent']:.3g}, vertical: {v['independent']:.3g}, "
           f"disparity: {d['independent']:.3g}, vertical_disparity: {floor:.3g}}}")
