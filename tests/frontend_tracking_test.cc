@@ -398,7 +398,7 @@ TEST(FrontendObjects, TheSilhouetteOfAnUprightBoxGivesItsCentreRowAndDepth) {
   options.upright = true;
   const double half = 0.4;  // metres
   int off_axis = 0;
-  for (const Eigen::Vector3d centre :
+  for (const Eigen::Vector3d& centre :
        {Eigen::Vector3d(0.0, 0.0, 6.0), Eigen::Vector3d(2.0, 1.2, 5.0),
         Eigen::Vector3d(-3.0, -1.5, 7.0), Eigen::Vector3d(0.2, 1.5, 4.0),
         Eigen::Vector3d(-2.5, 0.1, 9.0)}) {
