@@ -1,6 +1,7 @@
 #include "concord/frontend/frontend_run.h"
 
 #include <algorithm>
+#include <array>
 #include <charconv>
 #include <cmath>
 #include <numbers>
@@ -133,11 +134,11 @@ std::vector<std::string> number_classes(
 FrontendOptions options_for_rig(const FrontendOptions& options, const std::string& up_axis,
                                 const Eigen::Isometry3d& T_cam0_body) {
   FrontendOptions out = options;
-  if (up_axis == "unknown" || up_axis.size() != 2) return out;
-  Eigen::Vector3d up = Eigen::Vector3d::Zero();
-  up(up_axis[1] - 'x') = up_axis[0] == '-' ? -1.0 : 1.0;
-  const Eigen::Vector3d up_camera = T_cam0_body.linear() * up;
-  if (std::abs(up_camera.y()) >= std::cos(10.0 * std::numbers::pi / 180.0) * up_camera.norm()) {
+  const std::array<double, 3> axis = body_axis_vector(up_axis);  // zero for "unknown"
+  const Eigen::Vector3d up_camera =
+      T_cam0_body.linear() * Eigen::Vector3d(axis[0], axis[1], axis[2]);
+  if (up_camera.norm() > 0.0 &&
+      std::abs(up_camera.y()) >= std::cos(10.0 * std::numbers::pi / 180.0) * up_camera.norm()) {
     out.objects.upright = true;
   }
   return out;
@@ -168,7 +169,8 @@ RobotRun run_sequence(const fs::path& folder, int robot, bool single,
     odometry = std::move(given);
   }
   const std::optional<std::vector<Eigen::Isometry3d>> groundtruth = sequence.groundtruth;
-  const FrontendOptions frontend_options = options_for_rig(options.frontend, options.up_axis, sequence.rig.T_cam0_body);
+  const FrontendOptions frontend_options =
+      options_for_rig(options.frontend, options.up_axis, sequence.rig.T_cam0_body);
   StereoFrontend frontend(std::move(sequence), frontend_options, std::move(detections),
                           std::move(odometry));
 
