@@ -41,10 +41,11 @@ render() {  # folder robots frames seed: a rendered team with the noise above, u
 }
 rendered="$out/frontend-rendered"
 render "$rendered" 3 300 1
-frontend_of() {  # rendered-team output name: the front-end on a rendered team, unless there
+frontend_of() {  # rendered-team output name [args]: the front-end on a rendered team, unless there
   [ -f "$2/frontend.json" ] && return 0
   rm -rf "$2"
-  $concord frontend --threads 1 --input "$1" --out "$2" --up-axis -y --name "$3" >"$2.log" 2>&1
+  $concord frontend --threads 1 --input "$1" --out "$2" --up-axis -y --name "$3" "${@:4}" \
+    >"$2.log" 2>&1
   echo "bench: front-end on $(basename "$1")" >&2
 }
 
@@ -86,24 +87,26 @@ run() {  # name dataset args...
 run frontend-team-separate "$frontend" --separate
 run frontend-team-consensus "$frontend"
 
-# The detector's error model measured on a calibration rendering (another seed, 2 robots x 200
+# The detector's error model measured on a calibration rendering (another seed, one robot x 400
 # frames; never the reported team): the front-end's object observations against the truth,
-# fitted by bench/fit_detection_offset.py as an offset per (robot, object) that walks, plus
-# independent noise (docs/estimator.md, "Detection offsets"). The team is then replayed from the
-# same front-end outputs with that model over the estimator.yaml the front-end wrote.
+# fitted by `concord calibrate --detector-model` as an offset per (robot, object) that walks,
+# plus independent noise (docs/estimator.md, "Detection offsets"). The front-end then runs on
+# the team again with that model (--detector-model), which it writes into estimator.yaml: the
+# team is replayed with the front-end's config alone, one config for camera and detector.
 calibration="$out/frontend-calibration-rendered"
-render "$calibration" 2 200 11
+render "$calibration" 1 400 11
 calibration_frontend="$out/frontend-calibration"
 frontend_of "$calibration" "$calibration_frontend" sim-render-calibration
 detection_model="$out/frontend-detection-model.yaml"
-python3 bench/fit_detection_offset.py "$calibration_frontend" >"$detection_model"
-model_sets=()
-while IFS= read -r line; do
-  case "$line" in "#"*|"") continue ;; esac
-  model_sets+=(--set "${line%%:*}=${line#*: }")
-done <"$detection_model"
-run frontend-model-separate "$frontend" --separate "${model_sets[@]}"
-run frontend-model-consensus "$frontend" "${model_sets[@]}"
+if [ ! -f "$detection_model" ]; then
+  $concord calibrate --dataset "$calibration_frontend" --robot 0 --frames 400 --up-axis -y \
+    --detector-model "$detection_model" >"$out/frontend-calibration.yaml"
+fi
+frontend_model="$out/frontend-model-tracks"
+[ "$detection_model" -nt "$frontend_model/frontend.json" ] && rm -rf "$frontend_model"
+frontend_of "$rendered" "$frontend_model" sim-render-frontend-model --detector-model "$detection_model"
+run frontend-model-separate "$frontend_model" --separate
+run frontend-model-consensus "$frontend_model"
 run frontend-exact-separate "$rendered" --separate --config "$exact_config"
 run frontend-exact-consensus "$rendered" --config "$exact_config"
 

@@ -190,9 +190,10 @@ print(f"| simulator's exact tracks | {teams['exact-consensus']['average']['odome
       f"{ex_sep:.4f} | {ex_con:.4f} | {teams['exact-consensus']['average']['object_error']:.4f} | "
       f"{nees('exact-separate'):.1f} / {nees('exact-consensus'):.1f} |")
 print()
-print("The detection model (`bench/fit_detection_offset.py` on the front-end's observations of a "
-      "calibration rendering, `concord sim --render --robots 2 --frames 200 --seed 11`, against "
-      "its truth; pixels), set over the estimator.yaml the front-end wrote:")
+print("The detection model (`concord calibrate --detector-model` on the front-end's observations "
+      "of a calibration rendering, `concord sim --render --robots 1 --frames 400 --seed 11`, "
+      "against its truth; pixels), given to the front-end (`concord frontend --detector-model`), "
+      "which writes it into the team's estimator.yaml:")
 print()
 print("```yaml")
 for line in detection_model:

@@ -935,6 +935,78 @@ TEST(Calibration, FitsAConstantAndAPersistentPartOfTheDetectionError) {
   EXPECT_GT(loaded.object_noise_constant.horizontal, 0.0);
 }
 
+TEST(Calibration, FitsADetectionOffsetThatWalksAlongEachTrack) {
+  // Detections whose errors, in the offset's components (left u, vertical, disparity; normalized
+  // units), are an offset drawn at each track's start that walks a little every frame, plus
+  // independent noise; a track ends where its object goes unseen for more than 5 frames.
+  sim::SimulationOptions simulation;
+  simulation.robots = 1;
+  simulation.frames = 400;
+  simulation.points_per_frame = 0;
+  simulation.pixel_noise = 1e-6;
+  dataset::Dataset data = sim::simulate(simulation);
+  const Eigen::Vector3d sigma(0.012, 0.006, 0.004);
+  const Eigen::Vector3d walk(0.004, 0.002, 0.0015);
+  const Eigen::Vector3d independent(0.002, 0.001, 0.0008);
+  std::mt19937 random(9);
+  std::normal_distribution<double> normal(0.0, 1.0);
+  const auto draw = [&](const Eigen::Vector3d& s) {
+    return Eigen::Vector3d(s[0] * normal(random), s[1] * normal(random), s[2] * normal(random));
+  };
+  struct Offset {
+    int frame = -100;
+    Eigen::Vector3d value;
+  };
+  std::map<LandmarkId, Offset> offsets;
+  int observations = 0;
+  auto& objects = data.robots.front().objects;
+  for (std::size_t frame = 0; frame < objects.size(); ++frame) {
+    for (StereoObservation& observation : objects[frame]) {
+      Offset& offset = offsets[observation.id];
+      const int now = static_cast<int>(frame);
+      if (now - offset.frame > 5) {
+        offset.value = draw(sigma);
+      } else {
+        for (int step = offset.frame; step < now; ++step) offset.value += draw(walk);
+      }
+      offset.frame = now;
+      const Eigen::Vector3d e = offset.value + draw(independent);
+      // u_left + du, v + dv, u_right = u_left - disparity: + du - dd.
+      observation.uv += Eigen::Vector4d(e[0], e[1], e[0] - e[2], e[1]);
+      ++observations;
+    }
+  }
+  ASSERT_GT(observations, 2000);
+  calibration::CalibrationOptions options;
+  options.frames = 400;
+  const calibration::CalibrationReport report = calibration::calibrate(data, options);
+  ASSERT_GT(report.objects.offset_tracks, 30);
+  for (int c = 0; c < 3; ++c) {
+    EXPECT_NEAR(report.objects.offset_sigma(c), sigma(c), 0.25 * sigma(c)) << c;
+    EXPECT_NEAR(report.objects.offset_walk(c), walk(c), 0.25 * walk(c)) << c;
+    EXPECT_NEAR(report.objects.offset_independent(c), independent(c), 0.5 * independent(c)) << c;
+  }
+  // The model alone loads as an estimator config with exactly those values (to the printed
+  // digits), and makes the offset a state.
+  const EstimatorOptions loaded = config::parse_estimator_options(
+      calibration::detector_model_yaml(report, options), "detector model");
+  EXPECT_NEAR(loaded.object_offset_sigma.horizontal, report.objects.offset_sigma(0), 1e-3 * sigma(0));
+  EXPECT_NEAR(loaded.object_offset_walk.disparity, report.objects.offset_walk(2), 1e-3 * walk(2));
+  EXPECT_NEAR(loaded.object_noise.vertical, report.objects.offset_independent(1),
+              1e-3 * independent(1));
+  EXPECT_GT(loaded.object_noise.vertical_disparity, 0.0);
+  // The full report offers the same keys, commented.
+  EXPECT_NE(calibration::to_yaml(report, options).find("# object_offset_walk: {horizontal: "),
+            std::string::npos);
+  // No objects: nothing to fit, and the model is refused with the reason.
+  for (auto& frame : objects) frame.clear();
+  const calibration::CalibrationReport empty = calibration::calibrate(data, options);
+  EXPECT_EQ(empty.objects.offset_tracks, 0);
+  EXPECT_THROW((void)calibration::detector_model_yaml(empty, options), std::invalid_argument);
+  options.track_gap = 0;
+  EXPECT_THROW(calibration::calibrate(data, options), std::invalid_argument);
+}
+
 /// A robot driving along the world's x for `frames` frames, pitching as a sine of amplitude 0.04
 /// rad and period 120 frames about a body pitched nose-down by `mount` (about its y axis).
 dataset::Dataset pitching_robot(int frames, double mount) {

@@ -583,6 +583,63 @@ TEST(FrontendRun, AnUpAxisAlongTheCamerasVerticalMakesObjectsUpright) {
   EXPECT_EQ(moved, observations);
 }
 
+TEST(FrontendRun, ADetectorModelReplacesTheStatedObjectNoiseInEstimatorYaml) {
+  // The detector's error model (what concord calibrate --detector-model writes) goes into the
+  // estimator.yaml the front-end writes, in place of objects.detection_sigma; the front-end's
+  // own odometry and feature noise stay.
+  const fs::path model = testing::temporary_folder("frontend_detector_model") / "model.yaml";
+  const auto write = [&](const std::string& text) { std::ofstream(model) << text; };
+  write(
+      "object_noise: {horizontal: 0.1, vertical: 0.04, disparity: 0.03, vertical_disparity: "
+      "0.004}\nobject_offset_sigma: {horizontal: 0.7, vertical: 0.3, disparity: 0.2}\n"
+      "object_offset_walk: {horizontal: 0.4, vertical: 0.15, disparity: 0.1}\n");
+  FrontendRunOptions options;
+  options.max_frames = 3;
+  const fs::path stated = testing::temporary_folder("frontend_model_stated");
+  (void)run_frontend(rendered_sequence().team, stated, options);
+  options.detector_model = model;
+  const fs::path modelled = testing::temporary_folder("frontend_model_modelled");
+  (void)run_frontend(rendered_sequence().team, modelled, options);
+  const EstimatorOptions a = config::load_estimator_options(stated / "estimator.yaml");
+  const EstimatorOptions b = config::load_estimator_options(modelled / "estimator.yaml");
+  EXPECT_DOUBLE_EQ(a.object_noise.horizontal,
+                   StereoNoise::isotropic(options.frontend.objects.detection_sigma).horizontal);
+  EXPECT_DOUBLE_EQ(a.object_offset_sigma.horizontal, 0.0);
+  EXPECT_DOUBLE_EQ(b.object_noise.horizontal, 0.1);
+  EXPECT_DOUBLE_EQ(b.object_noise.vertical_disparity, 0.004);
+  EXPECT_DOUBLE_EQ(b.object_offset_sigma.vertical, 0.3);
+  EXPECT_DOUBLE_EQ(b.object_offset_walk.disparity, 0.1);
+  EXPECT_DOUBLE_EQ(b.feature_noise.horizontal, a.feature_noise.horizontal);
+  EXPECT_DOUBLE_EQ(b.odometry_translation_sigma, a.odometry_translation_sigma);
+  EXPECT_DOUBLE_EQ(b.object_init_max_reprojection_error, a.object_init_max_reprojection_error);
+  std::ifstream file(modelled / "frontend.json");
+  EXPECT_EQ(nlohmann::json::parse(file).at("detector_model"), model.string());
+
+  // Refused, before any image is read, with the reason: a key that is not the detector's (the
+  // front-end measures the odometry itself), two models of one error, a file that is not a map
+  // or not there.
+  const auto refusal = [&](const std::string& text) {
+    write(text);
+    const fs::path out = testing::temporary_folder("frontend_model_refused");
+    try {
+      (void)run_frontend(rendered_sequence().team, out, options);
+    } catch (const FrontendError& error) {
+      EXPECT_FALSE(fs::exists(out / "estimator.yaml"));
+      return std::string(error.what());
+    }
+    return std::string("accepted");
+  };
+  EXPECT_THAT(refusal("object_noise: 0.1\nodometry_translation_sigma: 0.05\n"),
+              ::testing::HasSubstr("not a detector's key: odometry_translation_sigma"));
+  EXPECT_THAT(refusal("object_offset_sigma: 0.5\nobject_noise_persistent: 0.5\n"),
+              ::testing::HasSubstr("object_offset_sigma"));
+  EXPECT_THAT(refusal("- 0.5\n"), ::testing::HasSubstr("a map of estimator object noise keys"));
+  EXPECT_THAT(refusal("object_noise: [1, 2\n"), ::testing::HasSubstr(model.string()));
+  EXPECT_THAT(refusal(""), ::testing::HasSubstr("a map of estimator object noise keys"));
+  options.detector_model = model.parent_path() / "missing.yaml";
+  EXPECT_THROW((void)run_frontend(rendered_sequence().team, stated, options), FrontendError);
+}
+
 /// A team folder of `robots` copies of the rendered sequence (robot_NN), each with its
 /// detections' classes replaced by `classes[robot]` (cycled over the detections), and the
 /// rendered team's dataset.json when `declared`.

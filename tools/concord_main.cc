@@ -7,12 +7,14 @@
 ///   concord slice --dataset DIR --out DIR --frames N [--robots R] [--private-ids]
 ///   [--unknown-start] concord convert --dataset DIR --out DIR [--private-ids] [--unknown-start]
 ///   concord calibrate --dataset DIR [--robot R] [--first F] [--frames N] [--up-axis A]
+///                     [--detector-model FILE]
 ///   concord launch --dataset DIR --out DIR [--lockstep|--async|--separate] [--base-port P]
 ///                  [--http-base-port P] [--config FILE] [--robots R] [--frames N] [--rate HZ]
 ///                  [--graph complete|ring] [--range M] [--nearest K] [--max-degree D]
 ///                  [--round-deadline-ms MS] [--failpoint ROBOT:NAME[=ARG] ...]
 ///   concord plot --input CHART.json --out CHART.png
 ///   concord frontend --input DIR --out DIR [--detections FILE] [--odometry FILE] [--frames N]
+///                    [--detector-model FILE]
 ///   concord frontend-eval --dataset DIR [--world FILE]
 ///   concord keygen --out FILE      (a new team key, mode 0600; never overwrites)
 ///   concord sim --robots N --out DIR [--seed S] [--frames F] [--objects M] [--points-per-frame P]
@@ -414,9 +416,17 @@ int run_eval(const fs::path& dataset_dir, const fs::path& result_dir,
   return 0;
 }
 
-int run_calibrate(const fs::path& dataset_dir, const calibration::CalibrationOptions& options) {
+int run_calibrate(const fs::path& dataset_dir, const calibration::CalibrationOptions& options,
+                  const fs::path& detector_model) {
   const dataset::Dataset data = dataset::read_dataset(dataset_dir);
-  std::cout << calibration::to_yaml(calibration::calibrate(data, options), options);
+  const calibration::CalibrationReport report = calibration::calibrate(data, options);
+  std::cout << calibration::to_yaml(report, options);
+  if (!detector_model.empty()) {
+    dataset::write_file_atomically(detector_model,
+                                   calibration::detector_model_yaml(report, options));
+    std::cerr << "concord calibrate: the detector's error model written to "
+              << detector_model.string() << "\n";
+  }
   return 0;
 }
 
@@ -767,6 +777,11 @@ int main(int argc, char** argv) {
                    "Body axis pointing up when level, for the tilt (+x, -x, +y, -y, +z, -z)")
       ->capture_default_str()
       ->check(CLI::IsMember({"+x", "-x", "+y", "-y", "+z", "-z"}));
+  std::string detector_model_out;
+  calibrate_command->add_option(
+      "--detector-model", detector_model_out,
+      "Also write the detector's error model (object_noise, object_offset_sigma, "
+      "object_offset_walk) to FILE, for concord frontend --detector-model");
 
   auto* slice_command = app.add_subcommand("slice", "Cut the first frames/robots of a dataset");
   int robots = 0;
@@ -1065,6 +1080,12 @@ int main(int argc, char** argv) {
                    "alike for robots processed in separate runs. Default: the names the "
                    "detections use")
       ->delimiter(',');
+  frontend_command
+      ->add_option("--detector-model", frontend_options.detector_model,
+                   "The detector's error model (estimator object noise keys, e.g. from concord "
+                   "calibrate --detector-model on a calibration segment), written to "
+                   "estimator.yaml instead of objects.detection_sigma")
+      ->check(CLI::ExistingFile);
   int frontend_threads = 0;
   frontend_command
       ->add_option("--threads", frontend_threads,
@@ -1139,7 +1160,7 @@ int main(int argc, char** argv) {
     if (convert_command->parsed()) {
       return run_convert(dataset_dir, out_dir, variant_private_ids, variant_unknown_start);
     }
-    if (calibrate_command->parsed()) return run_calibrate(dataset_dir, calibration_options);
+    if (calibrate_command->parsed()) return run_calibrate(dataset_dir, calibration_options, detector_model_out);
     if (sim_command->parsed()) {
       return run_sim(
           sim_options, out_dir,

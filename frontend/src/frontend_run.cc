@@ -6,10 +6,13 @@
 #include <cmath>
 #include <numbers>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <set>
 #include <string>
+#include <utility>
 
 #include "concord/config/options_file.h"
+#include "concord/config/yaml_section.h"
 #include "concord/dataset/dataset.h"
 #include "concord/dataset/result_io.h"
 #include "concord/frontend/frontend.h"
@@ -262,6 +265,63 @@ RobotRun run_sequence(const fs::path& folder, int robot, bool single,
   return run;
 }
 
+/// The object noise keys a detector model may set (FrontendRunOptions::detector_model).
+const std::set<std::string>& detector_model_keys() {
+  static const std::set<std::string> keys = {
+      "object_noise",           "object_noise_constant", "object_noise_persistent",
+      "object_noise_correlation", "object_offset_sigma", "object_offset_walk",
+      "object_init_max_reprojection_error"};
+  return keys;
+}
+
+/// The detector model file read and checked: its keys (only detector_model_keys()) and the
+/// estimator options they give over the defaults (validated). Throws FrontendError.
+std::pair<std::set<std::string>, EstimatorOptions> load_detector_model(const fs::path& file) {
+  try {
+    const std::string text = config::read_config_text(file, "detector model");
+    const YAML::Node root = config::load_yaml(text, file.string());
+    if (!root.IsMap() || root.size() == 0) {
+      throw FrontendError(file.string() +
+                          ": a detector model is a map of estimator object noise keys "
+                          "(concord calibrate --detector-model writes one)");
+    }
+    std::set<std::string> keys;
+    std::string refused;
+    for (const auto& entry : root) {
+      const std::string key = entry.first.as<std::string>();
+      if (detector_model_keys().count(key) == 0) refused += (refused.empty() ? "" : ", ") + key;
+      keys.insert(key);
+    }
+    if (!refused.empty()) {
+      std::string allowed;
+      for (const std::string& key : detector_model_keys()) allowed += " " + key;
+      throw FrontendError(file.string() + ": not a detector's key: " + refused +
+                          " (a detector model holds only" + allowed + ")");
+    }
+    return {keys, config::parse_estimator_options(text, file.string())};
+  } catch (const config::ConfigError& error) {
+    throw FrontendError(error.what());
+  } catch (const YAML::Exception& error) {
+    throw FrontendError(file.string() + ": " + error.what());
+  }
+}
+
+/// The model's keys copied over `estimator`.
+void apply_detector_model(const std::set<std::string>& keys, const EstimatorOptions& model,
+                          EstimatorOptions& estimator) {
+  const auto has = [&](const char* key) { return keys.count(key) > 0; };
+  if (has("object_noise")) estimator.object_noise = model.object_noise;
+  if (has("object_noise_constant")) estimator.object_noise_constant = model.object_noise_constant;
+  if (has("object_noise_persistent"))
+    estimator.object_noise_persistent = model.object_noise_persistent;
+  if (has("object_noise_correlation"))
+    estimator.object_noise_correlation = model.object_noise_correlation;
+  if (has("object_offset_sigma")) estimator.object_offset_sigma = model.object_offset_sigma;
+  if (has("object_offset_walk")) estimator.object_offset_walk = model.object_offset_walk;
+  if (has("object_init_max_reprojection_error"))
+    estimator.object_init_max_reprojection_error = model.object_init_max_reprojection_error;
+}
+
 }  // namespace
 
 EstimatorOptions suggested_estimator_options(const FrontendRunSummary& summary,
@@ -326,6 +386,9 @@ FrontendRunSummary run_frontend(const fs::path& input, const fs::path& out,
     throw FrontendError("up axis '" + options.up_axis +
                         "': expected unknown, +x, -x, +y, -y, +z or -z");
   }
+  // The detector model is checked before any image is read.
+  std::optional<std::pair<std::set<std::string>, EstimatorOptions>> detector_model;
+  if (!options.detector_model.empty()) detector_model = load_detector_model(options.detector_model);
   const std::vector<fs::path> sequences = list_sequences(input);
   const bool single = sequences.size() == 1 && sequences.front() == input;
   if (!single && (!options.detections.empty() || !options.odometry.empty())) {
@@ -391,11 +454,20 @@ FrontendRunSummary run_frontend(const fs::path& input, const fs::path& out,
   std::string estimator_yaml =
       "# Estimator options for this dataset, written by `concord frontend`: the noise values are\n"
       "# the front-end's own (odometry: median reported standard deviation; features: the tracks'\n"
-      "# consistency; objects: the detector's stated accuracy, objects.detection_sigma), the "
-      "depth\n"
+      "# consistency; objects: " +
+      (detector_model ? "the detector model " + options.detector_model.string()
+                      : std::string("the detector's stated accuracy, objects.detection_sigma")) +
+      "), the depth\n"
       "# limits follow from fx * baseline. See docs/frontend.md.\n";
-  estimator_yaml +=
-      config::to_yaml(suggested_estimator_options(summary, data.camera, options.frontend));
+  EstimatorOptions estimator = suggested_estimator_options(summary, data.camera, options.frontend);
+  if (detector_model) apply_detector_model(detector_model->first, detector_model->second, estimator);
+  const std::vector<std::string> estimator_problems = estimator.validate();
+  if (!estimator_problems.empty()) {
+    std::string message = "the estimator options with the detector model are not valid:";
+    for (const std::string& problem : estimator_problems) message += " " + problem + ";";
+    throw FrontendError(message);
+  }
+  estimator_yaml += config::to_yaml(estimator);
   if (options.up_axis != "unknown") {
     estimator_yaml += "# The robots' up axis (concord frontend --up-axis; docs/association.md).\n"
                       "association:\n  start_up_axis: \"" + options.up_axis + "\"\n";
@@ -408,6 +480,7 @@ FrontendRunSummary run_frontend(const fs::path& input, const fs::path& out,
       options.odometry.empty() ? "stereo visual odometry" : options.odometry.string();
   document["options"] =
       options_json(options_for_rig(options.frontend, options.up_axis, data.camera.T_cam0_body));
+  document["detector_model"] = options.detector_model.string();
   document["object_ids"] = dataset::to_string(summary.object_ids);
   document["start_poses"] = dataset::to_string(summary.start_poses);
   document["classes"] = summary.classes;

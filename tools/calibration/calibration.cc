@@ -33,11 +33,31 @@ double robust_sigma(std::vector<double> values) {
   return 1.4826 * upper_median(std::move(values));
 }
 
+/// The values within 3 robust sigmas of their median (all of them when fewer than 5 or when the
+/// spread is 0).
+std::vector<double> without_outliers(std::vector<double> values) {
+  if (values.size() < 5) return values;
+  const double median = upper_median(values);
+  const double sigma = robust_sigma(values);
+  if (!(sigma > 0.0)) return values;
+  values.erase(std::remove_if(values.begin(), values.end(),
+                              [&](double v) { return std::abs(v - median) > 3.0 * sigma; }),
+               values.end());
+  return values;
+}
+
+double mean_square(const std::vector<double>& values) {
+  double sum = 0.0;
+  for (double value : values) sum += value * value;
+  return values.empty() ? 0.0 : sum / static_cast<double>(values.size());
+}
+
 /// Accumulates stereo errors (u_left, v_left, u_right, v_right), in image units, as components,
 /// with the landmark and frame of each (for the time correlation within tracks).
 class StereoErrors {
  public:
   void add(LandmarkId id, int frame, const Eigen::Vector4d& error) {
+    u_left_.push_back(error(0));
     horizontal_.push_back(0.5 * (error(0) + error(2)));
     vertical_.push_back(0.5 * (error(1) + error(3)));
     disparity_.push_back(error(0) - error(2));
@@ -45,7 +65,7 @@ class StereoErrors {
     index_[{id, frame}] = horizontal_.size() - 1;
   }
 
-  StereoErrorSpread spread() const {
+  StereoErrorSpread spread(const CalibrationOptions& options) const {
     StereoErrorSpread out;
     out.observations = static_cast<int>(horizontal_.size());
     if (out.observations == 0) return out;
@@ -73,6 +93,7 @@ class StereoErrors {
           inflation(*components[c], out.median(c), sigmas[c]);
     }
     fit_persistence(components, out);
+    fit_offsets(options, out);
     return out;
   }
 
@@ -173,6 +194,72 @@ class StereoErrors {
     }
   }
 
+  /// StereoErrorSpread::offset_independent, offset_sigma, offset_walk, offset_tracks.
+  void fit_offsets(const CalibrationOptions& options, StereoErrorSpread& out) const {
+    // Tracks: each landmark's observations in frame order (index_ is sorted by landmark, then
+    // frame), split where it went unseen for more than track_gap frames.
+    std::vector<std::vector<std::pair<int, std::size_t>>> tracks;
+    LandmarkId current = 0;
+    int last_frame = 0;
+    for (const auto& [key, k] : index_) {
+      if (tracks.empty() || key.first != current || key.second - last_frame > options.track_gap) {
+        tracks.emplace_back();
+      }
+      tracks.back().emplace_back(key.second, k);
+      current = key.first;
+      last_frame = key.second;
+    }
+    const std::vector<double>* components[3] = {&u_left_, &vertical_, &disparity_};
+    for (int c = 0; c < 3; ++c) {
+      const std::vector<double>& values = *components[c];
+      // Mean square of the differences at each lag (the walk has zero mean).
+      std::vector<double> lags, mean_squares;
+      for (int lag = 1; lag <= options.offset_max_lag; ++lag) {
+        std::vector<double> differences;
+        for (const auto& track : tracks) {
+          for (auto i = track.begin(); i != track.end(); ++i) {
+            for (auto j = std::next(i); j != track.end() && j->first - i->first <= lag; ++j) {
+              if (j->first - i->first == lag) differences.push_back(values[j->second] - values[i->second]);
+            }
+          }
+        }
+        differences = without_outliers(std::move(differences));
+        if (differences.size() < 20) continue;
+        lags.push_back(lag);
+        mean_squares.push_back(mean_square(differences));
+      }
+      if (lags.size() < 2) {
+        out.offset_tracks = 0;
+        return;
+      }
+      // Least squares line: mean_square = intercept + slope lag.
+      const auto n = static_cast<double>(lags.size());
+      double mean_lag = 0.0, mean_value = 0.0;
+      for (std::size_t i = 0; i < lags.size(); ++i) {
+        mean_lag += lags[i] / n;
+        mean_value += mean_squares[i] / n;
+      }
+      double sxy = 0.0, sxx = 0.0;
+      for (std::size_t i = 0; i < lags.size(); ++i) {
+        sxy += (lags[i] - mean_lag) * (mean_squares[i] - mean_value);
+        sxx += (lags[i] - mean_lag) * (lags[i] - mean_lag);
+      }
+      const double slope = sxy / sxx;
+      const double intercept = mean_value - slope * mean_lag;
+      std::vector<double> starts;
+      for (const auto& track : tracks) starts.push_back(values[track.front().second]);
+      const double start_mean_square = mean_square(without_outliers(std::move(starts)));
+      const double independent =
+          std::max(std::sqrt(std::max(0.5 * intercept, 0.0)), 0.1 * robust_sigma(values));
+      out.offset_independent(c) = independent;
+      out.offset_walk(c) = std::sqrt(std::max(slope, 0.0));
+      out.offset_sigma(c) = std::sqrt(std::max(start_mean_square - independent * independent, 0.0));
+    }
+    out.offset_independent(3) = std::max(robust_sigma(without_outliers(vertical_disparity_)),
+                                         0.1 * out.offset_independent(1));
+    out.offset_tracks = static_cast<int>(tracks.size());
+  }
+
   /// sqrt(1 + 2 sum_{lag 1..10} rho(lag)), at least 1, of one component's errors within tracks
   /// (clipped at 3 robust sigmas around the median, so that outliers do not dominate).
   double inflation(const std::vector<double>& values, double median, double sigma) const {
@@ -199,7 +286,7 @@ class StereoErrors {
     return std::sqrt(std::max(1.0, 1.0 + 2.0 * sum));
   }
 
-  std::vector<double> horizontal_, vertical_, disparity_, vertical_disparity_;
+  std::vector<double> u_left_, horizontal_, vertical_, disparity_, vertical_disparity_;
   std::map<std::pair<LandmarkId, int>, std::size_t> index_;
 };
 
@@ -207,6 +294,19 @@ std::string number(double value) {
   char text[32];
   std::snprintf(text, sizeof(text), "%.4g", value);
   return text;
+}
+
+/// The three estimator keys of the detection-offset model, uncommented.
+std::string detector_model_keys(const StereoErrorSpread& spread) {
+  const Eigen::Vector4d& i = spread.offset_independent;
+  const Eigen::Vector3d& s = spread.offset_sigma;
+  const Eigen::Vector3d& w = spread.offset_walk;
+  return "object_noise: {horizontal: " + number(i(0)) + ", vertical: " + number(i(1)) +
+         ", disparity: " + number(i(2)) + ", vertical_disparity: " + number(i(3)) + "}\n" +
+         "object_offset_sigma: {horizontal: " + number(s(0)) + ", vertical: " + number(s(1)) +
+         ", disparity: " + number(s(2)) + ", vertical_disparity: 0}\n" +
+         "object_offset_walk: {horizontal: " + number(w(0)) + ", vertical: " + number(w(1)) +
+         ", disparity: " + number(w(2)) + ", vertical_disparity: 0}\n";
 }
 
 /// A flow sequence of a vector's entries, to four decimals (a config's body direction).
@@ -231,6 +331,11 @@ CalibrationReport calibrate(const dataset::Dataset& dataset, const CalibrationOp
                                 std::to_string(end) + ") are not a segment of at least 10 of robot " +
                                 std::to_string(options.robot) + "'s " +
                                 std::to_string(robot.num_frames()) + " frames");
+  }
+  if (options.track_gap < 1 || options.offset_max_lag < 2) {
+    throw std::invalid_argument("calibrate: track gap " + std::to_string(options.track_gap) +
+                                " and maximum lag " + std::to_string(options.offset_max_lag) +
+                                " must be at least 1 and 2");
   }
   const StereoCamera& camera = dataset.camera;
   CalibrationReport report;
@@ -272,7 +377,7 @@ CalibrationReport calibrate(const dataset::Dataset& dataset, const CalibrationOp
       objects.add(observation.id, k, observation.uv - camera.denormalize(projection->xy));
     }
   }
-  report.objects = objects.spread();
+  report.objects = objects.spread(options);
 
   // 3. Point features against their tracks triangulated with the true poses; residuals of a
   //    fitted point are smaller than the noise by sqrt((4n - 3) / 4n), undone here.
@@ -302,7 +407,7 @@ CalibrationReport calibrate(const dataset::Dataset& dataset, const CalibrationOp
                    deflation * (track[i].second - camera.denormalize(projection->xy)));
     }
   }
-  report.features = features.spread();
+  report.features = features.spread(options);
 
   // 4. Level (a ground vehicle's level prior, docs/estimator.md):
   //    a. the level axis: the nominal up axis made perpendicular to the segment's direction of
@@ -368,6 +473,25 @@ CalibrationReport calibrate(const dataset::Dataset& dataset, const CalibrationOp
     report.level_sigma = report.tilt_rms * std::sqrt(report.tilt_looks / (report.tilt_looks - 1.0));
   }
   return report;
+}
+
+std::string detector_model_yaml(const CalibrationReport& report,
+                                const CalibrationOptions& options) {
+  if (report.objects.offset_tracks == 0) {
+    throw std::invalid_argument(
+        "calibrate: too few object tracks on robot " + std::to_string(options.robot) +
+        "'s frames " + std::to_string(options.first_frame) + "-" +
+        std::to_string(options.first_frame + options.frames - 1) +
+        " to fit the detection-offset model (each component needs 2 lags with 20 pairs)");
+  }
+  return "# The detector's error model, measured by concord calibrate on robot " +
+         std::to_string(options.robot) + ", frames " + std::to_string(options.first_frame) + "-" +
+         std::to_string(options.first_frame + options.frames - 1) + " (" +
+         std::to_string(report.objects.offset_tracks) + " object tracks, " +
+         std::to_string(report.objects.observations) +
+         " observations): an offset per (robot, object) that walks, plus independent noise\n"
+         "# (docs/estimator.md, \"Detection offsets\"). For concord frontend --detector-model.\n" +
+         detector_model_keys(report.objects);
 }
 
 std::string to_yaml(const CalibrationReport& report, const CalibrationOptions& options) {
@@ -438,6 +562,15 @@ std::string to_yaml(const CalibrationReport& report, const CalibrationOptions& o
     text += "# object_noise_constant: " + stereo_noise(spread.constant, none) + "\n";
     text += "# object_noise_persistent: " + stereo_noise(spread.persistent, none) + "\n";
     text += "# object_noise_correlation: " + number(spread.persistent_correlation) + "\n";
+    if (spread.offset_tracks == 0) {
+      text += "# (too few object tracks on this segment for the detection-offset model)\n";
+      return;
+    }
+    text += "# or, as an offset per (robot, object) that walks (docs/estimator.md, \"Detection "
+            "offsets\"; `concord calibrate --detector-model FILE` writes these three keys):\n";
+    std::string model = detector_model_keys(spread);
+    for (std::size_t at = 0; at < model.size(); at = model.find('\n', at) + 1) model.insert(at, "# ");
+    text += model;
   };
   noise("object_noise", report.objects);
   noise("feature_noise", report.features);

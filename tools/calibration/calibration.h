@@ -18,6 +18,11 @@ struct CalibrationOptions {
   int frames = 200;
   /// The body axis that points up when the robot stands level (level_up_axis), for the tilt.
   std::string up_axis = "+z";
+  /// The detection-offset model (StereoErrorSpread::offset_sigma): a landmark unseen for more
+  /// than track_gap frames starts a new track; the offset's walk is fitted over lags 1 to
+  /// offset_max_lag frames.
+  int track_gap = 5;
+  int offset_max_lag = 10;
 };
 
 /// Robust spread of the four components of stereo observation errors (image units): the
@@ -52,6 +57,24 @@ struct StereoErrorSpread {
   Eigen::Vector4d constant = Eigen::Vector4d::Zero();
   Eigen::Vector4d persistent = Eigen::Vector4d::Zero();
   double persistent_correlation = 0.0;
+  /// The same time correlation as the estimator's detection-offset model (object_noise,
+  /// object_offset_sigma, object_offset_walk; docs/estimator.md, "Detection offsets"), in the
+  /// offset's components: the left image's u, the vertical and the disparity. Along each
+  /// landmark's track (a new one after a gap of more than CalibrationOptions::track_gap frames)
+  /// the errors are an offset of standard deviation offset_sigma at the track's first
+  /// observation that walks by offset_walk a frame, plus independent noise offset_independent:
+  /// the mean squares of the differences within tracks at lags 1 to offset_max_lag (each lag's
+  /// differences beyond 3 robust sigmas left out, at least 20 kept) fitted by least squares as
+  /// 2 independent^2 + lag walk^2 (negative parts taken as 0), and offset_sigma^2 the mean
+  /// square of the tracks' first errors (those beyond 3 robust sigmas left out) less
+  /// independent^2: a detector's bias counts in the offset. The independent part has a floor of
+  /// 10 % of the component's robust sigma (a fit to the lags says little about it); the vertical
+  /// disparity is independent noise only, its robust sigma with a floor of 10 % of the vertical
+  /// one. offset_tracks = 0 when some component had fewer than 2 lags to fit.
+  Eigen::Vector4d offset_independent = Eigen::Vector4d::Zero();
+  Eigen::Vector3d offset_sigma = Eigen::Vector3d::Zero();
+  Eigen::Vector3d offset_walk = Eigen::Vector3d::Zero();
+  int offset_tracks = 0;
 };
 
 struct CalibrationReport {
@@ -90,5 +113,11 @@ CalibrationReport calibrate(const dataset::Dataset& dataset, const CalibrationOp
 /// sigmas (the largest axis RMS, so that no axis is overconfident), the translation scale and the
 /// object and feature noise components.
 std::string to_yaml(const CalibrationReport& report, const CalibrationOptions& options);
+
+/// The detector's error model alone, as an estimator config fragment of three keys
+/// (object_noise, object_offset_sigma, object_offset_walk) with a comment naming the segment:
+/// what `concord frontend --detector-model` reads. Throws std::invalid_argument when the
+/// segment had too few object tracks to fit it (report.objects.offset_tracks == 0).
+std::string detector_model_yaml(const CalibrationReport& report, const CalibrationOptions& options);
 
 }  // namespace concord::calibration

@@ -68,6 +68,14 @@ struct FrontendRunOptions {
   /// in separate runs, and daemons, number the classes alike. A detected class not in it is an
   /// error. Empty: the names the run's detections use (frontend::ClassNumbering).
   std::vector<std::string> classes;
+  /// The detector's error model (an estimator config fragment with the object noise keys only:
+  /// object_noise, object_noise_constant, object_noise_persistent, object_noise_correlation,
+  /// object_offset_sigma, object_offset_walk, object_init_max_reprojection_error), e.g. what
+  /// `concord calibrate --detector-model` measured on a calibration segment: written into
+  /// estimator.yaml in place of the isotropic objects.detection_sigma, so that the dataset's
+  /// config is the sensor's (camera and detector) whole. Empty: detection_sigma. Any other key
+  /// is an error (the front-end measures the odometry and feature noise itself).
+  std::filesystem::path detector_model;
   /// dataset.json "name" of the output (replay uses the estimator.yaml written beside it).
   std::string name = "frontend";
   /// Called after each frame with (robot, frame, frames of that robot).
