@@ -1,6 +1,7 @@
 // Consistency of the filter (issue: honest uncertainty): a Monte-Carlo NEES test on the simulator
 // with the sensor config, the NEES computation on hand-computed cases, the failure counters, and
 // the calibration of a sensor with known noise.
+#include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
 #include <Eigen/Cholesky>
@@ -1078,6 +1079,28 @@ TEST(ConfigOverrides, SetKeysOverTheConfigAndNameBadEntries) {
   EXPECT_THROW(config::apply_overrides({}, {"window_size"}), config::ConfigError);
   EXPECT_THROW(config::apply_overrides({}, {"window_size=1"}), config::ConfigError);
   EXPECT_THROW(config::apply_overrides({}, {"no_such_key=1"}), config::ConfigError);
+
+  // Validated as a whole, not entry by entry: turning a detection offset off needs its sigma and
+  // its walk at zero, and either order does it (the walk alone without the sigma is invalid).
+  EstimatorOptions offset;
+  offset.object_offset_sigma = StereoNoise::isotropic(0.5);
+  offset.object_offset_walk = StereoNoise::isotropic(0.2);
+  ASSERT_TRUE(offset.validate().empty());
+  for (const std::vector<std::string>& order :
+       {std::vector<std::string>{"object_offset_sigma=0", "object_offset_walk=0"},
+        std::vector<std::string>{"object_offset_walk=0", "object_offset_sigma=0"}}) {
+    const EstimatorOptions off = config::apply_overrides(offset, order);
+    EXPECT_EQ(off.object_offset_sigma.horizontal, 0.0);
+    EXPECT_EQ(off.object_offset_walk.horizontal, 0.0);
+  }
+  // A combination that is invalid at the end is refused, naming the entries and the key.
+  try {
+    (void)config::apply_overrides(offset, {"object_offset_sigma=0", "window_size=20"});
+    ADD_FAILURE() << "a walk without a sigma was accepted";
+  } catch (const config::ConfigError& error) {
+    EXPECT_THAT(error.what(), ::testing::HasSubstr("--set object_offset_sigma=0 --set window_size=20"));
+    EXPECT_THAT(error.what(), ::testing::HasSubstr("object_offset_walk"));
+  }
 }
 
 }  // namespace

@@ -277,26 +277,45 @@ namespace {
 
 /// Reads YAML text into `options` with `read` (keys not given keep their value), then validates;
 /// throws ConfigError naming source_name, `what` and every problem.
+/// Throws ConfigError naming source_name and every problem, if there are any.
+void throw_problems(const std::vector<std::string>& problems, const std::string& source_name,
+                    const std::string& what) {
+  if (problems.empty()) return;
+  std::string message = source_name + ": invalid " + what + ":";
+  for (const std::string& problem : problems) message += "\n  " + problem;
+  throw ConfigError(message);
+}
+
+/// Reads YAML text into `options` and, with `validate`, checks the result as a whole.
 template <typename Options, typename Read>
 void read_validated(Options& options, const std::string& yaml_text, const std::string& source_name,
-                    const std::string& what, Read read) {
+                    const std::string& what, Read read, bool validate = true) {
   const YAML::Node root = load_yaml(yaml_text, source_name);
   std::vector<std::string> problems;
   YamlSection top(root, "", problems, "a map of option keys");
   read(top);
-  for (const std::string& problem : options.validate()) problems.push_back(problem);
-  if (!problems.empty()) {
-    std::string message = source_name + ": invalid " + what + ":";
-    for (const std::string& problem : problems) message += "\n  " + problem;
-    throw ConfigError(message);
+  if (validate) {
+    for (const std::string& problem : options.validate()) problems.push_back(problem);
   }
+  throw_problems(problems, source_name, what);
 }
 
 void read_into(EstimatorOptions& options, const std::string& yaml_text,
-               const std::string& source_name) {
+               const std::string& source_name, bool validate = true) {
   read_validated(
       options, yaml_text, source_name, "estimator options",
-      [&](YamlSection& top) { read_options(top, options); });
+      [&](YamlSection& top) { read_options(top, options); }, validate);
+}
+
+/// "--set A --set B ..." of the entries that `applies` picks: the source of a problem that only
+/// their combination has.
+template <typename Applies>
+std::string overrides_name(const std::vector<std::string>& overrides, Applies applies) {
+  std::string name;
+  for (const std::string& entry : overrides) {
+    if (applies(entry)) name += (name.empty() ? "--set " : " --set ") + entry;
+  }
+  return name;
 }
 
 }  // namespace
@@ -313,9 +332,10 @@ namespace {
 /// Reads the association section of YAML text into `options`, then validates; throws ConfigError
 /// naming source_name and every problem.
 void read_association_into(association::NegotiationOptions& options, const std::string& yaml_text,
-                           const std::string& source_name) {
-  read_validated(options, yaml_text, source_name, "association options",
-                 [&](YamlSection& top) { read_association_section(top, options); });
+                           const std::string& source_name, bool validate = true) {
+  read_validated(
+      options, yaml_text, source_name, "association options",
+      [&](YamlSection& top) { read_association_section(top, options); }, validate);
 }
 
 bool is_association_override(const std::string& entry) {
@@ -345,8 +365,11 @@ association::NegotiationOptions apply_association_overrides(
     const std::string yaml = std::string(kAssociationKey) + ":\n  " +
                              key.substr(kAssociationKey.size() + 1) + ": " +
                              entry.substr(equals + 1) + "\n";
-    read_association_into(options, yaml, "--set " + entry);
+    read_association_into(options, yaml, "--set " + entry, /*validate=*/false);
   }
+  // Validated as a whole: entries that are valid only together may come in any order.
+  throw_problems(options.validate(), overrides_name(overrides, is_association_override),
+                 "association options");
   return options;
 }
 
@@ -374,8 +397,14 @@ EstimatorOptions apply_overrides(EstimatorOptions options,
     } else {
       yaml = key + ": " + value + "\n";
     }
-    read_into(options, yaml, "--set " + entry);
+    read_into(options, yaml, "--set " + entry, /*validate=*/false);
   }
+  // Validated as a whole: entries that are valid only together (an offset's sigma and walk set
+  // to zero) may come in any order.
+  throw_problems(options.validate(),
+                 overrides_name(overrides,
+                                [](const std::string& entry) { return !is_association_override(entry); }),
+                 "estimator options");
   return options;
 }
 
