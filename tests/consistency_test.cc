@@ -867,16 +867,22 @@ TEST(Calibration, RecoversTheSimulatorsNoise) {
   EXPECT_THROW(calibration::calibrate(data, options), std::invalid_argument);
 }
 
-TEST(Calibration, FitsAConstantAndAPersistentPartOfTheDetectionError) {
-  // Object detections whose errors (normalized units; common horizontal, common vertical,
-  // disparity, vertical disparity) are a part constant along each object's track, an AR(1) part
-  // of correlation 0.8 a frame and a little independent noise.
+/// One simulated robot's 400 frames of object observations with next to no noise (no point
+/// features): the detection errors are the test's to add.
+dataset::Dataset objects_of_one_robot() {
   sim::SimulationOptions simulation;
   simulation.robots = 1;
   simulation.frames = 400;
   simulation.points_per_frame = 0;
   simulation.pixel_noise = 1e-6;
-  dataset::Dataset data = sim::simulate(simulation);
+  return sim::simulate(simulation);
+}
+
+TEST(Calibration, FitsAConstantAndAPersistentPartOfTheDetectionError) {
+  // Object detections whose errors (normalized units; common horizontal, common vertical,
+  // disparity, vertical disparity) are a part constant along each object's track, an AR(1) part
+  // of correlation 0.8 a frame and a little independent noise.
+  dataset::Dataset data = objects_of_one_robot();
   const Eigen::Vector4d constant(0.010, 0.006, 0.004, 0.002);
   const Eigen::Vector4d persistent(0.008, 0.008, 0.005, 0.002);
   const Eigen::Vector4d independent(0.002, 0.002, 0.001, 0.001);
@@ -940,12 +946,7 @@ TEST(Calibration, FitsADetectionOffsetThatWalksAlongEachTrack) {
   // Detections whose errors, in the offset's components (left u, vertical, disparity; normalized
   // units), are an offset drawn at each track's start that walks a little every frame, plus
   // independent noise; a track ends where its object goes unseen for more than 5 frames.
-  sim::SimulationOptions simulation;
-  simulation.robots = 1;
-  simulation.frames = 400;
-  simulation.points_per_frame = 0;
-  simulation.pixel_noise = 1e-6;
-  dataset::Dataset data = sim::simulate(simulation);
+  dataset::Dataset data = objects_of_one_robot();
   const Eigen::Vector3d sigma(0.012, 0.006, 0.004);
   const Eigen::Vector3d walk(0.004, 0.002, 0.0015);
   const Eigen::Vector3d independent(0.002, 0.001, 0.0008);
