@@ -992,7 +992,8 @@ TEST(Calibration, FitsADetectionOffsetThatWalksAlongEachTrack) {
   // digits), and makes the offset a state.
   const EstimatorOptions loaded = config::parse_estimator_options(
       calibration::detector_model_yaml(report, options), "detector model");
-  EXPECT_NEAR(loaded.object_offset_sigma.horizontal, report.objects.offset_sigma(0), 1e-3 * sigma(0));
+  EXPECT_NEAR(loaded.object_offset_sigma.horizontal, report.objects.offset_sigma(0),
+              1e-3 * sigma(0));
   EXPECT_NEAR(loaded.object_offset_walk.disparity, report.objects.offset_walk(2), 1e-3 * walk(2));
   EXPECT_NEAR(loaded.object_noise.vertical, report.objects.offset_independent(1),
               1e-3 * independent(1));
@@ -1099,7 +1100,8 @@ TEST(ConfigOverrides, SetKeysOverTheConfigAndNameBadEntries) {
     (void)config::apply_overrides(offset, {"object_offset_sigma=0", "window_size=20"});
     ADD_FAILURE() << "a walk without a sigma was accepted";
   } catch (const config::ConfigError& error) {
-    EXPECT_THAT(error.what(), ::testing::HasSubstr("--set object_offset_sigma=0 --set window_size=20"));
+    EXPECT_THAT(error.what(),
+                ::testing::HasSubstr("--set object_offset_sigma=0 --set window_size=20"));
     EXPECT_THAT(error.what(), ::testing::HasSubstr("object_offset_walk"));
   }
 }

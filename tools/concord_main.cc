@@ -1160,7 +1160,8 @@ int main(int argc, char** argv) {
     if (convert_command->parsed()) {
       return run_convert(dataset_dir, out_dir, variant_private_ids, variant_unknown_start);
     }
-    if (calibrate_command->parsed()) return run_calibrate(dataset_dir, calibration_options, detector_model_out);
+    if (calibrate_command->parsed())
+      return run_calibrate(dataset_dir, calibration_options, detector_model_out);
     if (sim_command->parsed()) {
       return run_sim(
           sim_options, out_dir,

@@ -401,10 +401,11 @@ EstimatorOptions apply_overrides(EstimatorOptions options,
   }
   // Validated as a whole: entries that are valid only together (an offset's sigma and walk set
   // to zero) may come in any order.
-  throw_problems(options.validate(),
-                 overrides_name(overrides,
-                                [](const std::string& entry) { return !is_association_override(entry); }),
-                 "estimator options");
+  throw_problems(
+      options.validate(),
+      overrides_name(overrides,
+                     [](const std::string& entry) { return !is_association_override(entry); }),
+      "estimator options");
   return options;
 }
 

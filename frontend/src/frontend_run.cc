@@ -460,7 +460,9 @@ FrontendRunSummary run_frontend(const fs::path& input, const fs::path& out,
       "), the depth\n"
       "# limits follow from fx * baseline. See docs/frontend.md.\n";
   EstimatorOptions estimator = suggested_estimator_options(summary, data.camera, options.frontend);
-  if (detector_model) apply_detector_model(detector_model->first, detector_model->second, estimator);
+  if (detector_model) {
+    apply_detector_model(detector_model->first, detector_model->second, estimator);
+  }
   const std::vector<std::string> estimator_problems = estimator.validate();
   if (!estimator_problems.empty()) {
     std::string message = "the estimator options with the detector model are not valid:";

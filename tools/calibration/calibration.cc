@@ -219,7 +219,8 @@ class StereoErrors {
         for (const auto& track : tracks) {
           for (auto i = track.begin(); i != track.end(); ++i) {
             for (auto j = std::next(i); j != track.end() && j->first - i->first <= lag; ++j) {
-              if (j->first - i->first == lag) differences.push_back(values[j->second] - values[i->second]);
+              if (j->first - i->first == lag)
+                differences.push_back(values[j->second] - values[i->second]);
             }
           }
         }
@@ -566,10 +567,12 @@ std::string to_yaml(const CalibrationReport& report, const CalibrationOptions& o
       text += "# (too few object tracks on this segment for the detection-offset model)\n";
       return;
     }
-    text += "# or, as an offset per (robot, object) that walks (docs/estimator.md, \"Detection "
-            "offsets\"; `concord calibrate --detector-model FILE` writes these three keys):\n";
+    text +=
+        "# or, as an offset per (robot, object) that walks (docs/estimator.md, \"Detection "
+        "offsets\"; `concord calibrate --detector-model FILE` writes these three keys):\n";
     std::string model = detector_model_keys(spread);
-    for (std::size_t at = 0; at < model.size(); at = model.find('\n', at) + 1) model.insert(at, "# ");
+    for (std::size_t at = 0; at < model.size(); at = model.find('\n', at) + 1)
+      model.insert(at, "# ");
     text += model;
   };
   noise("object_noise", report.objects);
