@@ -900,9 +900,12 @@ TEST(PeerNetwork, SendQueueDropsTheOldestWhenThePeerDoesNotRead) {
       << " marginals received";
   const std::vector<std::uint64_t> received = rounds();
   EXPECT_TRUE(std::is_sorted(received.begin(), received.end()));
-  // The oldest rounds go out (or are dropped) depending on whether a write was in flight when
-  // they were queued; the newest always arrives, and what is missing was counted.
-  EXPECT_LT(received.front(), 10u);
+  // Which of the oldest rounds go out depends on when the writes start (a loaded machine may
+  // queue dozens before the first one); the newest send_queue_limit ones are never dropped, since
+  // nothing newer came after them, and what is missing was counted.
+  ASSERT_GE(received.size(), 4u);
+  EXPECT_EQ(std::vector<std::uint64_t>(received.end() - 4, received.end()),
+            (std::vector<std::uint64_t>{296, 297, 298, 299}));
   EXPECT_LT(received.size(), 300u);
   ASSERT_TRUE(a.stop());  // after the 300 queued sends: the counts are final
   EXPECT_EQ(a.stats(7)->drops, a.totals().send_drops);
