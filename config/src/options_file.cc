@@ -275,9 +275,7 @@ std::string format_value(const Correlation& values) {
 
 namespace {
 
-/// Reads YAML text into `options` with `read` (keys not given keep their value), then validates;
-/// throws ConfigError naming source_name, `what` and every problem.
-/// Throws ConfigError naming source_name and every problem, if there are any.
+/// Throws ConfigError naming source_name, `what` and every problem, if there are any.
 void throw_problems(const std::vector<std::string>& problems, const std::string& source_name,
                     const std::string& what) {
   if (problems.empty()) return;
@@ -286,7 +284,8 @@ void throw_problems(const std::vector<std::string>& problems, const std::string&
   throw ConfigError(message);
 }
 
-/// Reads YAML text into `options` and, with `validate`, checks the result as a whole.
+/// Reads YAML text into `options` with `read` (keys not given keep their value) and, with
+/// `validate`, checks the result as a whole; throws ConfigError naming every problem.
 template <typename Options, typename Read>
 void read_validated(Options& options, const std::string& yaml_text, const std::string& source_name,
                     const std::string& what, Read read, bool validate = true) {
@@ -321,10 +320,9 @@ std::string overrides_name(const std::vector<std::string>& overrides, Applies ap
 }  // namespace
 
 EstimatorOptions parse_estimator_options(const std::string& yaml_text,
-                                         const std::string& source_name) {
-  EstimatorOptions options;
-  read_into(options, yaml_text, source_name);
-  return options;
+                                         const std::string& source_name, EstimatorOptions base) {
+  read_into(base, yaml_text, source_name);
+  return base;
 }
 
 namespace {

@@ -9,7 +9,6 @@
 #include <optional>
 #include <set>
 #include <string>
-#include <utility>
 
 #include "concord/config/options_file.h"
 #include "concord/config/yaml_section.h"
@@ -274,9 +273,9 @@ const std::set<std::string>& detector_model_keys() {
   return keys;
 }
 
-/// The detector model file read and checked: its keys (only detector_model_keys()) and the
-/// estimator options they give over the defaults (validated). Throws FrontendError.
-std::pair<std::set<std::string>, EstimatorOptions> load_detector_model(const fs::path& file) {
+/// The detector model file's text, read and checked: only detector_model_keys(), valid over the
+/// defaults. Throws FrontendError.
+std::string load_detector_model(const fs::path& file) {
   try {
     const std::string text = config::read_config_text(file, "detector model");
     const YAML::Node root = config::load_yaml(text, file.string());
@@ -285,12 +284,10 @@ std::pair<std::set<std::string>, EstimatorOptions> load_detector_model(const fs:
                           ": a detector model is a map of estimator object noise keys "
                           "(concord calibrate --detector-model writes one)");
     }
-    std::set<std::string> keys;
     std::string refused;
     for (const auto& entry : root) {
       const std::string key = entry.first.as<std::string>();
       if (detector_model_keys().count(key) == 0) refused += (refused.empty() ? "" : ", ") + key;
-      keys.insert(key);
     }
     if (!refused.empty()) {
       std::string allowed;
@@ -298,28 +295,13 @@ std::pair<std::set<std::string>, EstimatorOptions> load_detector_model(const fs:
       throw FrontendError(file.string() + ": not a detector's key: " + refused +
                           " (a detector model holds only" + allowed + ")");
     }
-    return {keys, config::parse_estimator_options(text, file.string())};
+    (void)config::parse_estimator_options(text, file.string());
+    return text;
   } catch (const config::ConfigError& error) {
     throw FrontendError(error.what());
   } catch (const YAML::Exception& error) {
     throw FrontendError(file.string() + ": " + error.what());
   }
-}
-
-/// The model's keys copied over `estimator`.
-void apply_detector_model(const std::set<std::string>& keys, const EstimatorOptions& model,
-                          EstimatorOptions& estimator) {
-  const auto has = [&](const char* key) { return keys.count(key) > 0; };
-  if (has("object_noise")) estimator.object_noise = model.object_noise;
-  if (has("object_noise_constant")) estimator.object_noise_constant = model.object_noise_constant;
-  if (has("object_noise_persistent"))
-    estimator.object_noise_persistent = model.object_noise_persistent;
-  if (has("object_noise_correlation"))
-    estimator.object_noise_correlation = model.object_noise_correlation;
-  if (has("object_offset_sigma")) estimator.object_offset_sigma = model.object_offset_sigma;
-  if (has("object_offset_walk")) estimator.object_offset_walk = model.object_offset_walk;
-  if (has("object_init_max_reprojection_error"))
-    estimator.object_init_max_reprojection_error = model.object_init_max_reprojection_error;
 }
 
 }  // namespace
@@ -387,7 +369,7 @@ FrontendRunSummary run_frontend(const fs::path& input, const fs::path& out,
                         "': expected unknown, +x, -x, +y, -y, +z or -z");
   }
   // The detector model is checked before any image is read.
-  std::optional<std::pair<std::set<std::string>, EstimatorOptions>> detector_model;
+  std::optional<std::string> detector_model;
   if (!options.detector_model.empty()) detector_model = load_detector_model(options.detector_model);
   const std::vector<fs::path> sequences = list_sequences(input);
   const bool single = sequences.size() == 1 && sequences.front() == input;
@@ -461,13 +443,12 @@ FrontendRunSummary run_frontend(const fs::path& input, const fs::path& out,
       "# limits follow from fx * baseline. See docs/frontend.md.\n";
   EstimatorOptions estimator = suggested_estimator_options(summary, data.camera, options.frontend);
   if (detector_model) {
-    apply_detector_model(detector_model->first, detector_model->second, estimator);
-  }
-  const std::vector<std::string> estimator_problems = estimator.validate();
-  if (!estimator_problems.empty()) {
-    std::string message = "the estimator options with the detector model are not valid:";
-    for (const std::string& problem : estimator_problems) message += " " + problem + ";";
-    throw FrontendError(message);
+    try {  // the model's keys over the front-end's own values, validated together
+      estimator = config::parse_estimator_options(*detector_model,
+                                                  options.detector_model.string(), estimator);
+    } catch (const config::ConfigError& error) {
+      throw FrontendError(error.what());
+    }
   }
   estimator_yaml += config::to_yaml(estimator);
   if (options.up_axis != "unknown") {

@@ -39,8 +39,10 @@ std::string read_config_text(const std::filesystem::path& file, const std::strin
 EstimatorOptions load_estimator_options(const std::filesystem::path& file);
 
 /// As load_estimator_options, from YAML text; `source_name` names the text in error messages.
+/// Keys the text does not give keep the values of `base` (the in-class defaults unless given).
 EstimatorOptions parse_estimator_options(const std::string& yaml_text,
-                                         const std::string& source_name);
+                                         const std::string& source_name,
+                                         EstimatorOptions base = {});
 
 /// The options as YAML text with every key, in the format the loader reads (to print at start-up
 /// or save next to results). Numbers are written in their shortest exact form, so
