@@ -1008,6 +1008,94 @@ TEST(Calibration, FitsADetectionOffsetThatWalksAlongEachTrack) {
   EXPECT_THROW((void)calibration::detector_model_yaml(empty, options), std::invalid_argument);
   options.track_gap = 0;
   EXPECT_THROW(calibration::calibrate(data, options), std::invalid_argument);
+  options.track_gap = 5;
+  options.offset_max_lag = 1;  // one lag cannot give a line
+  EXPECT_THROW(calibration::calibrate(data, options), std::invalid_argument);
+}
+
+TEST(Calibration, FitsTheOffsetsWalkToTheDriftOverTheTracksSpan) {
+  // Detections whose error drifts smoothly along each track (an offset and a rate drawn at the
+  // track's start: a box centre that slides as the view turns), plus independent noise. Its
+  // mean square difference grows with the square of the lag, so a walk (linear in the lag)
+  // matches it at one range of lags only; the one that counts is the tracks' span, over which
+  // the filter accumulates an object's observations.
+  dataset::Dataset data = objects_of_one_robot();
+  const Eigen::Vector3d sigma(0.010, 0.005, 0.004);
+  const Eigen::Vector3d rate(0.0012, 0.0006, 0.0004);
+  const Eigen::Vector3d independent(0.0005, 0.0003, 0.0002);
+  std::mt19937 random(13);
+  std::normal_distribution<double> normal(0.0, 1.0);
+  const auto draw = [&](const Eigen::Vector3d& s) {
+    return Eigen::Vector3d(s[0] * normal(random), s[1] * normal(random), s[2] * normal(random));
+  };
+  struct Track {
+    int start = 0;
+    int last = -100;
+    Eigen::Vector3d offset, rate;
+    std::map<int, Eigen::Vector3d> errors;  // by frame
+  };
+  std::map<LandmarkId, std::vector<Track>> tracks;
+  auto& objects = data.robots.front().objects;
+  for (std::size_t frame = 0; frame < objects.size(); ++frame) {
+    const int now = static_cast<int>(frame);
+    for (StereoObservation& observation : objects[frame]) {
+      std::vector<Track>& of_object = tracks[observation.id];
+      if (of_object.empty() || now - of_object.back().last > 5) {
+        of_object.push_back({now, now, draw(sigma), draw(rate), {}});
+      }
+      Track& track = of_object.back();
+      track.last = now;
+      const Eigen::Vector3d e =
+          track.offset + static_cast<double>(now - track.start) * track.rate + draw(independent);
+      track.errors[now] = e;
+      observation.uv += Eigen::Vector4d(e[0], e[1], e[0] - e[2], e[1]);
+    }
+  }
+  // The tracks' span: the median over the observations of their track's first-to-last frames;
+  // and the errors' mean square difference at that lag.
+  std::vector<int> spans;
+  for (const auto& [id, of_object] : tracks) {
+    for (const Track& track : of_object) {
+      spans.insert(spans.end(), track.errors.size(), track.last - track.start);
+    }
+  }
+  std::nth_element(spans.begin(), spans.begin() + spans.size() / 2, spans.end());
+  const int span = spans[spans.size() / 2];
+  ASSERT_GE(span, 10);
+  Eigen::Vector3d measured = Eigen::Vector3d::Zero();
+  int pairs = 0;
+  for (const auto& [id, of_object] : tracks) {
+    for (const Track& track : of_object) {
+      for (const auto& [frame, error] : track.errors) {
+        const auto later = track.errors.find(frame + span);
+        if (later == track.errors.end()) continue;
+        measured += (later->second - error).cwiseAbs2();
+        ++pairs;
+      }
+    }
+  }
+  ASSERT_GT(pairs, 200);
+  measured /= pairs;
+
+  calibration::CalibrationOptions options;
+  options.frames = 400;
+  const calibration::CalibrationReport report = calibration::calibrate(data, options);
+  ASSERT_GT(report.objects.offset_tracks, 30);
+  EXPECT_EQ(report.objects.offset_lags, span);
+  const auto predicted = [&](const calibration::StereoErrorSpread& fit, int c) {
+    return 2.0 * fit.offset_independent(c) * fit.offset_independent(c) +
+           span * fit.offset_walk(c) * fit.offset_walk(c);
+  };
+  for (int c = 0; c < 3; ++c) {
+    EXPECT_NEAR(predicted(report.objects, c), measured(c), 0.25 * measured(c)) << c;
+  }
+  // Fitted over the first few lags only, the walk falls short of the drift over the span.
+  options.offset_max_lag = 4;
+  const calibration::CalibrationReport short_lags = calibration::calibrate(data, options);
+  EXPECT_EQ(short_lags.objects.offset_lags, 4);
+  for (int c = 0; c < 3; ++c) {
+    EXPECT_LT(predicted(short_lags.objects, c), 0.7 * measured(c)) << c;
+  }
 }
 
 /// A robot driving along the world's x for `frames` frames, pitching as a sine of amplitude 0.04

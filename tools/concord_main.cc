@@ -777,6 +777,12 @@ int main(int argc, char** argv) {
                    "Body axis pointing up when level, for the tilt (+x, -x, +y, -y, +z, -z)")
       ->capture_default_str()
       ->check(CLI::IsMember({"+x", "-x", "+y", "-y", "+z", "-z"}));
+  calibrate_command
+      ->add_option("--offset-max-lag", calibration_options.offset_max_lag,
+                   "Largest lag (frames) the detection offset's walk is fitted over; 0: the "
+                   "tracks' span (median over the observations)")
+      ->capture_default_str()
+      ->check(CLI::NonNegativeNumber);
   std::string detector_model_out;
   calibrate_command->add_option(
       "--detector-model", detector_model_out,

@@ -209,12 +209,28 @@ class StereoErrors {
       current = key.first;
       last_frame = key.second;
     }
+    int max_lag = options.offset_max_lag;
+    if (max_lag == 0) {
+      // The tracks' span: each observation counts its track's first-to-last frames.
+      std::vector<int> spans;
+      for (const auto& track : tracks) {
+        spans.insert(spans.end(), track.size(), track.back().first - track.front().first);
+      }
+      if (spans.empty()) {
+        out.offset_tracks = 0;
+        return;
+      }
+      const auto middle = spans.begin() + static_cast<std::ptrdiff_t>(spans.size() / 2);
+      std::nth_element(spans.begin(), middle, spans.end());
+      max_lag = std::max(2, *middle);
+    }
+    out.offset_lags = max_lag;
     const std::vector<double>* components[3] = {&u_left_, &vertical_, &disparity_};
     for (int c = 0; c < 3; ++c) {
       const std::vector<double>& values = *components[c];
       // Mean square of the differences at each lag (the walk has zero mean).
       std::vector<double> lags, mean_squares;
-      for (int lag = 1; lag <= options.offset_max_lag; ++lag) {
+      for (int lag = 1; lag <= max_lag; ++lag) {
         std::vector<double> differences;
         for (const auto& track : tracks) {
           for (auto i = track.begin(); i != track.end(); ++i) {
@@ -333,10 +349,10 @@ CalibrationReport calibrate(const dataset::Dataset& dataset, const CalibrationOp
                                 std::to_string(options.robot) + "'s " +
                                 std::to_string(robot.num_frames()) + " frames");
   }
-  if (options.track_gap < 1 || options.offset_max_lag < 2) {
+  if (options.track_gap < 1 || options.offset_max_lag < 0 || options.offset_max_lag == 1) {
     throw std::invalid_argument("calibrate: track gap " + std::to_string(options.track_gap) +
                                 " and maximum lag " + std::to_string(options.offset_max_lag) +
-                                " must be at least 1 and 2");
+                                " must be at least 1, and 0 (the tracks' span) or at least 2");
   }
   const StereoCamera& camera = dataset.camera;
   CalibrationReport report;
@@ -491,7 +507,9 @@ std::string detector_model_yaml(const CalibrationReport& report,
          std::to_string(report.objects.offset_tracks) + " object tracks, " +
          std::to_string(report.objects.observations) +
          " observations): an offset per (robot, object) that walks, plus independent noise\n"
-         "# (docs/estimator.md, \"Detection offsets\"). For concord frontend --detector-model.\n" +
+         "# (docs/estimator.md, \"Detection offsets\"); the walk fitted over lags 1-" +
+         std::to_string(report.objects.offset_lags) +
+         " frames. For concord frontend --detector-model.\n" +
          detector_model_keys(report.objects);
 }
 

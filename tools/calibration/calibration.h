@@ -20,9 +20,14 @@ struct CalibrationOptions {
   std::string up_axis = "+z";
   /// The detection-offset model (StereoErrorSpread::offset_sigma): a landmark unseen for more
   /// than track_gap frames starts a new track; the offset's walk is fitted over lags 1 to
-  /// offset_max_lag frames.
+  /// offset_max_lag frames, 0 (the default): to the span of the tracks, the median over the
+  /// observations of the frames from their track's first observation to its last (at least 2).
+  /// The filter holds what an object's whole track told it, so the walk must match the drift
+  /// over a track's span: a detector error that drifts smoothly as the view turns (its mean
+  /// square difference growing faster than the lag) fitted at shorter lags only gives a walk
+  /// too small for the tracks' length.
   int track_gap = 5;
-  int offset_max_lag = 10;
+  int offset_max_lag = 0;
 };
 
 /// Robust spread of the four components of stereo observation errors (image units): the
@@ -63,18 +68,20 @@ struct StereoErrorSpread {
   /// landmark's track (a new one after a gap of more than CalibrationOptions::track_gap frames)
   /// the errors are an offset of standard deviation offset_sigma at the track's first
   /// observation that walks by offset_walk a frame, plus independent noise offset_independent:
-  /// the mean squares of the differences within tracks at lags 1 to offset_max_lag (each lag's
+  /// the mean squares of the differences within tracks at lags 1 to offset_lags (each lag's
   /// differences beyond 3 robust sigmas left out, at least 20 kept) fitted by least squares as
   /// 2 independent^2 + lag walk^2 (negative parts taken as 0), and offset_sigma^2 the mean
   /// square of the tracks' first errors (those beyond 3 robust sigmas left out) less
   /// independent^2: a detector's bias counts in the offset. The independent part has a floor of
   /// 10 % of the component's robust sigma (a fit to the lags says little about it); the vertical
   /// disparity is independent noise only, its robust sigma with a floor of 10 % of the vertical
-  /// one. offset_tracks = 0 when some component had fewer than 2 lags to fit.
+  /// one. offset_tracks = 0 when some component had fewer than 2 lags to fit. offset_lags: the
+  /// largest lag fitted (CalibrationOptions::offset_max_lag, or the tracks' span).
   Eigen::Vector4d offset_independent = Eigen::Vector4d::Zero();
   Eigen::Vector3d offset_sigma = Eigen::Vector3d::Zero();
   Eigen::Vector3d offset_walk = Eigen::Vector3d::Zero();
   int offset_tracks = 0;
+  int offset_lags = 0;
 };
 
 struct CalibrationReport {
