@@ -509,8 +509,7 @@ std::string detector_model_yaml(const CalibrationReport& report,
          " observations): an offset per (robot, object) that walks, plus independent noise\n"
          "# (docs/estimator.md, \"Detection offsets\"); the walk fitted over lags 1-" +
          std::to_string(report.objects.offset_lags) +
-         " frames. For concord frontend --detector-model.\n" +
-         detector_model_keys(report.objects);
+         " frames. For concord frontend --detector-model.\n" + detector_model_keys(report.objects);
 }
 
 std::string to_yaml(const CalibrationReport& report, const CalibrationOptions& options) {
