@@ -3,7 +3,7 @@
 # (consensus.share_kl_threshold, with and without consensus.share_float32), and the accuracy and
 # NEES each costs, on kitti00, sim15 and a 50-robot `concord sim` team (300 frames, seed 1), and
 # at KL 0.01 in float32 the cap of landmarks a robot sends a round (consensus.share_max_landmarks,
-# split over its links).
+# split over its links) and each landmark in a block of its own (consensus.share_diagonal).
 # Every run is `concord replay` (consensus, complete graph) with the set's sensor config; only
 # the sharing keys change (--set). Writes docs/results-sharing.md; runs in bench/out/sharing/
 # (kept between runs: delete the folder to start afresh). Two runs at a time.
@@ -37,6 +37,11 @@ for set in kitti00 sim15 sim50; do
   done
   wait
   run "$set-kl0.01-double" "$data" --set consensus.share_kl_threshold=0.01 &
+  run "$set-kl0.01-float32-diagonal" "$data" --set consensus.share_kl_threshold=0.01 \
+    --set consensus.share_float32=true --set consensus.share_diagonal=true &
+  wait
+  run "$set-kl0.01-double-diagonal" "$data" --set consensus.share_kl_threshold=0.01 \
+    --set consensus.share_diagonal=true &
   pending=1
   for cap in $caps; do
     run "$set-kl0.01-float32-rcap$cap" "$data" --set consensus.share_kl_threshold=0.01 \
@@ -57,7 +62,9 @@ print("`consensus.share_kl_threshold` (a link sends a landmark again only when i
 print("more than this KL divergence, in nats, since it last carried it; the receiver fuses the last")
 print("one it got), `consensus.share_float32` (float32 means and Cholesky factors) and")
 print("`consensus.share_max_landmarks` (at most this many landmarks a robot sends a round, split")
-print("evenly over its links: the never sent and the most moved first, the rest later). Bytes: what")
+print("evenly over its links: the never sent and the most moved first, the rest later) and")
+print("`consensus.share_diagonal` (each landmark in a 3x3 block of its own, its correlations with")
+print("the other landmarks left out: bytes linear in the landmarks instead of quadratic). Bytes: what")
 print("a robot sends its neighbours in a round (8 per id; mean and covariance numbers at 8 bytes in")
 print("double, 4 in float32, plus a 24-byte origin), median and largest over robots and rounds. The")
 print("daemons send the same marginals (tests/daemon_exchange_test.cc), plus their framing.\n")
@@ -67,6 +74,8 @@ for name, title in (("kitti00", "kitti00 (3 robots)"), ("sim15", "sim15 (15 robo
     rows = [("whole, double", f"{name}-whole"), ("whole, float32", f"{name}-float32")]
     rows += [(f"KL {t}, float32", f"{name}-kl{t}-float32") for t in thresholds]
     rows += [("KL 0.01, double", f"{name}-kl0.01-double")]
+    rows += [("KL 0.01, float32, diagonal", f"{name}-kl0.01-float32-diagonal"),
+             ("KL 0.01, double, diagonal", f"{name}-kl0.01-double-diagonal")]
     rows += [(f"KL 0.01, float32, cap {c}", f"{name}-kl0.01-float32-rcap{c}") for c in caps]
     base = None
     print(f"## {title}\n")
@@ -97,4 +106,7 @@ for name, title in (("kitti00", "kitti00 (3 robots)"), ("sim15", "sim15 (15 robo
 print("## All three sets\n")
 common = set(summary[0][1]).intersection(*(set(m) for _, m in summary[1:]))
 print("Settings that meet it on every set: " + (", ".join(sorted(common)) if common else "none") + ".")
+target = set(summary[0][1]).intersection(set(summary[2][1]))
+print("\nOn kitti00 and the 50-robot team (issue 13's two sets): " +
+      (", ".join(sorted(target)) if target else "none") + ".")
 PY

@@ -164,6 +164,19 @@ Marginal expand(const CompactMarginal& compact) {
 
 Marginal quantized(const Marginal& marginal) { return expand(compact(marginal)); }
 
+Marginal block_diagonal(const Marginal& marginal) {
+  Marginal out;
+  out.ids = marginal.ids;
+  out.mean = marginal.mean;
+  out.blocks.reserve(marginal.ids.size());
+  for (const Eigen::MatrixXd& block : marginal.blocks) {
+    for (Eigen::Index k = 0; k + 3 <= block.rows(); k += 3) {
+      out.blocks.emplace_back(block.block<3, 3>(k, k));
+    }
+  }
+  return out;
+}
+
 int link_landmark_cap(int robot_cap, int links) {
   if (robot_cap <= 0) return 0;
   return std::max(1, robot_cap / std::max(links, 1));

@@ -36,6 +36,10 @@ ObjectEstimate landmark_estimate(const Marginal& marginal, std::size_t k);
 /// restricted to them (order kept).
 Marginal sub_marginal(const Marginal& marginal, const std::vector<bool>& keep);
 
+/// The marginal with each landmark in a 3x3 block of its own (its diagonal block of the block
+/// it was in): the correlations between landmarks left out (consensus.share_diagonal).
+Marginal block_diagonal(const Marginal& marginal);
+
 /// Wire form of a marginal in float32 (see the file comment).
 struct CompactMarginal {
   std::vector<LandmarkId> ids;
