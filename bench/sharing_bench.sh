@@ -3,7 +3,8 @@
 # (consensus.share_kl_threshold, with and without consensus.share_float32), and the accuracy and
 # NEES each costs, on kitti00, sim15 and a 50-robot `concord sim` team (300 frames, seed 1), and
 # at KL 0.01 in float32 the cap of landmarks a robot sends a round (consensus.share_max_landmarks,
-# split over its links) and each landmark in a block of its own (consensus.share_diagonal).
+# split over its links) and the covariance blocks cut into runs of at most 1, 4 or 8 landmarks
+# (consensus.share_block_landmarks).
 # Every run is `concord replay` (consensus, complete graph) with the set's sensor config; only
 # the sharing keys change (--set). Writes docs/results-sharing.md; runs in bench/out/sharing/
 # (kept between runs: delete the folder to start afresh). Two runs at a time.
@@ -37,12 +38,15 @@ for set in kitti00 sim15 sim50; do
   done
   wait
   run "$set-kl0.01-double" "$data" --set consensus.share_kl_threshold=0.01 &
-  run "$set-kl0.01-float32-diagonal" "$data" --set consensus.share_kl_threshold=0.01 \
-    --set consensus.share_float32=true --set consensus.share_diagonal=true &
-  wait
-  run "$set-kl0.01-double-diagonal" "$data" --set consensus.share_kl_threshold=0.01 \
-    --set consensus.share_diagonal=true &
   pending=1
+  for blocks in 1 4 8; do
+    run "$set-kl0.01-float32-blocks$blocks" "$data" --set consensus.share_kl_threshold=0.01 \
+      --set consensus.share_float32=true --set consensus.share_block_landmarks="$blocks" &
+    pending=$((pending + 1))
+    if [ $pending = 2 ]; then wait; pending=0; fi
+  done
+  wait
+  pending=0
   for cap in $caps; do
     run "$set-kl0.01-float32-rcap$cap" "$data" --set consensus.share_kl_threshold=0.01 \
       --set consensus.share_float32=true --set consensus.share_max_landmarks="$cap" &
@@ -63,8 +67,9 @@ print("more than this KL divergence, in nats, since it last carried it; the rece
 print("one it got), `consensus.share_float32` (float32 means and Cholesky factors) and")
 print("`consensus.share_max_landmarks` (at most this many landmarks a robot sends a round, split")
 print("evenly over its links: the never sent and the most moved first, the rest later) and")
-print("`consensus.share_diagonal` (each landmark in a 3x3 block of its own, its correlations with")
-print("the other landmarks left out: bytes linear in the landmarks instead of quadratic). Bytes: what")
+print("`consensus.share_block_landmarks` (covariance blocks cut into runs of at most that many")
+print("landmarks, the correlations between runs left out: bytes linear in the landmarks instead of")
+print("quadratic). Bytes: what")
 print("a robot sends its neighbours in a round (8 per id; mean and covariance numbers at 8 bytes in")
 print("double, 4 in float32, plus a 24-byte origin), median and largest over robots and rounds. The")
 print("daemons send the same marginals (tests/daemon_exchange_test.cc), plus their framing.\n")
@@ -74,8 +79,8 @@ for name, title in (("kitti00", "kitti00 (3 robots)"), ("sim15", "sim15 (15 robo
     rows = [("whole, double", f"{name}-whole"), ("whole, float32", f"{name}-float32")]
     rows += [(f"KL {t}, float32", f"{name}-kl{t}-float32") for t in thresholds]
     rows += [("KL 0.01, double", f"{name}-kl0.01-double")]
-    rows += [("KL 0.01, float32, diagonal", f"{name}-kl0.01-float32-diagonal"),
-             ("KL 0.01, double, diagonal", f"{name}-kl0.01-double-diagonal")]
+    rows += [(f"KL 0.01, float32, blocks of {n}", f"{name}-kl0.01-float32-blocks{n}")
+             for n in (1, 4, 8)]
     rows += [(f"KL 0.01, float32, cap {c}", f"{name}-kl0.01-float32-rcap{c}") for c in caps]
     base = None
     print(f"## {title}\n")

@@ -196,21 +196,21 @@ TEST(DaemonExchange, CompactEventTriggeredSharingReproducesTheReplayWithFewerByt
   EXPECT_LT(bytes, whole_bytes / 2);
 }
 
-TEST(DaemonExchange, DiagonalSharingReproducesTheReplay) {
-  // consensus.share_diagonal (with the KL trigger, in double): each landmark travels in a 3x3
-  // block of its own; the daemons and concord replay send and fuse the same thing.
+TEST(DaemonExchange, SplitBlocksReproduceTheReplay) {
+  // consensus.share_block_landmarks (with the KL trigger, in double): blocks of at most 2
+  // landmarks; the daemons and concord replay send and fuse the same thing.
   dataset::ReadOptions read;
   read.max_frames = 80;
   const dataset::Dataset data = dataset::read_dataset(kSource / "data/kitti00-300", read);
   EstimatorOptions options =
       config::load_estimator_options(kSource / "configs/sensors/kitti-stereo.yaml");
   options.consensus.share_kl_threshold = 0.01;
-  options.consensus.share_diagonal = true;
+  options.consensus.share_block_landmarks = 2;
   ConsensusConfig config;
   config.mode = ConsensusMode::kLockstep;
   config.round_deadline = std::chrono::seconds(20);
   config.share_kl_threshold = options.consensus.share_kl_threshold;
-  config.share_diagonal = options.consensus.share_diagonal;
+  config.share_block_landmarks = options.consensus.share_block_landmarks;
   const auto reference = replay::run_team(data, options, {});
   ExchangeTeam team(3, config);
   team.connect_all();
@@ -225,7 +225,7 @@ TEST(DaemonExchange, DiagonalSharingReproducesTheReplay) {
   }
   EXPECT_GT(team.exchanges[0]->counters().marginals_fused, 20u);
   // The joint run differs (the blocks carried something): the replay without the option.
-  options.consensus.share_diagonal = false;
+  options.consensus.share_block_landmarks = 0;
   const auto joint = replay::run_team(data, options, {});
   double largest = 0.0;
   for (int i = 0; i < 3; ++i) {

@@ -218,7 +218,7 @@ double translation_rmse(const replay::ReplayResult& result, const dataset::Datas
   return std::sqrt(sum / count);
 }
 
-TEST(MarginalSharing, ABlockDiagonalMarginalKeepsEachLandmarkAndGrowsWithTheirNumber) {
+TEST(MarginalSharing, SplitBlocksKeepEachRunsJointMarginalAndGrowWithTheLandmarks) {
   std::mt19937 random(8);
   Marginal marginal = correlated_marginal(12, random);
   // A second block (an archived object) stays as it is.
@@ -226,7 +226,8 @@ TEST(MarginalSharing, ABlockDiagonalMarginalKeepsEachLandmarkAndGrowsWithTheirNu
   marginal.mean.conservativeResize(39);
   marginal.mean.tail<3>() = Eigen::Vector3d(1.0, 2.0, 3.0);
   marginal.blocks.push_back(testing::random_spd(3, random, 0.1, 1.0));
-  const Marginal diagonal = block_diagonal(marginal);
+  EXPECT_EQ(split_blocks(marginal, 0).blocks.size(), 2u);  // 0: as it is
+  const Marginal diagonal = split_blocks(marginal, 1);
   ASSERT_TRUE(diagonal.well_formed());
   EXPECT_EQ(diagonal.ids, marginal.ids);
   EXPECT_EQ(diagonal.mean, marginal.mean);
@@ -236,6 +237,16 @@ TEST(MarginalSharing, ABlockDiagonalMarginalKeepsEachLandmarkAndGrowsWithTheirNu
     EXPECT_EQ(diagonal.blocks[k], own.covariance) << k;
     EXPECT_EQ(landmark_estimate(diagonal, k).p_world, own.p_world) << k;
   }
+  // Runs of at most 5: the 12 landmarks' block as 5, 5 and 2 (each its diagonal block of the
+  // joint one, the correlations within a run kept), the archived one as it was.
+  const Marginal runs = split_blocks(marginal, 5);
+  ASSERT_TRUE(runs.well_formed());
+  ASSERT_EQ(runs.blocks.size(), 4u);
+  EXPECT_EQ(runs.blocks[0], marginal.blocks[0].block(0, 0, 15, 15));
+  EXPECT_EQ(runs.blocks[1], marginal.blocks[0].block(15, 15, 15, 15));
+  EXPECT_EQ(runs.blocks[2], marginal.blocks[0].block(30, 30, 6, 6));
+  EXPECT_EQ(runs.blocks[3], marginal.blocks[1]);
+  EXPECT_EQ(split_blocks(marginal, 12).blocks.size(), 2u);
   // Bytes on the wire: a joint block grows with the square of its landmarks, the diagonal form
   // with their number.
   const auto bytes = [](const Marginal& m) { return static_cast<double>(compact(m).bytes()); };
@@ -243,11 +254,28 @@ TEST(MarginalSharing, ABlockDiagonalMarginalKeepsEachLandmarkAndGrowsWithTheirNu
                  large = correlated_marginal(40, random);
   EXPECT_GT(bytes(large), 10.0 * bytes(small));
   // The same bytes for every further landmark (44: id, float mean, 3x3 Cholesky triangle).
-  const double per_landmark = (bytes(block_diagonal(middle)) - bytes(block_diagonal(small))) / 10;
+  const auto diagonal_bytes = [&](const Marginal& m) { return bytes(split_blocks(m, 1)); };
+  const double per_landmark = (diagonal_bytes(middle) - diagonal_bytes(small)) / 10;
   EXPECT_EQ(per_landmark, 44.0);
-  EXPECT_EQ(bytes(block_diagonal(large)) - bytes(block_diagonal(middle)), 20 * per_landmark);
-  EXPECT_LT(bytes(block_diagonal(large)), 0.2 * bytes(large));
-  EXPECT_TRUE(block_diagonal(Marginal()).ids.empty());
+  EXPECT_EQ(diagonal_bytes(large) - diagonal_bytes(middle), 20 * per_landmark);
+  EXPECT_LT(diagonal_bytes(large), 0.2 * bytes(large));
+  // Runs of 4: linear too (40 landmarks: twice the bytes of 20).
+  EXPECT_EQ(bytes(split_blocks(large, 4)) - 24, 2 * (bytes(split_blocks(middle, 4)) - 24));
+  EXPECT_TRUE(split_blocks(Marginal(), 1).ids.empty());
+}
+
+TEST(MarginalSharing, TheBlockSizeIsReadFromTheConfigAndANegativeOneIsNamed) {
+  const EstimatorOptions read =
+      config::parse_estimator_options("consensus: {share_block_landmarks: 4}\n", "test");
+  EXPECT_EQ(read.consensus.share_block_landmarks, 4);
+  EstimatorOptions bad;
+  bad.consensus.share_block_landmarks = -1;
+  const std::vector<std::string> problems = bad.validate();
+  ASSERT_EQ(problems.size(), 1u);
+  EXPECT_NE(problems.front().find("consensus.share_block_landmarks"), std::string::npos);
+  EXPECT_THROW((void)config::parse_estimator_options("consensus: {share_block_landmarks: -2}\n",
+                                                     "test"),
+               config::ConfigError);
 }
 
 TEST(MarginalSharing, ASimulatedTeamSendsFarFewerBytesForTheSameAccuracy) {
@@ -279,7 +307,7 @@ TEST(MarginalSharing, ASimulatedTeamSendsFarFewerBytesForTheSameAccuracy) {
   // triggered), still better than separate, but it loses what the joint blocks said about the
   // objects' relative positions (measured: 0.150 m against 0.125 m triggered, 0.179 m
   // separate; docs/results-sharing.md).
-  options.consensus.share_diagonal = true;
+  options.consensus.share_block_landmarks = 1;
   replay_options.consensus = true;
   const replay::ReplayResult diagonal = replay::run_team(data, options, replay_options);
   EXPECT_LT(diagonal.statistics.marginal_bytes, triggered.statistics.marginal_bytes / 3);

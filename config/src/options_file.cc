@@ -63,7 +63,7 @@ void for_each_consensus_field(Consensus& consensus, Visitor&& visit) {
   visit("share_kl_threshold", consensus.share_kl_threshold);
   visit("share_max_landmarks", consensus.share_max_landmarks);
   visit("share_float32", consensus.share_float32);
-  visit("share_diagonal", consensus.share_diagonal);
+  visit("share_block_landmarks", consensus.share_block_landmarks);
 }
 
 /// Calls visit(key, field) for every component of a StereoNoise.

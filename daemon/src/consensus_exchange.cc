@@ -565,7 +565,7 @@ void ConsensusExchange::send_marginal(int robot, std::uint64_t round, const Esti
       Marginal sent = sender.select(common.empty() ? Marginal() : estimator.marginal(common),
                                     config_.share_kl_threshold,
                                     link_landmark_cap(config_.share_max_landmarks, degree));
-      if (config_.share_diagonal) sent = block_diagonal(sent);
+      sent = split_blocks(sent, config_.share_block_landmarks);
       if (config_.share_float32) {
         const CompactMarginal wire = compact(sent);
         if (!sent.ids.empty()) to_wire(wire, *message);

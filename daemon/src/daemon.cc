@@ -437,7 +437,7 @@ bool Daemon::Impl::start_services() {
       ConsensusConfig exchange_config = config_.consensus;
       exchange_config.share_kl_threshold = config_.estimator.consensus.share_kl_threshold;
       exchange_config.share_float32 = config_.estimator.consensus.share_float32;
-      exchange_config.share_diagonal = config_.estimator.consensus.share_diagonal;
+      exchange_config.share_block_landmarks = config_.estimator.consensus.share_block_landmarks;
       exchange_config.share_max_landmarks = config_.estimator.consensus.share_max_landmarks;
       exchange_ = std::make_unique<ConsensusExchange>(
           std::move(exchange_config),

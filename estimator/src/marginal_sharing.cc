@@ -164,14 +164,16 @@ Marginal expand(const CompactMarginal& compact) {
 
 Marginal quantized(const Marginal& marginal) { return expand(compact(marginal)); }
 
-Marginal block_diagonal(const Marginal& marginal) {
+Marginal split_blocks(const Marginal& marginal, int max_block_landmarks) {
+  if (max_block_landmarks <= 0) return marginal;
+  const Eigen::Index run = 3 * static_cast<Eigen::Index>(max_block_landmarks);
   Marginal out;
   out.ids = marginal.ids;
   out.mean = marginal.mean;
-  out.blocks.reserve(marginal.ids.size());
   for (const Eigen::MatrixXd& block : marginal.blocks) {
-    for (Eigen::Index k = 0; k + 3 <= block.rows(); k += 3) {
-      out.blocks.emplace_back(block.block<3, 3>(k, k));
+    for (Eigen::Index k = 0; k < block.rows(); k += run) {
+      const Eigen::Index n = std::min(run, block.rows() - k);
+      out.blocks.emplace_back(block.block(k, k, n, n));
     }
   }
   return out;

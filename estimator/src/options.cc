@@ -194,6 +194,10 @@ std::vector<std::string> EstimatorOptions::validate() const {
     problems.add("consensus.share_kl_threshold", consensus.share_kl_threshold,
                  "finite and >= 0 (0 sends everything)");
   }
+  if (consensus.share_block_landmarks < 0) {
+    problems.add("consensus.share_block_landmarks", consensus.share_block_landmarks,
+                 ">= 0 (0: joint blocks whole)");
+  }
   if (consensus.share_max_landmarks < 0) {
     problems.add("consensus.share_max_landmarks", consensus.share_max_landmarks,
                  ">= 0 (0: no cap)");

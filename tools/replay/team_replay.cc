@@ -169,7 +169,8 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
   // directed link (from, to), as the daemons keep them per peer connection.
   const ConsensusOptions& sharing = estimator_options.consensus;
   const bool compact_sharing = sharing.share_kl_threshold > 0.0 || sharing.share_float32 ||
-                               sharing.share_max_landmarks > 0 || sharing.share_diagonal;
+                               sharing.share_max_landmarks > 0 ||
+                               sharing.share_block_landmarks > 0;
   std::map<std::pair<int, int>, MarginalSender> senders;
   std::map<std::pair<int, int>, MarginalReceiver> receivers;
   const auto graph = make_graph(options.graph, robots, options.seed);
@@ -329,7 +330,7 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
                 estimators[j].marginal(common), sharing.share_kl_threshold,
                 link_landmark_cap(sharing.share_max_landmarks,
                                   static_cast<int>(round_neighbours[j].size())));
-            if (sharing.share_diagonal) sent = block_diagonal(sent);
+            sent = split_blocks(sent, sharing.share_block_landmarks);
             if (sharing.share_float32) {
               const CompactMarginal wire = compact(sent);
               count_bytes(j, wire.bytes());

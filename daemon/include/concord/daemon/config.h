@@ -195,13 +195,13 @@ struct ConsensusConfig {
   AssociationMode association = AssociationMode::kAuto;
   NegotiationLimits negotiation_limits;
   /// Compact, event-triggered sharing (given association): copied from the estimator config's
-  /// consensus.share_kl_threshold, share_float32, share_max_landmarks and share_diagonal
+  /// consensus.share_kl_threshold, share_float32, share_max_landmarks and share_block_landmarks
   /// (marginal_sharing.h), so that the daemons send what `concord replay` models. Negotiated
   /// marginals go whole.
   double share_kl_threshold = 0.0;
   bool share_float32 = false;
   int share_max_landmarks = 0;
-  bool share_diagonal = false;
+  int share_block_landmarks = 0;
 };
 
 struct HttpConfig {

@@ -36,9 +36,11 @@ ObjectEstimate landmark_estimate(const Marginal& marginal, std::size_t k);
 /// restricted to them (order kept).
 Marginal sub_marginal(const Marginal& marginal, const std::vector<bool>& keep);
 
-/// The marginal with each landmark in a 3x3 block of its own (its diagonal block of the block
-/// it was in): the correlations between landmarks left out (consensus.share_diagonal).
-Marginal block_diagonal(const Marginal& marginal);
+/// The marginal with every block cut into consecutive runs of at most max_block_landmarks
+/// landmarks (each run's diagonal block of the block it was in): the correlations between runs
+/// left out (consensus.share_block_landmarks; 1: each landmark a 3x3 block of its own). The
+/// marginal as it is when max_block_landmarks <= 0.
+Marginal split_blocks(const Marginal& marginal, int max_block_landmarks);
 
 /// Wire form of a marginal in float32 (see the file comment).
 struct CompactMarginal {

@@ -47,14 +47,16 @@ struct ConsensusOptions {
   /// consensus.share_float32: marginals travel in float32 (means as offsets from an origin,
   /// covariances as Cholesky factors), half the bytes; the receiver fuses exactly what arrived.
   bool share_float32 = false;
-  /// consensus.share_diagonal: each landmark travels as its own 3x3 block (block_diagonal in
-  /// marginal_sharing.h), without its correlations with the other landmarks of the message.
-  /// The bytes of a message then grow with its landmarks, not with their square (a joint block
-  /// of k landmarks is 9 k^2 numbers, or 3k(3k+1)/2 as a triangle), and the receiver averages
-  /// each landmark on its own, as it does an archived one: consistent, since a block structure
-  /// claims nothing about correlations between blocks (Consensus::fuse), at the cost of what
-  /// those correlations told it (measured in docs/results-sharing.md).
-  bool share_diagonal = false;
+  /// consensus.share_block_landmarks: a message's covariance blocks hold at most this many
+  /// landmarks each (split_blocks in marginal_sharing.h: a joint block cut into consecutive
+  /// runs, the correlations between runs left out); 1 sends every landmark as its own 3x3
+  /// block, 0 (the default) the joint blocks whole. The bytes of a message then grow with its
+  /// landmarks, not with their square (a joint block of k landmarks is 3k(3k+1)/2 numbers), and
+  /// the receiver averages each block on its own, as it does archived objects: consistent,
+  /// since a block structure claims nothing about correlations between blocks
+  /// (Consensus::fuse), at the cost of what those correlations told it (measured in
+  /// docs/results-sharing.md).
+  int share_block_landmarks = 0;
 };
 
 /// Noise of a stereo observation (u_left, v_left, u_right, v_right), in image units, as four
