@@ -273,9 +273,9 @@ TEST(MarginalSharing, TheBlockSizeIsReadFromTheConfigAndANegativeOneIsNamed) {
   const std::vector<std::string> problems = bad.validate();
   ASSERT_EQ(problems.size(), 1u);
   EXPECT_NE(problems.front().find("consensus.share_block_landmarks"), std::string::npos);
-  EXPECT_THROW((void)config::parse_estimator_options("consensus: {share_block_landmarks: -2}\n",
-                                                     "test"),
-               config::ConfigError);
+  EXPECT_THROW(
+      (void)config::parse_estimator_options("consensus: {share_block_landmarks: -2}\n", "test"),
+      config::ConfigError);
 }
 
 TEST(MarginalSharing, ASimulatedTeamSendsFarFewerBytesForTheSameAccuracy) {

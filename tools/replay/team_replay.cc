@@ -169,8 +169,7 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
   // directed link (from, to), as the daemons keep them per peer connection.
   const ConsensusOptions& sharing = estimator_options.consensus;
   const bool compact_sharing = sharing.share_kl_threshold > 0.0 || sharing.share_float32 ||
-                               sharing.share_max_landmarks > 0 ||
-                               sharing.share_block_landmarks > 0;
+                               sharing.share_max_landmarks > 0 || sharing.share_block_landmarks > 0;
   std::map<std::pair<int, int>, MarginalSender> senders;
   std::map<std::pair<int, int>, MarginalReceiver> receivers;
   const auto graph = make_graph(options.graph, robots, options.seed);

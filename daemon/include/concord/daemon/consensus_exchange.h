@@ -204,9 +204,9 @@ class ConsensusExchange {
   bool send_counted(int robot, v1::Envelope&& envelope);
   /// Whether marginals go compact and event-triggered (marginal_sharing.h; given association).
   bool sharing() const {
-    return association_ == nullptr && (config_.share_kl_threshold > 0.0 || config_.share_float32 ||
-                                       config_.share_max_landmarks > 0 ||
-                                       config_.share_block_landmarks > 0);
+    return association_ == nullptr &&
+           (config_.share_kl_threshold > 0.0 || config_.share_float32 ||
+            config_.share_max_landmarks > 0 || config_.share_block_landmarks > 0);
   }
   void forget_rounds_up_to(std::uint64_t round);
   /// Whether a message of `round` is beyond the future-round window (lockstep; mutex held).
