@@ -80,6 +80,22 @@ LockstepRun run_lockstep(ExchangeTeam& team, const dataset::Dataset& data,
   return run;
 }
 
+/// The lockstep run's trajectories and objects are the replay's, to 1e-9.
+void expect_same_estimates(const LockstepRun& run, const replay::ReplayResult& reference) {
+  for (std::size_t i = 0; i < run.trajectories.size(); ++i) {
+    ASSERT_EQ(run.trajectories[i].size(), reference.robots[i].trajectory.size());
+    for (std::size_t k = 0; k < run.trajectories[i].size(); ++k) {
+      ASSERT_TRUE(run.trajectories[i][k].isApprox(reference.robots[i].trajectory[k], 1e-9))
+          << "robot " << i << " frame " << k;
+    }
+    ASSERT_EQ(run.objects[i].size(), reference.robots[i].objects.size());
+    for (std::size_t o = 0; o < run.objects[i].size(); ++o) {
+      EXPECT_TRUE(
+          run.objects[i][o].p_world.isApprox(reference.robots[i].objects[o].p_world, 1e-9));
+    }
+  }
+}
+
 /// Three exchanges in lockstep over the first 120 frames of kitti00-300 with `options` give the
 /// estimates of `concord replay` (trajectories and objects, to 1e-9).
 void expect_lockstep_reproduces_the_replay(const EstimatorOptions& options) {
@@ -94,20 +110,8 @@ void expect_lockstep_reproduces_the_replay(const EstimatorOptions& options) {
   ExchangeTeam team(3, config);
   team.connect_all();
   const LockstepRun run = run_lockstep(team, data, options);
-  const auto& trajectories = run.trajectories;
-  const auto& objects = run.objects;
   EXPECT_EQ(run.timed_out, 0);
-  for (int i = 0; i < 3; ++i) {
-    ASSERT_EQ(trajectories[i].size(), reference.robots[i].trajectory.size());
-    for (std::size_t k = 0; k < trajectories[i].size(); ++k) {
-      ASSERT_TRUE(trajectories[i][k].isApprox(reference.robots[i].trajectory[k], 1e-9))
-          << "robot " << i << " frame " << k;
-    }
-    ASSERT_EQ(objects[i].size(), reference.robots[i].objects.size());
-    for (std::size_t o = 0; o < objects[i].size(); ++o) {
-      EXPECT_TRUE(objects[i][o].p_world.isApprox(reference.robots[i].objects[o].p_world, 1e-9));
-    }
-  }
+  expect_same_estimates(run, reference);
   EXPECT_GT(team.exchanges[0]->counters().marginals_fused, 50u);
 }
 
@@ -170,18 +174,7 @@ TEST(DaemonExchange, CompactEventTriggeredSharingReproducesTheReplayWithFewerByt
   team.connect_all();
   const LockstepRun run = run_lockstep(team, data, options);
   EXPECT_EQ(run.timed_out, 0);
-  for (int i = 0; i < 3; ++i) {
-    ASSERT_EQ(run.trajectories[i].size(), reference.robots[i].trajectory.size());
-    for (std::size_t k = 0; k < run.trajectories[i].size(); ++k) {
-      ASSERT_TRUE(run.trajectories[i][k].isApprox(reference.robots[i].trajectory[k], 1e-9))
-          << "robot " << i << " frame " << k;
-    }
-    ASSERT_EQ(run.objects[i].size(), reference.robots[i].objects.size());
-    for (std::size_t o = 0; o < run.objects[i].size(); ++o) {
-      EXPECT_TRUE(
-          run.objects[i][o].p_world.isApprox(reference.robots[i].objects[o].p_world, 1e-9));
-    }
-  }
+  expect_same_estimates(run, reference);
   EXPECT_GT(team.exchanges[0]->counters().marginals_fused, 50u);
   // Everything sent (landmark sets and heartbeat-sized overhead included; robot 2 shares few
   // objects in these frames, so it sends about the same): measured 75 KB (76 KB without the
@@ -216,13 +209,7 @@ TEST(DaemonExchange, SplitBlocksReproduceTheReplay) {
   team.connect_all();
   const LockstepRun run = run_lockstep(team, data, options);
   EXPECT_EQ(run.timed_out, 0);
-  for (int i = 0; i < 3; ++i) {
-    ASSERT_EQ(run.trajectories[i].size(), reference.robots[i].trajectory.size());
-    for (std::size_t k = 0; k < run.trajectories[i].size(); ++k) {
-      ASSERT_TRUE(run.trajectories[i][k].isApprox(reference.robots[i].trajectory[k], 1e-9))
-          << "robot " << i << " frame " << k;
-    }
-  }
+  expect_same_estimates(run, reference);
   EXPECT_GT(team.exchanges[0]->counters().marginals_fused, 20u);
   // The joint run differs (the blocks carried something): the replay without the option.
   options.consensus.share_block_landmarks = 0;
