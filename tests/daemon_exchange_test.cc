@@ -90,8 +90,7 @@ void expect_same_estimates(const LockstepRun& run, const replay::ReplayResult& r
     }
     ASSERT_EQ(run.objects[i].size(), reference.robots[i].objects.size());
     for (std::size_t o = 0; o < run.objects[i].size(); ++o) {
-      EXPECT_TRUE(
-          run.objects[i][o].p_world.isApprox(reference.robots[i].objects[o].p_world, 1e-9));
+      EXPECT_TRUE(run.objects[i][o].p_world.isApprox(reference.robots[i].objects[o].p_world, 1e-9));
     }
   }
 }
