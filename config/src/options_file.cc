@@ -96,6 +96,8 @@ void for_each_field(Options& options, Visitor&& visit) {
   visit("object_noise_correlation", options.object_noise_correlation);
   visit("object_offset_sigma", options.object_offset_sigma);
   visit("object_offset_walk", options.object_offset_walk);
+  visit("object_displacement_sigma", options.object_displacement_sigma);
+  visit("object_displacement_walk", options.object_displacement_walk);
   visit("object_min_observations", options.object_min_observations);
   visit("object_min_distance", options.object_min_distance);
   visit("object_max_distance", options.object_max_distance);

@@ -33,13 +33,31 @@ ObjectUpdater::ObjectUpdater(const EstimatorOptions& options, const StereoCamera
   };
   offset_prior_ = normalized_variances(options.object_offset_sigma);
   offset_walk_ = normalized_variances(options.object_offset_walk);
+  const auto& sigma = options.object_displacement_sigma;
+  const auto& walk = options.object_displacement_walk;
+  displacement_prior_ = Eigen::Vector3d(sigma[0], sigma[1], sigma[2]).cwiseAbs2();
+  displacement_walk_ = Eigen::Vector3d(walk[0], walk[1], walk[2]).cwiseAbs2();
+  displacement_ = displacement_prior_.squaredNorm() > 0.0;
+}
+
+Eigen::Matrix3d ObjectUpdater::newest_camera_to_world(const State& state,
+                                                      const Eigen::Vector3d& variances) const {
+  const Eigen::Matrix3d R_world_cam =
+      state.newest_pose().T_world_body.linear() * camera_.T_cam0_body.linear().transpose();
+  return R_world_cam * variances.asDiagonal() * R_world_cam.transpose();
 }
 
 void ObjectUpdater::walk_offsets(State& state) const {
+  const Eigen::Matrix3d displacement_walk =
+      displacement_ ? newest_camera_to_world(state, displacement_walk_) : Eigen::Matrix3d::Zero();
   for (int slot = 0; slot < state.num_landmarks(); ++slot) {
     if (!state.landmarks[slot].detection_offset) continue;
     const int index = state.landmark_index(slot);
-    state.covariance.block<3, 3>(index, index).diagonal() += offset_walk_;
+    if (displacement_) {
+      state.covariance.block<3, 3>(index, index) += displacement_walk;
+    } else {
+      state.covariance.block<3, 3>(index, index).diagonal() += offset_walk_;
+    }
   }
 }
 
@@ -49,7 +67,11 @@ int ObjectUpdater::add_offset(State& state, LandmarkId id, int frame,
   state.covariance.conservativeResize(n + 3, n + 3);
   state.covariance.rightCols<3>().setZero();
   state.covariance.bottomRows<3>().setZero();
-  state.covariance.block<3, 3>(n, n).diagonal() = offset_prior_;
+  if (displacement_) {
+    state.covariance.block<3, 3>(n, n) = newest_camera_to_world(state, displacement_prior_);
+  } else {
+    state.covariance.block<3, 3>(n, n).diagonal() = offset_prior_;
+  }
   ObjectLandmark offset;
   offset.id = id;
   offset.detection_offset = true;
@@ -61,14 +83,20 @@ int ObjectUpdater::add_offset(State& state, LandmarkId id, int frame,
 }
 
 void ObjectUpdater::apply_offset(const State& state, int offset_slot,
-                                 LinearizedTrack& linearized) {
+                                 LinearizedTrack& linearized) const {
+  const int index = state.landmark_index(offset_slot);
+  if (displacement_) {
+    // pi(T, p + d) ~ pi(T, p) + H_point d.
+    linearized.H_state.middleCols<3>(index) = linearized.H_point;
+    linearized.residual -= linearized.H_point * state.landmarks[offset_slot].p_world;
+    return;
+  }
   // d(u_left, v_left, u_right, v_right) / d(du, dv, dd).
   Eigen::Matrix<double, 4, 3> jacobian;
   jacobian << 1.0, 0.0, 0.0,  //
       0.0, 1.0, 0.0,          //
       1.0, 0.0, -1.0,         //
       0.0, 1.0, 0.0;
-  const int index = state.landmark_index(offset_slot);
   const Eigen::Vector4d predicted = jacobian * state.landmarks[offset_slot].p_world;
   for (Eigen::Index row = 0; row < linearized.residual.size(); row += 4) {
     linearized.residual.segment<4>(row) -= predicted;

@@ -143,6 +143,31 @@ std::vector<std::string> EstimatorOptions::validate() const {
                  "zero with object_noise_constant or object_noise_persistent (two models of one "
                  "error)");
   }
+  const auto any3 = [](const std::array<double, 3>& v) {
+    return v[0] > 0.0 || v[1] > 0.0 || v[2] > 0.0;
+  };
+  for (const auto& [name, values] :
+       {std::pair{"object_displacement_sigma", &object_displacement_sigma},
+        std::pair{"object_displacement_walk", &object_displacement_walk}}) {
+    for (std::size_t axis = 0; axis < 3; ++axis) {
+      if (!(std::isfinite((*values)[axis]) && (*values)[axis] >= 0.0)) {
+        problems.add(std::string(name) + "[" + std::to_string(axis) + "]", (*values)[axis],
+                     "finite and >= 0 (metres)");
+      }
+    }
+  }
+  if (any3(object_displacement_sigma) &&
+      (any(object_offset_sigma) || any(object_noise_constant) ||
+       object_noise_constant.vertical_disparity > 0.0 || any(object_noise_persistent) ||
+       object_noise_persistent.vertical_disparity > 0.0)) {
+    problems.add("object_displacement_sigma", object_displacement_sigma,
+                 "zero with object_offset_sigma, object_noise_constant or "
+                 "object_noise_persistent (two models of one error)");
+  }
+  if (any3(object_displacement_walk) && !any3(object_displacement_sigma)) {
+    problems.add("object_displacement_walk", object_displacement_walk,
+                 "zero without object_displacement_sigma (the displacement is not a state)");
+  }
   if (any(object_offset_walk) && !any(object_offset_sigma)) {
     problems.add("object_offset_walk", object_offset_walk.horizontal,
                  "zero without object_offset_sigma (the offset is not a state)");

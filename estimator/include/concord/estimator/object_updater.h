@@ -58,10 +58,16 @@ class ObjectUpdater {
   /// over a frame; appending object `id`'s (zero, with its prior, uncorrelated); its Jacobian on
   /// a linearized track's rows (each 4-row block: +du on both x, +dv on both y, -dd on the right
   /// x) with its value taken out of the residuals.
-  bool has_offsets() const { return offset_prior_.squaredNorm() > 0.0; }
+  /// With object_displacement_sigma the offset is a displacement in the world frame instead:
+  /// its prior and walk are turned from the newest camera's axes into the world's, and its
+  /// Jacobian on a track's rows is the object's own (H_point), its value taken out of the
+  /// residuals through it (first order: a displacement is small against the object's depth).
+  bool has_offsets() const { return offset_prior_.squaredNorm() > 0.0 || displacement_; }
   void walk_offsets(State& state) const;
   int add_offset(State& state, LandmarkId id, int frame, ObjectUpdateStats& stats) const;
-  static void apply_offset(const State& state, int offset_slot, LinearizedTrack& linearized);
+  void apply_offset(const State& state, int offset_slot, LinearizedTrack& linearized) const;
+  /// A camera-axes variance (diagonal) in the world frame at the newest pose.
+  Eigen::Matrix3d newest_camera_to_world(const State& state, const Eigen::Vector3d& variances) const;
   /// The joint covariance (normalized units) of the errors of a track's observations: the
   /// independent part on the diagonal blocks, the constant part in every block, the persistent
   /// part correlated by object_noise_correlation^(frame difference).
@@ -86,6 +92,11 @@ class ObjectUpdater {
   /// Detection offsets' prior and walk variances a frame (normalized units: du, dv, dd).
   Eigen::Vector3d offset_prior_ = Eigen::Vector3d::Zero();
   Eigen::Vector3d offset_walk_ = Eigen::Vector3d::Zero();
+  /// Detection displacements (object_displacement_sigma): prior and walk variances a frame,
+  /// metres squared along the camera's x, y, z.
+  bool displacement_ = false;
+  Eigen::Vector3d displacement_prior_ = Eigen::Vector3d::Zero();
+  Eigen::Vector3d displacement_walk_ = Eigen::Vector3d::Zero();
   /// The conditional's gain and whitening for a pattern of frames (each earlier observation's
   /// frame relative to the newest): a continuous track repeats the same pattern frame after frame.
   struct Conditional {

@@ -158,6 +158,19 @@ struct EstimatorOptions {
   /// error).
   StereoNoise object_offset_sigma = StereoNoise::isotropic(0.0);
   StereoNoise object_offset_walk = StereoNoise::isotropic(0.0);
+  /// object_displacement_sigma, object_displacement_walk: the same offset as a displacement in
+  /// space (metres): the point this robot's detections of an object are centred on is the
+  /// object's centre plus a 3-vector d, a state of the filter in the world frame
+  /// (ObjectLandmark::detection_offset), observed as pi(T, p + d). It starts at zero with
+  /// standard deviations object_displacement_sigma along the x (right), y (down) and z (forward)
+  /// axes of the camera that first sees it and walks by object_displacement_walk a frame along
+  /// the axes of the newest camera. A box's centre, back-projected at the depth measured in it,
+  /// is a point of the object's visible side: off its centre by a vector that depends on the
+  /// view, and whose image offset grows as the robot nears the object, which an offset in the
+  /// image (object_offset_sigma) takes for a walk. Zero (the default) leaves it out. Not with
+  /// object_offset_sigma, object_noise_constant or object_noise_persistent.
+  std::array<double, 3> object_displacement_sigma{};
+  std::array<double, 3> object_displacement_walk{};
   /// object_min_observations: stereo observations in the window needed to initialize.
   int object_min_observations = 3;
   /// object_min_distance / object_max_distance: accepted depth of a new object (metres).
