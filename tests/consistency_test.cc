@@ -10,6 +10,7 @@
 #include <cmath>
 #include <filesystem>
 #include <iostream>
+#include <limits>
 #include <map>
 #include <random>
 
@@ -212,6 +213,10 @@ TEST(FailureCounters, AnInconsistentNewObjectIsGatedAndCounted) {
 struct DetectionErrorModel {
   Eigen::Vector4d independent, constant, persistent;
   double correlation = 0.0;
+  /// A displacement in space of the point the detections are centred on (metres, along the
+  /// camera's x, y, z): drawn at the first frame, then walking by `displacement_walk` a frame.
+  Eigen::Vector3d displacement = Eigen::Vector3d::Zero();
+  Eigen::Vector3d displacement_walk = Eigen::Vector3d::Zero();
 };
 
 struct ObjectRunStatistics {
@@ -237,6 +242,13 @@ ObjectRunStatistics object_runs(const DetectionErrorModel& truth, const Estimato
     };
     const Eigen::Vector4d constant = draw(truth.constant);
     Eigen::Vector4d persistent = draw(truth.persistent);
+    const auto draw3 = [&](const Eigen::Vector3d& sigma) {
+      return Eigen::Vector3d(sigma[0] * normal(random), sigma[1] * normal(random),
+                             sigma[2] * normal(random));
+    };
+    // The camera's axes in the world (the robot drives straight: they do not turn).
+    const Eigen::Matrix3d R_world_camera = camera.T_cam0_body.linear().transpose();
+    Eigen::Vector3d displacement = R_world_camera * draw3(truth.displacement);
     Estimator estimator(options, camera, Eigen::Isometry3d::Identity());
     Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
     Eigen::Isometry3d step = Eigen::Isometry3d::Identity();
@@ -246,13 +258,15 @@ ObjectRunStatistics object_runs(const DetectionErrorModel& truth, const Estimato
       if (frame > 0) {
         persistent = truth.correlation * persistent +
                      std::sqrt(1.0 - truth.correlation * truth.correlation) * draw(truth.persistent);
+        displacement += R_world_camera * draw3(truth.displacement_walk);
       }
       const Eigen::Vector4d e = constant + persistent + draw(truth.independent);
       // (common, vertical, disparity, vertical disparity) to (u_l, v_l, u_r, v_r).
       const Eigen::Vector4d error(e[0] + 0.5 * e[2], e[1] + 0.5 * e[3], e[0] - 0.5 * e[2],
                                   e[1] - 0.5 * e[3]);
       const Eigen::Vector4d uv =
-          camera.denormalize(UpdaterHelper::project(camera, pose, p_object)->xy) + error;
+          camera.denormalize(UpdaterHelper::project(camera, pose, p_object + displacement)->xy) +
+          error;
       input.objects.push_back({7, uv});
       estimator.process(input);
     }
@@ -344,6 +358,122 @@ TEST(DetectionOffset, AStateForAnOffsetThatStaysAlongTheTrackKeepsTheObjectHones
   with_offset.object_offset_sigma = {1.5, 1.5, 0.01, 0.0};
   ASSERT_TRUE(with_offset.validate().empty());
   expect_the_model_honest_where_independent_noise_is_not(truth, with_offset, options);
+}
+
+TEST(DetectionDisplacement, AStateForADisplacementInSpaceKeepsTheObjectHonest) {
+  // Detections centred on a point 0.3 m (across), 0.2 m (vertically) and 0.6 m (in depth) off
+  // the object's centre, drawn once and then walking a few centimetres a frame, plus a little
+  // independent jitter: in the image the error grows as the robot nears the object (26 m to
+  // 6 m), which an image offset or independent noise does not describe. The displacement, as a
+  // state, is this error's exact model.
+  DetectionErrorModel truth;
+  truth.independent = Eigen::Vector4d(0.5, 0.5, 0.3, 0.3);
+  truth.constant = truth.persistent = Eigen::Vector4d::Zero();
+  truth.displacement = Eigen::Vector3d(0.3, 0.2, 0.6);
+  truth.displacement_walk = Eigen::Vector3d(0.02, 0.01, 0.04);
+  EstimatorOptions options = single_object_options();
+  options.object_noise = as_noise(truth.independent);
+  EstimatorOptions modelled = options;
+  modelled.object_displacement_sigma = {0.3, 0.2, 0.6};
+  modelled.object_displacement_walk = {0.02, 0.01, 0.04};
+  ASSERT_TRUE(modelled.validate().empty());
+  expect_the_model_honest_where_independent_noise_is_not(truth, modelled, options);
+}
+
+TEST(DetectionDisplacement, TurnsWithTheWorldFrameAndIsNoObject) {
+  const StereoCamera camera = testing::kitti_like_camera();
+  EstimatorOptions options;
+  options.use_point_features = false;
+  options.object_noise = StereoNoise::isotropic(1.0);
+  options.object_displacement_sigma = {0.2, 0.1, 0.5};
+  options.object_displacement_walk = {0.01, 0.01, 0.02};
+  Estimator estimator(options, camera, Eigen::Isometry3d::Identity());
+  const Eigen::Vector3d p_object(15.0, 3.0, 0.5), d_true(0.1, -0.05, 0.2);
+  Eigen::Isometry3d truth = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d step = Eigen::Isometry3d::Identity();
+  step.translation() = Eigen::Vector3d(0.5, 0.0, 0.0);
+  for (int frame = 0; frame < 8; ++frame) {
+    FrameInput input = testing::straight_drive_frame(frame, step, truth);
+    input.objects.push_back(
+        {3, camera.denormalize(UpdaterHelper::project(camera, truth, p_object + d_true)->xy)});
+    (void)estimator.process(input);
+  }
+  const State& state = estimator.state();
+  const int slot = state.offset_slot(3);
+  ASSERT_GE(slot, 0);
+  EXPECT_TRUE(state.landmarks[slot].detection_offset);
+  EXPECT_TRUE(state.landmarks[slot].displacement);
+  EXPECT_EQ(estimator.objects().size(), 1u);
+  EXPECT_EQ(state.object_ids(), std::vector<LandmarkId>{3});
+  // One robot cannot tell the object from the displacement: the object's covariance keeps at
+  // least what the displacement's prior says along the camera's axes (x right = -y world here,
+  // y down = -z, z forward = +x), less only what the walk-free first frames could not add.
+  const int object = state.landmark_index(state.landmark_slot(3));
+  const Eigen::Matrix3d R_world_camera = camera.T_cam0_body.linear().transpose();
+  const Eigen::Matrix3d in_camera =
+      R_world_camera.transpose() * state.covariance.block<3, 3>(object, object) * R_world_camera;
+  EXPECT_GT(std::sqrt(in_camera(0, 0)), 0.9 * 0.2);
+  EXPECT_GT(std::sqrt(in_camera(1, 1)), 0.9 * 0.1);
+  EXPECT_GT(std::sqrt(in_camera(2, 2)), 0.9 * 0.5);
+  // The object plus the displacement is what the detections saw.
+  EXPECT_LT((state.landmarks[state.landmark_slot(3)].p_world + state.landmarks[slot].p_world -
+             (p_object + d_true))
+                .norm(),
+            0.05);
+  // A change of world frame turns the displacement (a direction), with its covariance; the
+  // transform's rotation uncertainty adds to it, its translation does not.
+  State moved = state;
+  const int index = moved.landmark_index(slot);
+  const Eigen::Vector3d d = moved.landmarks[slot].p_world;
+  const Eigen::Matrix3d covariance = moved.covariance.block<3, 3>(index, index);
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = Eigen::AngleAxisd(0.7, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  T.translation() = Eigen::Vector3d(4.0, -2.0, 0.3);
+  StateHelper::reanchor(moved, T, lie::Matrix6d::Zero());
+  EXPECT_TRUE(moved.landmarks[slot].p_world.isApprox(T.linear() * d, 1e-12));
+  const Eigen::Matrix3d turned = moved.covariance.block<3, 3>(index, index);
+  EXPECT_TRUE(turned.isApprox(T.linear() * covariance * T.linear().transpose(), 1e-9));
+  State translated = state;
+  Eigen::Isometry3d shift = Eigen::Isometry3d::Identity();
+  shift.translation() = Eigen::Vector3d(1.0, 2.0, 3.0);
+  lie::Matrix6d translation_only = lie::Matrix6d::Zero();
+  translation_only.topLeftCorner<3, 3>().setIdentity();
+  StateHelper::reanchor(translated, shift, translation_only);
+  EXPECT_EQ(translated.landmarks[slot].p_world, d);
+  const Eigen::Matrix3d kept = translated.covariance.block<3, 3>(index, index);
+  EXPECT_TRUE(kept.isApprox(covariance, 1e-12));
+  // A state that holds displacements needs options that make them, and not image offsets.
+  EXPECT_NO_THROW(Estimator(options, camera, state));
+  EstimatorOptions offsets = options;
+  offsets.object_displacement_sigma = {};
+  offsets.object_displacement_walk = {};
+  offsets.object_offset_sigma = StereoNoise::isotropic(1.0);
+  EXPECT_THROW(Estimator(offsets, camera, state), std::invalid_argument);
+  EstimatorOptions neither = offsets;
+  neither.object_offset_sigma = StereoNoise::isotropic(0.0);
+  EXPECT_THROW(Estimator(neither, camera, state), std::invalid_argument);
+}
+
+TEST(DetectionDisplacement, OptionsRefuseTwoModelsOfOneErrorAndBadValues) {
+  EstimatorOptions options;
+  options.object_displacement_sigma = {0.1, 0.1, 0.2};
+  options.object_displacement_walk = {0.01, 0.01, 0.02};
+  EXPECT_TRUE(options.validate().empty());
+  EstimatorOptions with_offset = options;
+  with_offset.object_offset_sigma = StereoNoise::isotropic(1.0);
+  EXPECT_FALSE(with_offset.validate().empty());
+  EstimatorOptions with_persistent = options;
+  with_persistent.object_noise_persistent = StereoNoise::isotropic(1.0);
+  EXPECT_FALSE(with_persistent.validate().empty());
+  EstimatorOptions walk_only;
+  walk_only.object_displacement_walk = {0.01, 0.0, 0.0};
+  EXPECT_FALSE(walk_only.validate().empty());
+  EstimatorOptions negative = options;
+  negative.object_displacement_sigma[1] = -0.1;
+  EXPECT_FALSE(negative.validate().empty());
+  EstimatorOptions not_finite = options;
+  not_finite.object_displacement_walk[2] = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_FALSE(not_finite.validate().empty());
 }
 
 TEST(DetectionOffset, IsTheRobotsOwnStateNotAnObjectAndLeavesWithItsObject) {
@@ -991,7 +1121,9 @@ TEST(Calibration, FitsADetectionOffsetThatWalksAlongEachTrack) {
   // The model alone loads as an estimator config with exactly those values (to the printed
   // digits), and makes the offset a state.
   const EstimatorOptions loaded = config::parse_estimator_options(
-      calibration::detector_model_yaml(report, options), "detector model");
+      calibration::detector_model_yaml(report, options,
+                                       calibration::DetectorModelKind::kImageOffset),
+      "detector model");
   EXPECT_NEAR(loaded.object_offset_sigma.horizontal, report.objects.offset_sigma(0),
               1e-3 * sigma(0));
   EXPECT_NEAR(loaded.object_offset_walk.disparity, report.objects.offset_walk(2), 1e-3 * walk(2));
@@ -1011,6 +1143,80 @@ TEST(Calibration, FitsADetectionOffsetThatWalksAlongEachTrack) {
   options.track_gap = 5;
   options.offset_max_lag = 1;  // one lag cannot give a line
   EXPECT_THROW(calibration::calibrate(data, options), std::invalid_argument);
+}
+
+TEST(Calibration, FitsADetectionDisplacementThatWalksInSpace) {
+  // Detections centred on a point off each object's centre by a displacement drawn at the
+  // track's start along that camera's axes, walking every frame along the newest camera's,
+  // plus a little independent image noise.
+  dataset::Dataset data = objects_of_one_robot();
+  const Eigen::Vector3d sigma(0.10, 0.05, 0.20);
+  const Eigen::Vector3d walk(0.010, 0.005, 0.020);
+  std::mt19937 random(21);
+  std::normal_distribution<double> normal(0.0, 1.0);
+  const auto draw = [&](const Eigen::Vector3d& s) {
+    return Eigen::Vector3d(s[0] * normal(random), s[1] * normal(random), s[2] * normal(random));
+  };
+  struct Displacement {
+    int frame = -100;
+    Eigen::Vector3d value;  // world frame
+  };
+  std::map<LandmarkId, Displacement> displacements;
+  dataset::RobotData& robot = data.robots.front();
+  int observations = 0;
+  for (std::size_t frame = 0; frame < robot.objects.size(); ++frame) {
+    const int now = static_cast<int>(frame);
+    const Eigen::Matrix3d R_world_camera =
+        robot.groundtruth[frame].linear() * data.camera.T_cam0_body.linear().transpose();
+    for (StereoObservation& observation : robot.objects[frame]) {
+      Displacement& d = displacements[observation.id];
+      if (now - d.frame > 5) {
+        d.value = R_world_camera * draw(sigma);
+      } else {
+        for (int step = d.frame; step < now; ++step) d.value += R_world_camera * draw(walk);
+      }
+      d.frame = now;
+      const auto projection = UpdaterHelper::project(
+          data.camera, robot.groundtruth[frame],
+          data.objects_groundtruth.at(observation.id) + d.value);
+      ASSERT_TRUE(projection);
+      observation.uv = data.camera.denormalize(projection->xy) +
+                       1e-4 * Eigen::Vector4d(normal(random), normal(random), normal(random),
+                                              normal(random));
+      ++observations;
+    }
+  }
+  ASSERT_GT(observations, 2000);
+  calibration::CalibrationOptions options;
+  options.frames = 400;
+  const calibration::CalibrationReport report = calibration::calibrate(data, options);
+  const calibration::DetectionDisplacement& fit = report.object_displacement;
+  ASSERT_GT(fit.tracks, 30);
+  EXPECT_GT(fit.observations, 0.95 * observations);
+  for (int axis = 0; axis < 3; ++axis) {
+    EXPECT_NEAR(fit.sigma(axis), sigma(axis), 0.25 * sigma(axis)) << axis;
+    EXPECT_NEAR(fit.walk(axis), walk(axis), 0.25 * walk(axis)) << axis;
+  }
+  // The model file (the displacement by default, the image offset on request) loads as an
+  // estimator config with those values to the printed digits.
+  const EstimatorOptions loaded = config::parse_estimator_options(
+      calibration::detector_model_yaml(report, options), "detector model");
+  EXPECT_NEAR(loaded.object_displacement_sigma[2], fit.sigma(2), 1e-3 * sigma(2));
+  EXPECT_NEAR(loaded.object_displacement_walk[0], fit.walk(0), 1e-3 * walk(0));
+  EXPECT_EQ(loaded.object_offset_sigma.horizontal, 0.0);
+  const EstimatorOptions as_offset = config::parse_estimator_options(
+      calibration::detector_model_yaml(report, options,
+                                       calibration::DetectorModelKind::kImageOffset),
+      "detector model");
+  EXPECT_EQ(as_offset.object_displacement_sigma, (std::array<double, 3>{}));
+  EXPECT_GT(as_offset.object_offset_sigma.horizontal, 0.0);
+  EXPECT_NE(calibration::to_yaml(report, options).find("# object_displacement_walk: ["),
+            std::string::npos);
+  // No objects: nothing to fit, and the model is refused with the reason.
+  for (auto& frame : robot.objects) frame.clear();
+  const calibration::CalibrationReport empty = calibration::calibrate(data, options);
+  EXPECT_EQ(empty.object_displacement.tracks, 0);
+  EXPECT_THROW((void)calibration::detector_model_yaml(empty, options), std::invalid_argument);
 }
 
 TEST(Calibration, FitsTheOffsetsWalkToTheDriftOverTheTracksSpan) {

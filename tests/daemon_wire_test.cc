@@ -325,12 +325,24 @@ TEST(DaemonCheckpoint, KeepsADetectionOffsetApartFromItsObject) {
   checkpoint.state.landmarks[1].id = checkpoint.state.landmarks[0].id;  // object 100's offset
   checkpoint.state.landmarks[1].detection_offset = true;
   checkpoint.state.rebuild_landmark_index();
+  {
+    // A displacement in space keeps its kind.
+    Checkpoint displaced = checkpoint;
+    displaced.state.landmarks[1].displacement = true;
+    std::string error;
+    const auto back = parse_checkpoint(serialize_checkpoint(displaced), error);
+    ASSERT_TRUE(back) << error;
+    EXPECT_TRUE(back->state.landmarks[1].detection_offset);
+    EXPECT_TRUE(back->state.landmarks[1].displacement);
+    EXPECT_FALSE(back->state.landmarks[0].displacement);
+  }
   std::string error;
   const auto back = parse_checkpoint(serialize_checkpoint(checkpoint), error);
   ASSERT_TRUE(back) << error;
   ASSERT_EQ(back->state.landmarks.size(), 2u);
   EXPECT_FALSE(back->state.landmarks[0].detection_offset);
   EXPECT_TRUE(back->state.landmarks[1].detection_offset);
+  EXPECT_FALSE(back->state.landmarks[1].displacement);
   EXPECT_FALSE(back->state.landmarks[1].archived);
   EXPECT_EQ(back->state.landmark_slot(100), 0);
   EXPECT_EQ(back->state.offset_slot(100), 1);

@@ -7,7 +7,7 @@
 ///   concord slice --dataset DIR --out DIR --frames N [--robots R] [--private-ids]
 ///   [--unknown-start] concord convert --dataset DIR --out DIR [--private-ids] [--unknown-start]
 ///   concord calibrate --dataset DIR [--robot R] [--first F] [--frames N] [--up-axis A]
-///                     [--detector-model FILE]
+///                     [--detector-model FILE [--detector-model-kind displacement|offset]]
 ///   concord launch --dataset DIR --out DIR [--lockstep|--async|--separate] [--base-port P]
 ///                  [--http-base-port P] [--config FILE] [--robots R] [--frames N] [--rate HZ]
 ///                  [--graph complete|ring] [--range M] [--nearest K] [--max-degree D]
@@ -417,13 +417,13 @@ int run_eval(const fs::path& dataset_dir, const fs::path& result_dir,
 }
 
 int run_calibrate(const fs::path& dataset_dir, const calibration::CalibrationOptions& options,
-                  const fs::path& detector_model) {
+                  const fs::path& detector_model, calibration::DetectorModelKind kind) {
   const dataset::Dataset data = dataset::read_dataset(dataset_dir);
   const calibration::CalibrationReport report = calibration::calibrate(data, options);
   std::cout << calibration::to_yaml(report, options);
   if (!detector_model.empty()) {
     dataset::write_file_atomically(detector_model,
-                                   calibration::detector_model_yaml(report, options));
+                                   calibration::detector_model_yaml(report, options, kind));
     std::cerr << "concord calibrate: the detector's error model written to "
               << detector_model.string() << "\n";
   }
@@ -786,8 +786,19 @@ int main(int argc, char** argv) {
   std::string detector_model_out;
   calibrate_command->add_option(
       "--detector-model", detector_model_out,
-      "Also write the detector's error model (object_noise, object_offset_sigma, "
-      "object_offset_walk) to FILE, for concord frontend --detector-model");
+      "Also write the detector's error model (object_noise and a displacement's or an image "
+      "offset's sigma and walk) to FILE, for concord frontend --detector-model");
+  calibration::DetectorModelKind detector_model_kind = calibration::DetectorModelKind::kDisplacement;
+  calibrate_command
+      ->add_option("--detector-model-kind", detector_model_kind,
+                   "The model --detector-model writes: displacement (in space, metres: "
+                   "object_displacement_sigma/walk) or offset (in the image: "
+                   "object_offset_sigma/walk); default displacement")
+      ->transform(CLI::CheckedTransformer(
+          std::map<std::string, calibration::DetectorModelKind>{
+              {"displacement", calibration::DetectorModelKind::kDisplacement},
+              {"offset", calibration::DetectorModelKind::kImageOffset}},
+          CLI::ignore_case));
 
   auto* slice_command = app.add_subcommand("slice", "Cut the first frames/robots of a dataset");
   int robots = 0;
@@ -1167,7 +1178,8 @@ int main(int argc, char** argv) {
       return run_convert(dataset_dir, out_dir, variant_private_ids, variant_unknown_start);
     }
     if (calibrate_command->parsed())
-      return run_calibrate(dataset_dir, calibration_options, detector_model_out);
+      return run_calibrate(dataset_dir, calibration_options, detector_model_out,
+                           detector_model_kind);
     if (sim_command->parsed()) {
       return run_sim(
           sim_options, out_dir,

@@ -92,8 +92,11 @@ std::string serialize_checkpoint(const Checkpoint& checkpoint) {
     for (int i = 0; i < 3; ++i) w.put<double>(landmark.p_world[i]);
     w.put<std::int32_t>(landmark.last_observed_frame);
     for (int i = 0; i < 3; ++i) w.put<double>(landmark.p_linearization[i]);
-    // 0 active, 1 archived (consider), 2 a detection offset.
-    w.put<std::uint8_t>(landmark.detection_offset ? 2 : landmark.archived ? 1 : 0);
+    // 0 active, 1 archived (consider), 2 a detection offset in the image, 3 a detection
+    // displacement in space.
+    w.put<std::uint8_t>(landmark.detection_offset ? (landmark.displacement ? 3 : 2)
+                        : landmark.archived     ? 1
+                                                : 0);
     w.put<std::uint32_t>(static_cast<std::uint32_t>(landmark.used_observations.size()));
     for (const TrackObservation& observation : landmark.used_observations) {
       w.put<std::int32_t>(observation.frame);
@@ -178,11 +181,12 @@ std::optional<Checkpoint> parse_checkpoint(const std::string& bytes, std::string
     if (!r.get(landmark.id) || !r.get(landmark.p_world[0]) || !r.get(landmark.p_world[1]) ||
         !r.get(landmark.p_world[2]) || !r.get(last) || !r.get(landmark.p_linearization[0]) ||
         !r.get(landmark.p_linearization[1]) || !r.get(landmark.p_linearization[2]) ||
-        !r.get(archived) || archived > 2)
+        !r.get(archived) || archived > 3)
       return fail("bad landmark " + std::to_string(i));
     landmark.last_observed_frame = last;
     landmark.archived = archived == 1;
-    landmark.detection_offset = archived == 2;
+    landmark.detection_offset = archived >= 2;
+    landmark.displacement = archived == 3;
     std::uint32_t used = 0;
     if (!r.count(used, 4 + 32)) return fail("bad landmark " + std::to_string(i));
     for (std::uint32_t j = 0; j < used; ++j) {

@@ -96,6 +96,21 @@ Estimator::Estimator(const EstimatorOptions& options, const StereoCamera& camera
         "Estimator: the state was made with a different level_sigma (a world up axis state is "
         "there in one and not in the other)");
   }
+  for (const ObjectLandmark& landmark : state_.landmarks) {
+    if (!landmark.detection_offset) continue;
+    const bool displacement = options_.object_displacement_sigma != std::array<double, 3>{};
+    const bool offset = options_.object_offset_sigma.horizontal > 0.0 ||
+                        options_.object_offset_sigma.vertical > 0.0 ||
+                        options_.object_offset_sigma.disparity > 0.0;
+    if (landmark.displacement ? !displacement : !offset) {
+      throw std::invalid_argument(
+          std::string("Estimator: the state holds a detection ") +
+          (landmark.displacement ? "displacement (object_displacement_sigma)"
+                                 : "offset in the image (object_offset_sigma)") +
+          " for object " + std::to_string(landmark.id) +
+          " and the options do not make one: the state was made with another detector model");
+    }
+  }
   if (!consecutive || state_.num_poses() > options_.window_size || state_.covariance.rows() != n ||
       state_.covariance.cols() != n || !state_.covariance.allFinite()) {
     throw std::invalid_argument(

@@ -75,6 +75,7 @@ int ObjectUpdater::add_offset(State& state, LandmarkId id, int frame,
   ObjectLandmark offset;
   offset.id = id;
   offset.detection_offset = true;
+  offset.displacement = displacement_;
   offset.last_observed_frame = frame;
   state.landmarks.push_back(std::move(offset));
   state.rebuild_landmark_index();

@@ -187,7 +187,11 @@ void StateHelper::reanchor(State& state, const Eigen::Isometry3d& T_new_old,
     pose.T_world_body = lie::orthonormalized(T_new_old * pose.T_world_body);
   }
   for (ObjectLandmark& landmark : state.landmarks) {
-    if (landmark.detection_offset) continue;  // image units: no frame
+    if (landmark.detection_offset) {
+      // An image offset has no frame; a displacement is a direction: it turns.
+      if (landmark.displacement) landmark.p_world = R * landmark.p_world;
+      continue;
+    }
     landmark.p_world = T_new_old * landmark.p_world;
     landmark.p_linearization = T_new_old * landmark.p_linearization;
   }
@@ -214,10 +218,16 @@ void StateHelper::reanchor(State& state, const Eigen::Isometry3d& T_new_old,
     J.middleRows(index, 6).setIdentity();
   }
   for (int slot = 0; slot < state.num_landmarks(); ++slot) {
-    if (state.landmarks[slot].detection_offset) continue;
+    const ObjectLandmark& landmark = state.landmarks[slot];
+    if (landmark.detection_offset && !landmark.displacement) continue;
     const int index = state.landmark_index(slot);
     P.middleRows(index, 3) = (R * P.middleRows(index, 3)).eval();
     P.middleCols(index, 3) = (P.middleCols(index, 3) * R.transpose()).eval();
+    if (landmark.detection_offset) {
+      // d' = exp(phi^) R d: the transform's rotation error turns it, not its translation.
+      J.block<3, 3>(index, 3) = -lie::skew(landmark.p_world);
+      continue;
+    }
     J.block<3, 3>(index, 0).setIdentity();
     J.block<3, 3>(index, 3) = -lie::skew(state.landmarks[slot].p_world);
   }

@@ -269,6 +269,7 @@ const std::set<std::string>& detector_model_keys() {
   static const std::set<std::string> keys = {
       "object_noise",           "object_noise_constant", "object_noise_persistent",
       "object_noise_correlation", "object_offset_sigma", "object_offset_walk",
+      "object_displacement_sigma", "object_displacement_walk",
       "object_init_max_reprojection_error"};
   return keys;
 }

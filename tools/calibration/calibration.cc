@@ -52,6 +52,89 @@ double mean_square(const std::vector<double>& values) {
   return values.empty() ? 0.0 : sum / static_cast<double>(values.size());
 }
 
+/// Observations keyed by (landmark, frame), sorted by landmark then frame.
+using TrackIndex = std::map<std::pair<LandmarkId, int>, std::size_t>;
+/// A track: (frame, index of the observation), in frame order.
+using Track = std::vector<std::pair<int, std::size_t>>;
+
+/// Each landmark's observations in frame order, split where it went unseen for more than `gap`
+/// frames.
+std::vector<Track> split_tracks(const TrackIndex& index, int gap) {
+  std::vector<Track> tracks;
+  LandmarkId current = 0;
+  int last_frame = 0;
+  for (const auto& [key, k] : index) {
+    if (tracks.empty() || key.first != current || key.second - last_frame > gap) {
+      tracks.emplace_back();
+    }
+    tracks.back().emplace_back(key.second, k);
+    current = key.first;
+    last_frame = key.second;
+  }
+  return tracks;
+}
+
+/// The largest lag to fit a walk over: `max_lag`, or when 0 the tracks' span (the median over
+/// the observations of their track's first-to-last frames, at least 2); 0 without tracks.
+int walk_lags(const std::vector<Track>& tracks, int max_lag) {
+  if (max_lag > 0) return max_lag;
+  std::vector<int> spans;
+  for (const Track& track : tracks) {
+    spans.insert(spans.end(), track.size(), track.back().first - track.front().first);
+  }
+  if (spans.empty()) return 0;
+  const auto middle = spans.begin() + static_cast<std::ptrdiff_t>(spans.size() / 2);
+  std::nth_element(spans.begin(), middle, spans.end());
+  return std::max(2, *middle);
+}
+
+/// The differences within tracks at lag `lag` of a value per observation (later minus earlier,
+/// through `difference(earlier, later)`).
+template <typename Difference>
+std::vector<double> lag_differences(const std::vector<Track>& tracks, int lag,
+                                    const Difference& difference) {
+  std::vector<double> out;
+  for (const Track& track : tracks) {
+    for (auto i = track.begin(); i != track.end(); ++i) {
+      for (auto j = std::next(i); j != track.end() && j->first - i->first <= lag; ++j) {
+        if (j->first - i->first == lag) out.push_back(difference(i->second, j->second));
+      }
+    }
+  }
+  return out;
+}
+
+/// A walk fitted to the mean squares of differences at lags 1..max_lag: least squares line
+/// mean_square = intercept + slope lag over the lags with at least 20 differences (beyond 3
+/// robust sigmas left out). False when fewer than 2 lags have enough.
+template <typename Difference>
+bool fit_walk(const std::vector<Track>& tracks, int max_lag, const Difference& difference,
+              double& intercept, double& slope) {
+  std::vector<double> lags, mean_squares;
+  for (int lag = 1; lag <= max_lag; ++lag) {
+    const std::vector<double> differences =
+        without_outliers(lag_differences(tracks, lag, difference));
+    if (differences.size() < 20) continue;
+    lags.push_back(lag);
+    mean_squares.push_back(mean_square(differences));
+  }
+  if (lags.size() < 2) return false;
+  const auto n = static_cast<double>(lags.size());
+  double mean_lag = 0.0, mean_value = 0.0;
+  for (std::size_t i = 0; i < lags.size(); ++i) {
+    mean_lag += lags[i] / n;
+    mean_value += mean_squares[i] / n;
+  }
+  double sxy = 0.0, sxx = 0.0;
+  for (std::size_t i = 0; i < lags.size(); ++i) {
+    sxy += (lags[i] - mean_lag) * (mean_squares[i] - mean_value);
+    sxx += (lags[i] - mean_lag) * (lags[i] - mean_lag);
+  }
+  slope = sxy / sxx;
+  intercept = mean_value - slope * mean_lag;
+  return true;
+}
+
 /// Accumulates stereo errors (u_left, v_left, u_right, v_right), in image units, as components,
 /// with the landmark and frame of each (for the time correlation within tracks).
 class StereoErrors {
@@ -196,75 +279,26 @@ class StereoErrors {
 
   /// StereoErrorSpread::offset_independent, offset_sigma, offset_walk, offset_tracks.
   void fit_offsets(const CalibrationOptions& options, StereoErrorSpread& out) const {
-    // Tracks: each landmark's observations in frame order (index_ is sorted by landmark, then
-    // frame), split where it went unseen for more than track_gap frames.
-    std::vector<std::vector<std::pair<int, std::size_t>>> tracks;
-    LandmarkId current = 0;
-    int last_frame = 0;
-    for (const auto& [key, k] : index_) {
-      if (tracks.empty() || key.first != current || key.second - last_frame > options.track_gap) {
-        tracks.emplace_back();
-      }
-      tracks.back().emplace_back(key.second, k);
-      current = key.first;
-      last_frame = key.second;
-    }
-    int max_lag = options.offset_max_lag;
+    const std::vector<Track> tracks = split_tracks(index_, options.track_gap);
+    const int max_lag = walk_lags(tracks, options.offset_max_lag);
     if (max_lag == 0) {
-      // The tracks' span: each observation counts its track's first-to-last frames.
-      std::vector<int> spans;
-      for (const auto& track : tracks) {
-        spans.insert(spans.end(), track.size(), track.back().first - track.front().first);
-      }
-      if (spans.empty()) {
-        out.offset_tracks = 0;
-        return;
-      }
-      const auto middle = spans.begin() + static_cast<std::ptrdiff_t>(spans.size() / 2);
-      std::nth_element(spans.begin(), middle, spans.end());
-      max_lag = std::max(2, *middle);
+      out.offset_tracks = 0;
+      return;
     }
     out.offset_lags = max_lag;
     const std::vector<double>* components[3] = {&u_left_, &vertical_, &disparity_};
     for (int c = 0; c < 3; ++c) {
       const std::vector<double>& values = *components[c];
-      // Mean square of the differences at each lag (the walk has zero mean).
-      std::vector<double> lags, mean_squares;
-      for (int lag = 1; lag <= max_lag; ++lag) {
-        std::vector<double> differences;
-        for (const auto& track : tracks) {
-          for (auto i = track.begin(); i != track.end(); ++i) {
-            for (auto j = std::next(i); j != track.end() && j->first - i->first <= lag; ++j) {
-              if (j->first - i->first == lag)
-                differences.push_back(values[j->second] - values[i->second]);
-            }
-          }
-        }
-        differences = without_outliers(std::move(differences));
-        if (differences.size() < 20) continue;
-        lags.push_back(lag);
-        mean_squares.push_back(mean_square(differences));
-      }
-      if (lags.size() < 2) {
+      double intercept = 0.0, slope = 0.0;
+      if (!fit_walk(
+              tracks, max_lag,
+              [&](std::size_t i, std::size_t j) { return values[j] - values[i]; }, intercept,
+              slope)) {
         out.offset_tracks = 0;
         return;
       }
-      // Least squares line: mean_square = intercept + slope lag.
-      const auto n = static_cast<double>(lags.size());
-      double mean_lag = 0.0, mean_value = 0.0;
-      for (std::size_t i = 0; i < lags.size(); ++i) {
-        mean_lag += lags[i] / n;
-        mean_value += mean_squares[i] / n;
-      }
-      double sxy = 0.0, sxx = 0.0;
-      for (std::size_t i = 0; i < lags.size(); ++i) {
-        sxy += (lags[i] - mean_lag) * (mean_squares[i] - mean_value);
-        sxx += (lags[i] - mean_lag) * (lags[i] - mean_lag);
-      }
-      const double slope = sxy / sxx;
-      const double intercept = mean_value - slope * mean_lag;
       std::vector<double> starts;
-      for (const auto& track : tracks) starts.push_back(values[track.front().second]);
+      for (const Track& track : tracks) starts.push_back(values[track.front().second]);
       const double start_mean_square = mean_square(without_outliers(std::move(starts)));
       const double independent =
           std::max(std::sqrt(std::max(0.5 * intercept, 0.0)), 0.1 * robust_sigma(values));
@@ -304,7 +338,50 @@ class StereoErrors {
   }
 
   std::vector<double> u_left_, horizontal_, vertical_, disparity_, vertical_disparity_;
-  std::map<std::pair<LandmarkId, int>, std::size_t> index_;
+  TrackIndex index_;
+};
+
+/// Accumulates detections' errors as displacements in space (CalibrationReport::
+/// object_displacement): each in the world frame, with the rotation of its camera.
+class DisplacementErrors {
+ public:
+  void add(LandmarkId id, int frame, const Eigen::Vector3d& error_world,
+           const Eigen::Matrix3d& R_world_camera) {
+    errors_.push_back(error_world);
+    cameras_.push_back(R_world_camera);
+    index_[{id, frame}] = errors_.size() - 1;
+  }
+
+  DetectionDisplacement fit(const CalibrationOptions& options) const {
+    DetectionDisplacement out;
+    out.observations = static_cast<int>(errors_.size());
+    const std::vector<Track> tracks = split_tracks(index_, options.track_gap);
+    out.lags = walk_lags(tracks, options.offset_max_lag);
+    if (out.lags == 0) return out;
+    for (int axis = 0; axis < 3; ++axis) {
+      // A difference in the later camera's axes (the walk is along the newest camera's).
+      const auto difference = [&](std::size_t i, std::size_t j) {
+        return cameras_[j].col(axis).dot(errors_[j] - errors_[i]);
+      };
+      double intercept = 0.0, slope = 0.0;
+      if (!fit_walk(tracks, out.lags, difference, intercept, slope)) return out;
+      std::vector<double> starts;
+      for (const Track& track : tracks) {
+        const std::size_t first = track.front().second;
+        starts.push_back(cameras_[first].col(axis).dot(errors_[first]));
+      }
+      const double start_mean_square = mean_square(without_outliers(std::move(starts)));
+      out.walk(axis) = std::sqrt(std::max(slope, 0.0));
+      out.sigma(axis) = std::sqrt(std::max(start_mean_square - 0.5 * std::max(intercept, 0.0), 0.0));
+    }
+    out.tracks = static_cast<int>(tracks.size());
+    return out;
+  }
+
+ private:
+  std::vector<Eigen::Vector3d> errors_;
+  std::vector<Eigen::Matrix3d> cameras_;
+  TrackIndex index_;
 };
 
 std::string number(double value) {
@@ -324,6 +401,20 @@ std::string detector_model_keys(const StereoErrorSpread& spread) {
          ", disparity: " + number(s(2)) + ", vertical_disparity: 0}\n" +
          "object_offset_walk: {horizontal: " + number(w(0)) + ", vertical: " + number(w(1)) +
          ", disparity: " + number(w(2)) + ", vertical_disparity: 0}\n";
+}
+
+/// The three estimator keys of the detection-displacement model, uncommented: the image noise
+/// is the offset fit's independent part.
+std::string displacement_model_keys(const StereoErrorSpread& spread,
+                                    const DetectionDisplacement& displacement) {
+  const Eigen::Vector4d& i = spread.offset_independent;
+  const Eigen::Vector3d& s = displacement.sigma;
+  const Eigen::Vector3d& w = displacement.walk;
+  return "object_noise: {horizontal: " + number(i(0)) + ", vertical: " + number(i(1)) +
+         ", disparity: " + number(i(2)) + ", vertical_disparity: " + number(i(3)) + "}\n" +
+         "object_displacement_sigma: [" + number(s(0)) + ", " + number(s(1)) + ", " + number(s(2)) +
+         "]\n" + "object_displacement_walk: [" + number(w(0)) + ", " + number(w(1)) + ", " +
+         number(w(2)) + "]\n";
 }
 
 /// A flow sequence of a vector's entries, to four decimals (a config's body direction).
@@ -382,9 +473,13 @@ CalibrationReport calibrate(const dataset::Dataset& dataset, const CalibrationOp
   report.odometry_mean = sum / report.frames;
   report.odometry_rms = (squares / report.frames).cwiseSqrt();
 
-  // 2. Objects against the projected ground truth.
+  // 2. Objects against the projected ground truth; and, back-projected at the depth their
+  //    disparity gives (one stereo pair triangulated), against the true centre in space.
   StereoErrors objects;
+  DisplacementErrors displacements;
   for (int k = first; k < end; ++k) {
+    const Eigen::Matrix3d R_world_camera =
+        robot.groundtruth[k].linear() * camera.T_cam0_body.linear().transpose();
     for (const StereoObservation& observation : robot.objects[k]) {
       const auto truth = dataset.objects_groundtruth.find(observation.id);
       if (truth == dataset.objects_groundtruth.end()) continue;
@@ -392,9 +487,16 @@ CalibrationReport calibrate(const dataset::Dataset& dataset, const CalibrationOp
           UpdaterHelper::project(camera, robot.groundtruth[k], truth->second);
       if (!projection) continue;
       objects.add(observation.id, k, observation.uv - camera.denormalize(projection->xy));
+      const Eigen::Vector4d xy = camera.normalize(observation.uv);
+      if (!(xy(0) - xy(2) > 0.0)) continue;  // no depth: at or beyond infinity
+      const auto measured =
+          UpdaterHelper::triangulate(camera, {robot.groundtruth[k]}, {xy});
+      if (!measured) continue;
+      displacements.add(observation.id, k, *measured - truth->second, R_world_camera);
     }
   }
   report.objects = objects.spread(options);
+  report.object_displacement = displacements.fit(options);
 
   // 3. Point features against their tracks triangulated with the true poses; residuals of a
   //    fitted point are smaller than the noise by sqrt((4n - 3) / 4n), undone here.
@@ -492,21 +594,34 @@ CalibrationReport calibrate(const dataset::Dataset& dataset, const CalibrationOp
   return report;
 }
 
-std::string detector_model_yaml(const CalibrationReport& report,
-                                const CalibrationOptions& options) {
-  if (report.objects.offset_tracks == 0) {
+std::string detector_model_yaml(const CalibrationReport& report, const CalibrationOptions& options,
+                                DetectorModelKind kind) {
+  const bool displacement = kind == DetectorModelKind::kDisplacement;
+  const std::string segment = "robot " + std::to_string(options.robot) + "'s frames " +
+                              std::to_string(options.first_frame) + "-" +
+                              std::to_string(options.first_frame + options.frames - 1);
+  if (report.objects.offset_tracks == 0 ||
+      (displacement && report.object_displacement.tracks == 0)) {
     throw std::invalid_argument(
-        "calibrate: too few object tracks on robot " + std::to_string(options.robot) +
-        "'s frames " + std::to_string(options.first_frame) + "-" +
-        std::to_string(options.first_frame + options.frames - 1) +
-        " to fit the detection-offset model (each component needs 2 lags with 20 pairs)");
+        "calibrate: too few object tracks on " + segment + " to fit the detection-" +
+        (displacement ? "displacement" : "offset") +
+        " model (each component needs 2 lags with 20 pairs)");
   }
-  return "# The detector's error model, measured by concord calibrate on robot " +
-         std::to_string(options.robot) + ", frames " + std::to_string(options.first_frame) + "-" +
-         std::to_string(options.first_frame + options.frames - 1) + " (" +
-         std::to_string(report.objects.offset_tracks) + " object tracks, " +
-         std::to_string(report.objects.observations) +
-         " observations): an offset per (robot, object) that walks, plus independent noise\n"
+  const std::string head = "# The detector's error model, measured by concord calibrate on " +
+                           segment + " (" + std::to_string(report.objects.offset_tracks) +
+                           " object tracks, " + std::to_string(report.objects.observations) +
+                           " observations): ";
+  if (displacement) {
+    return head +
+           "a displacement in space per (robot, object) that walks (metres, camera axes x right, "
+           "y down, z forward), plus independent image noise\n# (docs/estimator.md, \"Detection "
+           "displacements\"); the walk fitted over lags 1-" +
+           std::to_string(report.object_displacement.lags) +
+           " frames. For concord frontend --detector-model.\n" +
+           displacement_model_keys(report.objects, report.object_displacement);
+  }
+  return head +
+         "an offset per (robot, object) that walks, plus independent noise\n"
          "# (docs/estimator.md, \"Detection offsets\"); the walk fitted over lags 1-" +
          std::to_string(report.objects.offset_lags) +
          " frames. For concord frontend --detector-model.\n" + detector_model_keys(report.objects);
@@ -586,11 +701,22 @@ std::string to_yaml(const CalibrationReport& report, const CalibrationOptions& o
     }
     text +=
         "# or, as an offset per (robot, object) that walks (docs/estimator.md, \"Detection "
-        "offsets\"; `concord calibrate --detector-model FILE` writes these three keys):\n";
-    std::string model = detector_model_keys(spread);
-    for (std::size_t at = 0; at < model.size(); at = model.find('\n', at) + 1)
-      model.insert(at, "# ");
-    text += model;
+        "offsets\"; `concord calibrate --detector-model FILE --detector-model-kind offset` "
+        "writes these three keys):\n";
+    const auto commented = [](std::string model) {
+      for (std::size_t at = 0; at < model.size(); at = model.find('\n', at) + 1)
+        model.insert(at, "# ");
+      return model;
+    };
+    text += commented(detector_model_keys(spread));
+    if (report.object_displacement.tracks == 0) {
+      text += "# (too few object tracks on this segment for the detection-displacement model)\n";
+      return;
+    }
+    text +=
+        "# or, as a displacement in space per (robot, object) that walks (docs/estimator.md, "
+        "\"Detection displacements\"; what `concord calibrate --detector-model FILE` writes):\n";
+    text += commented(displacement_model_keys(spread, report.object_displacement));
   };
   noise("object_noise", report.objects);
   noise("feature_noise", report.features);

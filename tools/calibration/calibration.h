@@ -84,6 +84,28 @@ struct StereoErrorSpread {
   int offset_lags = 0;
 };
 
+/// The detection error as a displacement in space (the estimator's object_displacement_sigma,
+/// object_displacement_walk; docs/estimator.md, "Detection displacements"): each object
+/// observation back-projected at the depth its disparity gives, less the true object centre,
+/// in the world frame. Along each track (split as for the offsets) it is a displacement of
+/// standard deviation `sigma` at the track's first observation, along that camera's x (right),
+/// y (down) and z (forward) axes, that walks by `walk` a frame along the newest camera's axes:
+/// the mean squares of the differences within tracks at lags 1 to `lags` (in the later
+/// camera's axes; each lag's beyond 3 robust sigmas left out, at least 20 kept) fitted by least
+/// squares as intercept + lag walk^2, and sigma^2 the mean square of the tracks' first
+/// displacements (beyond 3 robust sigmas left out) less half the intercept (the independent
+/// part, which the image noise object_noise models). Metres. tracks = 0 when some axis had fewer
+/// than 2 lags to fit. A box centre is a point of the object's visible side, off its centre by
+/// a vector that turns with the view: in the image its error grows as the robot nears the
+/// object (faster than any walk in pixels fits), in space it walks.
+struct DetectionDisplacement {
+  Eigen::Vector3d sigma = Eigen::Vector3d::Zero();
+  Eigen::Vector3d walk = Eigen::Vector3d::Zero();
+  int observations = 0;  ///< back-projected (a positive disparity)
+  int tracks = 0;
+  int lags = 0;
+};
+
 struct CalibrationReport {
   int frames = 0;  ///< odometry steps measured
   /// Odometry error xi = log(T_true_rel^-1 T_measured_rel) per frame: mean and RMS per axis of
@@ -95,6 +117,8 @@ struct CalibrationReport {
   /// Object detections against the ground-truth objects projected with the true poses (needs
   /// objects_gt.csv); observations = 0 when there are none.
   StereoErrorSpread objects;
+  /// The same detections' errors as a displacement in space (tracks = 0 when too few).
+  DetectionDisplacement object_displacement;
   /// Point features against their tracks triangulated with the true poses (tracks of at least
   /// 3 frames); observations = 0 when there are none.
   StereoErrorSpread features;
@@ -121,10 +145,17 @@ CalibrationReport calibrate(const dataset::Dataset& dataset, const CalibrationOp
 /// object and feature noise components.
 std::string to_yaml(const CalibrationReport& report, const CalibrationOptions& options);
 
-/// The detector's error model alone, as an estimator config fragment of three keys
-/// (object_noise, object_offset_sigma, object_offset_walk) with a comment naming the segment:
-/// what `concord frontend --detector-model` reads. Throws std::invalid_argument when the
-/// segment had too few object tracks to fit it (report.objects.offset_tracks == 0).
-std::string detector_model_yaml(const CalibrationReport& report, const CalibrationOptions& options);
+/// Which model of the detector's error detector_model_yaml writes.
+enum class DetectorModelKind {
+  kDisplacement,  ///< object_noise, object_displacement_sigma, object_displacement_walk
+  kImageOffset,   ///< object_noise, object_offset_sigma, object_offset_walk
+};
+
+/// The detector's error model alone, as an estimator config fragment of three keys with a
+/// comment naming the segment: what `concord frontend --detector-model` reads. object_noise is
+/// the independent part of the image-offset fit in both. Throws std::invalid_argument when the
+/// segment had too few object tracks to fit it (offset_tracks or the displacement's tracks 0).
+std::string detector_model_yaml(const CalibrationReport& report, const CalibrationOptions& options,
+                                DetectorModelKind kind = DetectorModelKind::kDisplacement);
 
 }  // namespace concord::calibration

@@ -84,6 +84,10 @@ struct ObjectLandmark {
   /// left x, y and subtracted from its disparity. It is this robot's own state: outputs,
   /// marginals and the world frame leave it out (State::objects, Consensus, reanchor).
   bool detection_offset = false;
+  /// With detection_offset: the offset is a displacement in space (object_displacement_sigma):
+  /// p_world holds d, metres in the world frame, and the detections are centred on the object's
+  /// position plus d. A change of world frame turns it (reanchor).
+  bool displacement = false;
 };
 
 class State {

@@ -70,7 +70,8 @@ struct FrontendRunOptions {
   std::vector<std::string> classes;
   /// The detector's error model (an estimator config fragment with the object noise keys only:
   /// object_noise, object_noise_constant, object_noise_persistent, object_noise_correlation,
-  /// object_offset_sigma, object_offset_walk, object_init_max_reprojection_error), e.g. what
+  /// object_offset_sigma, object_offset_walk, object_displacement_sigma,
+  /// object_displacement_walk, object_init_max_reprojection_error), e.g. what
   /// `concord calibrate --detector-model` measured on a calibration segment: written into
   /// estimator.yaml in place of the isotropic objects.detection_sigma, so that the dataset's
   /// config is the sensor's (camera and detector) whole. Empty: detection_sigma. Any other key
