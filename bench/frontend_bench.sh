@@ -77,10 +77,11 @@ for key, value in values.items():
 open(path, "w").write("# Written by bench/frontend_bench.sh: sim.yaml with the exact team's noise.\n" + text)
 PY
 
-run() {  # name dataset args...
+run() {  # name dataset args...: a replay, unless there and newer than its dataset's config
   local name=$1 dataset=$2
   shift 2
-  [ -f "$out/$name/metrics.json" ] && return 0
+  [ -f "$out/$name/metrics.json" ] && [ "$out/$name/metrics.json" -nt "$dataset/estimator.yaml" ] &&
+    return 0
   $concord replay --dataset "$dataset" --out "$out/$name" "$@" >"$out/$name.log" 2>&1
   echo "bench: $name" >&2
 }
@@ -89,10 +90,11 @@ run frontend-team-consensus "$frontend"
 
 # The detector's error model measured on a calibration rendering (another seed, one robot x 400
 # frames; never the reported team): the front-end's object observations against the truth,
-# fitted by `concord calibrate --detector-model` as an offset per (robot, object) that walks,
-# plus independent noise (docs/estimator.md, "Detection offsets"). The front-end then runs on
-# the team again with that model (--detector-model), which it writes into estimator.yaml: the
-# team is replayed with the front-end's config alone, one config for camera and detector.
+# fitted by `concord calibrate --detector-model` as a displacement in space per (robot, object)
+# that walks, plus independent image noise (docs/estimator.md, "Detection displacements"). The
+# front-end then runs on the team again with that model (--detector-model), which it writes into
+# estimator.yaml: the team is replayed with the front-end's config alone, one config for camera
+# and detector.
 calibration="$out/frontend-calibration-rendered"
 render "$calibration" 1 400 11
 calibration_frontend="$out/frontend-calibration"

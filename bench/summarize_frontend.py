@@ -172,27 +172,36 @@ print("The estimator config is the `estimator.yaml` that `concord frontend` wrot
       "tracks a frame of about the front-end's length) and `configs/sensors/sim.yaml` with that "
       "noise and the front-end's depth limit for point features.")
 print()
-def nees(name):
-    return teams[name]["average"]["pose_nees"]["mean"]
+def nees(name, kind="pose_nees"):
+    return teams[name]["average"][kind]["mean"]
+
+
+def object_nees(separate, consensus):
+    return f"{nees(separate, 'object_nees'):.1f} / {nees(consensus, 'object_nees'):.1f}"
 
 
 print("| team | odometry only m | separate m | consensus m | objects, consensus m | pose NEES "
-      "separate / consensus (6 = consistent) |")
-print("|---|---|---|---|---|---|")
+      "separate / consensus (6 = consistent) | object NEES separate / consensus (3 = consistent) |")
+print("|---|---|---|---|---|---|---|")
 print(f"| front-end (images), the estimator.yaml it wrote (objects: the detector's stated noise) | "
       f"{fe_odo:.4f} | {stated_sep:.4f} | {stated_con:.4f} | "
       f"{teams['team-consensus']['average']['object_error']:.3f} | "
-      f"{nees('team-separate'):.1f} / {nees('team-consensus'):.1f} |")
+      f"{nees('team-separate'):.1f} / {nees('team-consensus'):.1f} | "
+      f"{object_nees('team-separate', 'team-consensus')} |")
 print(f"| front-end (images), detection model from the calibration rendering | {fe_odo:.4f} | "
       f"{fe_sep:.4f} | {fe_con:.4f} | {teams['model-consensus']['average']['object_error']:.3f} | "
-      f"{nees('model-separate'):.1f} / {nees('model-consensus'):.1f} |")
+      f"{nees('model-separate'):.1f} / {nees('model-consensus'):.1f} | "
+      f"{object_nees('model-separate', 'model-consensus')} |")
 print(f"| simulator's exact tracks | {teams['exact-consensus']['average']['odometry_rmse']:.3f} | "
       f"{ex_sep:.4f} | {ex_con:.4f} | {teams['exact-consensus']['average']['object_error']:.4f} | "
-      f"{nees('exact-separate'):.1f} / {nees('exact-consensus'):.1f} |")
+      f"{nees('exact-separate'):.1f} / {nees('exact-consensus'):.1f} | "
+      f"{object_nees('exact-separate', 'exact-consensus')} |")
 print()
 print("The detection model (`concord calibrate --detector-model` on the front-end's observations "
       "of a calibration rendering, `concord sim --render --robots 1 --frames 400 --seed 11`, "
-      "against its truth; pixels), given to the front-end (`concord frontend --detector-model`), "
+      "against its truth: a displacement in space per (robot, object) that walks, metres along the "
+      "camera's axes, and independent image noise in pixels; docs/estimator.md, \"Detection "
+      "displacements\"), given to the front-end (`concord frontend --detector-model`), "
       "which writes it into the team's estimator.yaml:")
 print()
 print("```yaml")
