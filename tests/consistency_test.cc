@@ -1176,13 +1176,13 @@ TEST(Calibration, FitsADetectionDisplacementThatWalksInSpace) {
         for (int step = d.frame; step < now; ++step) d.value += R_world_camera * draw(walk);
       }
       d.frame = now;
-      const auto projection = UpdaterHelper::project(
-          data.camera, robot.groundtruth[frame],
-          data.objects_groundtruth.at(observation.id) + d.value);
+      const auto projection =
+          UpdaterHelper::project(data.camera, robot.groundtruth[frame],
+                                 data.objects_groundtruth.at(observation.id) + d.value);
       ASSERT_TRUE(projection);
-      observation.uv = data.camera.denormalize(projection->xy) +
-                       1e-4 * Eigen::Vector4d(normal(random), normal(random), normal(random),
-                                              normal(random));
+      observation.uv =
+          data.camera.denormalize(projection->xy) +
+          1e-4 * Eigen::Vector4d(normal(random), normal(random), normal(random), normal(random));
       ++observations;
     }
   }

@@ -788,7 +788,8 @@ int main(int argc, char** argv) {
       "--detector-model", detector_model_out,
       "Also write the detector's error model (object_noise and a displacement's or an image "
       "offset's sigma and walk) to FILE, for concord frontend --detector-model");
-  calibration::DetectorModelKind detector_model_kind = calibration::DetectorModelKind::kDisplacement;
+  calibration::DetectorModelKind detector_model_kind =
+      calibration::DetectorModelKind::kDisplacement;
   calibrate_command
       ->add_option("--detector-model-kind", detector_model_kind,
                    "The model --detector-model writes: displacement (in space, metres: "

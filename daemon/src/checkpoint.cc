@@ -95,8 +95,8 @@ std::string serialize_checkpoint(const Checkpoint& checkpoint) {
     // 0 active, 1 archived (consider), 2 a detection offset in the image, 3 a detection
     // displacement in space.
     w.put<std::uint8_t>(landmark.detection_offset ? (landmark.displacement ? 3 : 2)
-                        : landmark.archived     ? 1
-                                                : 0);
+                        : landmark.archived       ? 1
+                                                  : 0);
     w.put<std::uint32_t>(static_cast<std::uint32_t>(landmark.used_observations.size()));
     for (const TrackObservation& observation : landmark.used_observations) {
       w.put<std::int32_t>(observation.frame);

@@ -266,11 +266,15 @@ RobotRun run_sequence(const fs::path& folder, int robot, bool single,
 
 /// The object noise keys a detector model may set (FrontendRunOptions::detector_model).
 const std::set<std::string>& detector_model_keys() {
-  static const std::set<std::string> keys = {
-      "object_noise",           "object_noise_constant", "object_noise_persistent",
-      "object_noise_correlation", "object_offset_sigma", "object_offset_walk",
-      "object_displacement_sigma", "object_displacement_walk",
-      "object_init_max_reprojection_error"};
+  static const std::set<std::string> keys = {"object_noise",
+                                             "object_noise_constant",
+                                             "object_noise_persistent",
+                                             "object_noise_correlation",
+                                             "object_offset_sigma",
+                                             "object_offset_walk",
+                                             "object_displacement_sigma",
+                                             "object_displacement_walk",
+                                             "object_init_max_reprojection_error"};
   return keys;
 }
 

@@ -291,9 +291,8 @@ class StereoErrors {
       const std::vector<double>& values = *components[c];
       double intercept = 0.0, slope = 0.0;
       if (!fit_walk(
-              tracks, max_lag,
-              [&](std::size_t i, std::size_t j) { return values[j] - values[i]; }, intercept,
-              slope)) {
+              tracks, max_lag, [&](std::size_t i, std::size_t j) { return values[j] - values[i]; },
+              intercept, slope)) {
         out.offset_tracks = 0;
         return;
       }
@@ -372,7 +371,8 @@ class DisplacementErrors {
       }
       const double start_mean_square = mean_square(without_outliers(std::move(starts)));
       out.walk(axis) = std::sqrt(std::max(slope, 0.0));
-      out.sigma(axis) = std::sqrt(std::max(start_mean_square - 0.5 * std::max(intercept, 0.0), 0.0));
+      out.sigma(axis) =
+          std::sqrt(std::max(start_mean_square - 0.5 * std::max(intercept, 0.0), 0.0));
     }
     out.tracks = static_cast<int>(tracks.size());
     return out;
@@ -489,8 +489,7 @@ CalibrationReport calibrate(const dataset::Dataset& dataset, const CalibrationOp
       objects.add(observation.id, k, observation.uv - camera.denormalize(projection->xy));
       const Eigen::Vector4d xy = camera.normalize(observation.uv);
       if (!(xy(0) - xy(2) > 0.0)) continue;  // no depth: at or beyond infinity
-      const auto measured =
-          UpdaterHelper::triangulate(camera, {robot.groundtruth[k]}, {xy});
+      const auto measured = UpdaterHelper::triangulate(camera, {robot.groundtruth[k]}, {xy});
       if (!measured) continue;
       displacements.add(observation.id, k, *measured - truth->second, R_world_camera);
     }
@@ -602,10 +601,10 @@ std::string detector_model_yaml(const CalibrationReport& report, const Calibrati
                               std::to_string(options.first_frame + options.frames - 1);
   if (report.objects.offset_tracks == 0 ||
       (displacement && report.object_displacement.tracks == 0)) {
-    throw std::invalid_argument(
-        "calibrate: too few object tracks on " + segment + " to fit the detection-" +
-        (displacement ? "displacement" : "offset") +
-        " model (each component needs 2 lags with 20 pairs)");
+    throw std::invalid_argument("calibrate: too few object tracks on " + segment +
+                                " to fit the detection-" +
+                                (displacement ? "displacement" : "offset") +
+                                " model (each component needs 2 lags with 20 pairs)");
   }
   const std::string head = "# The detector's error model, measured by concord calibrate on " +
                            segment + " (" + std::to_string(report.objects.offset_tracks) +
