@@ -145,6 +145,20 @@ TEST(DaemonExchange, LockstepWithDetectionOffsetsReproducesTheReplay) {
             1e-6);
 }
 
+TEST(DaemonExchange, LockstepWithDetectionDisplacementsReproducesTheReplay) {
+  // The displacements in space (kitti00's calibration segment's fit) are each robot's own
+  // states like the image offsets: left out of the wire, moved by the fused objects' conditional.
+  EstimatorOptions options =
+      config::load_estimator_options(kSource / "configs/sensors/kitti-stereo.yaml");
+  options.object_noise_constant = StereoNoise::isotropic(0.0);
+  options.object_noise_persistent = StereoNoise::isotropic(0.0);
+  options.object_noise = {2.1, 0.37, 0.78, 0.74};
+  options.object_displacement_sigma = {1.24, 0.35, 7.95};
+  options.object_displacement_walk = {0.19, 0.03, 1.42};
+  ASSERT_TRUE(options.validate().empty());
+  expect_lockstep_reproduces_the_replay(options);
+}
+
 TEST(DaemonExchange, CompactEventTriggeredSharingReproducesTheReplayWithFewerBytes) {
   // consensus.share_kl_threshold, share_float32 and share_max_landmarks: each link sends only
   // the landmarks that moved since it last carried them, at most 4 a robot and round (2 a
