@@ -999,6 +999,14 @@ TEST(Calibration, RecoversTheSimulatorsNoise) {
 
 /// One simulated robot's 400 frames of object observations with next to no noise (no point
 /// features): the detection errors are the test's to add.
+/// Three independent zero-mean Gaussians of standard deviations `sigma` (from `normal`, a
+/// standard one).
+Eigen::Vector3d gaussian3(const Eigen::Vector3d& sigma, std::normal_distribution<double>& normal,
+                          std::mt19937& random) {
+  return Eigen::Vector3d(sigma[0] * normal(random), sigma[1] * normal(random),
+                         sigma[2] * normal(random));
+}
+
 dataset::Dataset objects_of_one_robot() {
   sim::SimulationOptions simulation;
   simulation.robots = 1;
@@ -1082,9 +1090,7 @@ TEST(Calibration, FitsADetectionOffsetThatWalksAlongEachTrack) {
   const Eigen::Vector3d independent(0.002, 0.001, 0.0008);
   std::mt19937 random(9);
   std::normal_distribution<double> normal(0.0, 1.0);
-  const auto draw = [&](const Eigen::Vector3d& s) {
-    return Eigen::Vector3d(s[0] * normal(random), s[1] * normal(random), s[2] * normal(random));
-  };
+  const auto draw = [&](const Eigen::Vector3d& s) { return gaussian3(s, normal, random); };
   struct Offset {
     int frame = -100;
     Eigen::Vector3d value;
@@ -1154,9 +1160,7 @@ TEST(Calibration, FitsADetectionDisplacementThatWalksInSpace) {
   const Eigen::Vector3d walk(0.010, 0.005, 0.020);
   std::mt19937 random(21);
   std::normal_distribution<double> normal(0.0, 1.0);
-  const auto draw = [&](const Eigen::Vector3d& s) {
-    return Eigen::Vector3d(s[0] * normal(random), s[1] * normal(random), s[2] * normal(random));
-  };
+  const auto draw = [&](const Eigen::Vector3d& s) { return gaussian3(s, normal, random); };
   struct Displacement {
     int frame = -100;
     Eigen::Vector3d value;  // world frame
@@ -1231,9 +1235,7 @@ TEST(Calibration, FitsTheOffsetsWalkToTheDriftOverTheTracksSpan) {
   const Eigen::Vector3d independent(0.0005, 0.0003, 0.0002);
   std::mt19937 random(13);
   std::normal_distribution<double> normal(0.0, 1.0);
-  const auto draw = [&](const Eigen::Vector3d& s) {
-    return Eigen::Vector3d(s[0] * normal(random), s[1] * normal(random), s[2] * normal(random));
-  };
+  const auto draw = [&](const Eigen::Vector3d& s) { return gaussian3(s, normal, random); };
   struct Track {
     int start = 0;
     int last = -100;

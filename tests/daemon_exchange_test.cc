@@ -119,13 +119,19 @@ TEST(DaemonExchange, LockstepReproducesTheReplay) {
       config::load_estimator_options(kSource / "configs/sensors/kitti-stereo.yaml"));
 }
 
-TEST(DaemonExchange, LockstepWithDetectionOffsetsReproducesTheReplay) {
-  // Each robot's detection offsets are its own states: the marginals on the wire leave them
-  // out, and the conditional of each fused object moves them the same way in both.
+/// kitti-stereo.yaml without its persistent detection model (for another model of that error).
+EstimatorOptions kitti_without_persistent_detection_error() {
   EstimatorOptions options =
       config::load_estimator_options(kSource / "configs/sensors/kitti-stereo.yaml");
   options.object_noise_constant = StereoNoise::isotropic(0.0);
   options.object_noise_persistent = StereoNoise::isotropic(0.0);
+  return options;
+}
+
+TEST(DaemonExchange, LockstepWithDetectionOffsetsReproducesTheReplay) {
+  // Each robot's detection offsets are its own states: the marginals on the wire leave them
+  // out, and the conditional of each fused object moves them the same way in both.
+  EstimatorOptions options = kitti_without_persistent_detection_error();
   options.object_offset_sigma = {15.0, 7.5, 1.5, 0.0};
   options.object_offset_walk = {4.6, 0.6, 0.5, 0.0};
   ASSERT_TRUE(options.validate().empty());
@@ -148,10 +154,7 @@ TEST(DaemonExchange, LockstepWithDetectionOffsetsReproducesTheReplay) {
 TEST(DaemonExchange, LockstepWithDetectionDisplacementsReproducesTheReplay) {
   // The displacements in space (kitti00's calibration segment's fit) are each robot's own
   // states like the image offsets: left out of the wire, moved by the fused objects' conditional.
-  EstimatorOptions options =
-      config::load_estimator_options(kSource / "configs/sensors/kitti-stereo.yaml");
-  options.object_noise_constant = StereoNoise::isotropic(0.0);
-  options.object_noise_persistent = StereoNoise::isotropic(0.0);
+  EstimatorOptions options = kitti_without_persistent_detection_error();
   options.object_noise = {2.1, 0.37, 0.78, 0.74};
   options.object_displacement_sigma = {1.24, 0.35, 7.95};
   options.object_displacement_walk = {0.19, 0.03, 1.42};
