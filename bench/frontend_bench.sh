@@ -4,7 +4,9 @@
 #  1. Rendered sequences (concord sim --render: 3 robots x 300 frames, 752x480, seed 1): the
 #     front-end's visual odometry drift and track reprojection error against the exact ground
 #     truth (concord frontend-eval); the team replayed from the front-end's own outputs
-#     (separate, consensus, odometry only) and from the simulator's exact tracks.
+#     (separate, consensus, odometry only) and from the simulator's exact tracks; and four
+#     other rendered teams (FRONTEND_TEAMS: seeds 2, 7, 17, 23 of 2-5 robots) through the same
+#     front-end and detector model, separate and consensus.
 #  2. The real EuRoC V1_01 frames (../shared/datasets/euroc-v101-static, 40 pairs): stereo tracks
 #     a frame and odometry drift over the 40 frames.
 #  3. Speed: milliseconds a frame on one core (OpenCV single-threaded), p50 and p99, on the
@@ -168,6 +170,20 @@ if [ ! -f "$euroc_out/frontend_eval.json" ]; then
   $concord frontend-eval --dataset "$euroc_out" >>"$out/frontend-euroc.log" 2>&1
   echo "bench: EuRoC" >&2
 fi
+
+# Other rendered teams (seeds, sizes and lengths used to build nothing; FRONTEND_TEAMS, a list
+# of seed:robots:frames, "" for none): the front-end with the calibration rendering's detector
+# model, replayed with the estimator.yaml it wrote alone, separate and consensus.
+for team in ${FRONTEND_TEAMS-2:3:300 7:2:300 17:5:150 23:4:100}; do
+  IFS=: read -r seed robots frames <<<"$team"
+  other_rendered="$out/frontend-rendered-s$seed"
+  render "$other_rendered" "$robots" "$frames" "$seed"
+  other="$out/frontend-model-tracks-s$seed"
+  [ "$detection_model" -nt "$other/frontend.json" ] && rm -rf "$other"
+  frontend_of "$other_rendered" "$other" "sim-render-s$seed" --detector-model "$detection_model"
+  run "frontend-s$seed-separate" "$other" --separate
+  run "frontend-s$seed-consensus" "$other"
+done
 
 # Speed: each rendered robot's sequence again, alone, SPEED_RUNS times (default 3, robots
 # alternating); the speed table quotes the median over the runs (the machine is shared: one run's

@@ -226,6 +226,37 @@ for label, name in (("front-end tracks, simulator's objects", "fe-tracks"),
           f"{swap[name + '-consensus']['trajectory_rmse']:.4f} | "
           f"{swap[name + '-consensus']['object_error']:.4f} |")
 print()
+others = []
+for name in sorted(os.listdir(out)):
+    match = re.fullmatch(r"frontend-s(\d+)-consensus", name)
+    if match and os.path.exists(os.path.join(out, name, "metrics.json")) and os.path.exists(
+            os.path.join(out, f"frontend-s{match.group(1)}-separate", "metrics.json")):
+        others.append(int(match.group(1)))
+if others:
+    print("### Other rendered teams")
+    print()
+    print("Teams of other seeds, sizes and lengths (`concord sim --render`, the bench's settings; "
+          "none was used to build or set anything), through the front-end with the same detector "
+          "model and replayed with the estimator.yaml it wrote alone (`FRONTEND_TEAMS`):")
+    print()
+    print("| seed | robots x frames | odometry only m | separate m | consensus m | objects separate "
+          "/ consensus m | pose NEES separate / consensus | object NEES separate / consensus |")
+    print("|---|---|---|---|---|---|---|---|")
+    wins = 0
+    for seed in sorted(others):
+        s = load(f"frontend-s{seed}-separate", "metrics.json")
+        c = load(f"frontend-s{seed}-consensus", "metrics.json")
+        sa, ca = s["average"], c["average"]
+        wins += ca["trajectory_rmse"] < sa["trajectory_rmse"]
+        print(f"| {seed} | {len(c['robots'])} x {c['robots'][0]['frames']} | "
+              f"{ca['odometry_rmse']:.4f} | {sa['trajectory_rmse']:.4f} | "
+              f"{ca['trajectory_rmse']:.4f} | {sa['object_error']:.3f} / {ca['object_error']:.3f} | "
+              f"{sa['pose_nees']['mean']:.1f} / {ca['pose_nees']['mean']:.1f} | "
+              f"{sa['object_nees']['mean']:.1f} / {ca['object_nees']['mean']:.1f} |")
+    print()
+    print(f"Consensus beats separate on trajectory on {wins} of {len(others)} of these teams "
+          "(docs/frontend.md, \"The displacement in space\", says what limits it).")
+    print()
 print("## EuRoC V1_01 (40 real stereo pairs, the vehicle standing still)")
 print()
 print(f"{euroc['tracks_per_frame']:.1f} stereo tracks a frame on average ({euroc['min_tracks']} at "
