@@ -47,6 +47,8 @@ EstimatorOptions unusual_options() {
   options.level_up_axis = {-1.0 / 30.0, 0.1 + 0.2, 1.0 - 1.0 / 7.0};
   options.use_objects = false;
   options.object_noise = {4.2, 1.0 / 3.0, 0.7, 0.05};
+  options.object_displacement_sigma = {0.1 / 3.0, 0.01, 2.0 / 7.0};
+  options.object_displacement_walk = {1e-3 / 3.0, 0.0, 0.1 + 0.2};
   options.object_min_observations = 5;
   options.object_min_distance = 1.0 / 7.0;
   options.object_max_distance = 123.456;
@@ -84,6 +86,8 @@ void expect_same_options(const EstimatorOptions& actual, const EstimatorOptions&
   EXPECT_EQ(actual.object_noise.vertical, expected.object_noise.vertical);
   EXPECT_EQ(actual.object_noise.disparity, expected.object_noise.disparity);
   EXPECT_EQ(actual.object_noise.vertical_disparity, expected.object_noise.vertical_disparity);
+  EXPECT_EQ(actual.object_displacement_sigma, expected.object_displacement_sigma);
+  EXPECT_EQ(actual.object_displacement_walk, expected.object_displacement_walk);
   EXPECT_EQ(actual.object_min_observations, expected.object_min_observations);
   EXPECT_EQ(actual.object_min_distance, expected.object_min_distance);
   EXPECT_EQ(actual.object_max_distance, expected.object_max_distance);
@@ -232,6 +236,18 @@ TEST(OptionsFileTest, LevelUpAxisIsANamedAxisOrAVector) {
               HasSubstr("level_up_axis[1] = 'x': expected a number"));
   EXPECT_THAT(config_error_message("level_up_axis: [0, 0, 0]\n"),
               HasSubstr("level_up_axis = [0, 0, 0]: must be a body direction of about unit length"));
+}
+
+TEST(OptionsFileTest, DisplacementSigmasAreThreeNumbersNotAnAxis) {
+  EXPECT_EQ(
+      parse_estimator_options("object_displacement_sigma: [0.02, 0.01, 0.06]\n", "three")
+          .object_displacement_sigma,
+      (std::array<double, 3>{0.02, 0.01, 0.06}));
+  // A named axis is a direction, not three standard deviations.
+  EXPECT_THAT(config_error_message("object_displacement_sigma: +z\n"),
+              HasSubstr("object_displacement_sigma = '+z': expected a sequence of 3 numbers"));
+  EXPECT_THAT(config_error_message("object_displacement_walk: [0.01, 0.02]\n"),
+              HasSubstr("object_displacement_walk = a sequence: expected a sequence of 3 numbers"));
 }
 
 TEST(OptionsFileTest, InvalidValueIsAnError) {

@@ -154,11 +154,14 @@ void read_node(YamlSection& section, const YAML::Node& node, const std::string& 
   if (all_read) field = values;
 }
 
-/// A body direction: a named axis ("+z") or a sequence of three numbers.
+/// Three numbers; for a body direction (a key ending in "_axis") also a named axis ("+z").
 void read_node(YamlSection& section, const YAML::Node& node, const std::string& key,
                std::array<double, 3>& field) {
-  const std::string expected = "+x, -x, +y, -y, +z, -z or a sequence [x, y, z]";
+  const bool direction = key.size() >= 5 && key.compare(key.size() - 5, 5, "_axis") == 0;
+  const std::string expected = direction ? "+x, -x, +y, -y, +z, -z or a sequence [x, y, z]"
+                                         : "a sequence of 3 numbers";
   if (node.IsScalar()) {
+    if (!direction) return section.problem(node, key, expected);
     std::string name;
     if (!section.read_value(node, key, name, expected)) return;
     const std::array<double, 3> axis = body_axis_vector(name);
