@@ -239,10 +239,9 @@ TEST(OptionsFileTest, LevelUpAxisIsANamedAxisOrAVector) {
 }
 
 TEST(OptionsFileTest, DisplacementSigmasAreThreeNumbersNotAnAxis) {
-  EXPECT_EQ(
-      parse_estimator_options("object_displacement_sigma: [0.02, 0.01, 0.06]\n", "three")
-          .object_displacement_sigma,
-      (std::array<double, 3>{0.02, 0.01, 0.06}));
+  EXPECT_EQ(parse_estimator_options("object_displacement_sigma: [0.02, 0.01, 0.06]\n", "three")
+                .object_displacement_sigma,
+            (std::array<double, 3>{0.02, 0.01, 0.06}));
   // A named axis is a direction, not three standard deviations.
   EXPECT_THAT(config_error_message("object_displacement_sigma: +z\n"),
               HasSubstr("object_displacement_sigma = '+z': expected a sequence of 3 numbers"));

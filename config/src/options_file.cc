@@ -158,8 +158,8 @@ void read_node(YamlSection& section, const YAML::Node& node, const std::string& 
 void read_node(YamlSection& section, const YAML::Node& node, const std::string& key,
                std::array<double, 3>& field) {
   const bool direction = key.size() >= 5 && key.compare(key.size() - 5, 5, "_axis") == 0;
-  const std::string expected = direction ? "+x, -x, +y, -y, +z, -z or a sequence [x, y, z]"
-                                         : "a sequence of 3 numbers";
+  const std::string expected =
+      direction ? "+x, -x, +y, -y, +z, -z or a sequence [x, y, z]" : "a sequence of 3 numbers";
   if (node.IsScalar()) {
     if (!direction) return section.problem(node, key, expected);
     std::string name;
