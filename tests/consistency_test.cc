@@ -1402,5 +1402,66 @@ TEST(ConfigOverrides, SetKeysOverTheConfigAndNameBadEntries) {
   }
 }
 
+/// How far the start pose (the window's oldest pose, frame 0) and the newest pose move when a
+/// neighbour's marginal of the one object says it is 5 cm to the side, for a robot that has seen
+/// it for 10 frames from a start of the given uncertainty.
+struct ConsensusMoves {
+  double start = 0.0;           ///< metres
+  double start_rotation = 0.0;  ///< radians
+  double newest = 0.0;          ///< metres
+};
+ConsensusMoves consensus_moves(double initial_sigma) {
+  const StereoCamera camera = testing::kitti_like_camera();
+  EstimatorOptions options;
+  options.use_point_features = false;
+  options.odometry_translation_sigma = 0.01;
+  options.odometry_rotation_sigma = 0.001;
+  options.object_min_distance = 1.0;
+  options.object_max_distance = 100.0;
+  if (initial_sigma > 0.0) {
+    options.initial_position_sigma = initial_sigma;
+    options.initial_rotation_sigma = initial_sigma;
+  }
+  const Eigen::Vector3d p_object(26.0, 4.0, 0.5);
+  Estimator estimator(options, camera, Eigen::Isometry3d::Identity());
+  Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d step = Eigen::Isometry3d::Identity();
+  step.translation() = Eigen::Vector3d(0.5, 0.0, 0.0);
+  for (int frame = 0; frame < 10; ++frame) {
+    FrameInput input = testing::straight_drive_frame(frame, step, pose);
+    input.objects.push_back(
+        {7, camera.denormalize(UpdaterHelper::project(camera, pose, p_object)->xy)});
+    estimator.process(input);
+  }
+  EXPECT_EQ(estimator.state().poses.front().frame, 0);
+  const std::vector<ObjectEstimate> objects = estimator.objects();
+  EXPECT_EQ(objects.size(), 1u);
+  if (objects.size() != 1) return {};
+  const Eigen::Isometry3d start = estimator.state().poses.front().T_world_body;
+  const Eigen::Isometry3d newest = estimator.current_pose();
+  WeightedMarginal neighbour;
+  neighbour.weight = 0.5;
+  neighbour.marginal = Marginal({7}, objects[0].p_world + Eigen::Vector3d(0.0, 0.05, 0.0),
+                                objects[0].covariance);
+  estimator.fuse({neighbour});
+  const Eigen::Isometry3d start_after = estimator.state().poses.front().T_world_body;
+  return {(start_after.translation() - start.translation()).norm(),
+          Eigen::AngleAxisd(start.linear().transpose() * start_after.linear()).angle(),
+          (estimator.current_pose().translation() - newest.translation()).norm()};
+}
+
+TEST(StartPose, AGivenStartIsExactByDefaultSoConsensusMovesTheDriftNotTheFrame) {
+  // By default the start the filter is given defines its frame: the neighbour's object moves the
+  // robot's drifted newest pose, and not its start.
+  const ConsensusMoves exact = consensus_moves(0.0);
+  EXPECT_LT(exact.start, 1e-5);
+  EXPECT_LT(exact.start_rotation, 1e-5);
+  EXPECT_GT(exact.newest, 1e-3);
+  // With an uncertain start (1 mm, 1 mrad: a surveyed start) the same step moves the whole frame,
+  // the start included, as the prior allows.
+  const ConsensusMoves uncertain = consensus_moves(1e-3);
+  EXPECT_GT(uncertain.start_rotation, 1e-4);
+}
+
 }  // namespace
 }  // namespace concord

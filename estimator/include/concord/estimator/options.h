@@ -80,10 +80,16 @@ struct EstimatorOptions {
   /// window_size: c, the number of body poses kept in the sliding window (eq. 18).
   int window_size = 20;
 
-  /// initial_position_sigma / initial_rotation_sigma: standard deviation of the known start pose
-  /// (metres, radians).
-  double initial_position_sigma = 1e-3;
-  double initial_rotation_sigma = 1e-3;
+  /// initial_position_sigma / initial_rotation_sigma: standard deviation of the start pose the
+  /// filter is given (metres, radians). The default (1e-6) takes it as exact: a robot's start
+  /// pose defines its frame (its own start, or a known start in the team's world frame, as in
+  /// every simulated, rendered and KITTI set). Set them to what a deployment knows of its start
+  /// (a surveyed start line: centimetres) when the start is uncertain in the team's frame: the
+  /// filter, and through the objects the consensus, may then move the robot's whole frame.
+  /// A prior larger than the start's actual error is no harmless padding: consensus reads the
+  /// objects' noise as evidence against it (docs/estimator.md, "The start pose").
+  double initial_position_sigma = 1e-6;
+  double initial_rotation_sigma = 1e-6;
 
   /// odometry_translation_sigma / odometry_rotation_sigma: per-frame standard deviation of the
   /// odometry right perturbation, W of eq. (23) (metres, radians), per axis.
