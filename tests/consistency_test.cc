@@ -1441,8 +1441,8 @@ ConsensusMoves consensus_moves(double initial_sigma) {
   const Eigen::Isometry3d newest = estimator.current_pose();
   WeightedMarginal neighbour;
   neighbour.weight = 0.5;
-  neighbour.marginal = Marginal({7}, objects[0].p_world + Eigen::Vector3d(0.0, 0.05, 0.0),
-                                objects[0].covariance);
+  neighbour.marginal =
+      Marginal({7}, objects[0].p_world + Eigen::Vector3d(0.0, 0.05, 0.0), objects[0].covariance);
   estimator.fuse({neighbour});
   const Eigen::Isometry3d start_after = estimator.state().poses.front().T_world_body;
   return {(start_after.translation() - start.translation()).norm(),
