@@ -79,11 +79,16 @@ for key, value in values.items():
 open(path, "w").write("# Written by bench/frontend_bench.sh: sim.yaml with the exact team's noise.\n" + text)
 PY
 
-run() {  # name dataset args...: a replay, unless there and newer than its dataset's config
+run() {  # name dataset args...: a replay, unless there and newer than the config it reads
   local name=$1 dataset=$2
   shift 2
-  [ -f "$out/$name/metrics.json" ] && [ "$out/$name/metrics.json" -nt "$dataset/estimator.yaml" ] &&
-    return 0
+  local config="$dataset/estimator.yaml" previous=""
+  for argument in "$@"; do  # --config FILE replaces the dataset's
+    [ "$previous" = --config ] && config=$argument
+    previous=$argument
+  done
+  [ -f "$out/$name/metrics.json" ] && [ "$out/$name/metrics.json" -nt "$config" ] &&
+    [ "$out/$name/metrics.json" -nt "$concord" ] && return 0
   $concord replay --dataset "$dataset" --out "$out/$name" "$@" >"$out/$name.log" 2>&1
   echo "bench: $name" >&2
 }

@@ -255,7 +255,8 @@ if others:
               f"{sa['object_nees']['mean']:.1f} / {ca['object_nees']['mean']:.1f} |")
     print()
     print(f"Consensus beats separate on trajectory on {wins} of {len(others)} of these teams "
-          "(docs/frontend.md, \"The displacement in space\", says what limits it).")
+          "(docs/frontend.md, \"The start prior, found\", says what was in its way and what "
+          "is left).")
     print()
 print("## EuRoC V1_01 (40 real stereo pairs, the vehicle standing still)")
 print()
