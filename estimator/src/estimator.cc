@@ -98,11 +98,9 @@ Estimator::Estimator(const EstimatorOptions& options, const StereoCamera& camera
   }
   for (const ObjectLandmark& landmark : state_.landmarks) {
     if (!landmark.detection_offset) continue;
-    const bool displacement = options_.object_displacement_sigma != std::array<double, 3>{};
-    const bool offset = options_.object_offset_sigma.horizontal > 0.0 ||
-                        options_.object_offset_sigma.vertical > 0.0 ||
-                        options_.object_offset_sigma.disparity > 0.0;
-    if (landmark.displacement ? !displacement : !offset) {
+    using Kind = EstimatorOptions::DetectionErrorState;
+    if (options_.detection_error_state() !=
+        (landmark.displacement ? Kind::kDisplacement : Kind::kImageOffset)) {
       throw std::invalid_argument(
           std::string("Estimator: the state holds a detection ") +
           (landmark.displacement ? "displacement (object_displacement_sigma)"

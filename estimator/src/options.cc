@@ -96,6 +96,18 @@ std::array<double, 3> body_axis_vector(const std::string& axis) {
   return out;
 }
 
+EstimatorOptions::DetectionErrorState EstimatorOptions::detection_error_state() const {
+  if (object_displacement_sigma[0] > 0.0 || object_displacement_sigma[1] > 0.0 ||
+      object_displacement_sigma[2] > 0.0) {
+    return DetectionErrorState::kDisplacement;
+  }
+  if (object_offset_sigma.horizontal > 0.0 || object_offset_sigma.vertical > 0.0 ||
+      object_offset_sigma.disparity > 0.0) {
+    return DetectionErrorState::kImageOffset;
+  }
+  return DetectionErrorState::kNone;
+}
+
 std::vector<std::string> EstimatorOptions::validate() const {
   Problems problems;
   problems.check_at_least("window_size", window_size, 2);

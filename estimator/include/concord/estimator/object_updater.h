@@ -62,7 +62,9 @@ class ObjectUpdater {
   /// its prior and walk are turned from the newest camera's axes into the world's, and its
   /// Jacobian on a track's rows is the object's own (H_point), its value taken out of the
   /// residuals through it (first order: a displacement is small against the object's depth).
-  bool has_offsets() const { return offset_prior_.squaredNorm() > 0.0 || displacement_; }
+  bool has_offsets() const {
+    return options_.detection_error_state() != EstimatorOptions::DetectionErrorState::kNone;
+  }
   void walk_offsets(State& state) const;
   int add_offset(State& state, LandmarkId id, int frame, ObjectUpdateStats& stats) const;
   void apply_offset(const State& state, int offset_slot, LinearizedTrack& linearized) const;

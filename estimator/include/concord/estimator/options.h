@@ -250,6 +250,12 @@ struct EstimatorOptions {
 
   /// Every problem with the values, each naming the key and the bad value; empty when valid.
   std::vector<std::string> validate() const;
+
+  /// Which state, if any, the options give each (robot, object) for the detector's error: an
+  /// image offset (object_offset_sigma with a horizontal, vertical or disparity part), a
+  /// displacement in space (object_displacement_sigma), or none. validate() refuses both.
+  enum class DetectionErrorState { kNone, kImageOffset, kDisplacement };
+  DetectionErrorState detection_error_state() const;
 };
 
 /// The unit vector of a body axis named "+x", "-x", "+y", "-y", "+z" or "-z"; zero for
