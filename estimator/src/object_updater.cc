@@ -37,8 +37,8 @@ ObjectUpdater::ObjectUpdater(const EstimatorOptions& options, const StereoCamera
   const auto& walk = options.object_displacement_walk;
   displacement_prior_ = Eigen::Vector3d(sigma[0], sigma[1], sigma[2]).cwiseAbs2();
   displacement_walk_ = Eigen::Vector3d(walk[0], walk[1], walk[2]).cwiseAbs2();
-  displacement_ = options.detection_error_state() ==
-                  EstimatorOptions::DetectionErrorState::kDisplacement;
+  displacement_ =
+      options.detection_error_state() == EstimatorOptions::DetectionErrorState::kDisplacement;
 }
 
 Eigen::Matrix3d ObjectUpdater::newest_camera_to_world(const State& state,
