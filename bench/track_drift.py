@@ -1,12 +1,17 @@
 #!/usr/bin/env python3
 """How a front-end's point tracks err along a track, against the ground truth (diagnosis).
 
-Usage: bench/track_drift.py DATASET [ROBOT] [--min-length N]
+Usage: bench/track_drift.py DATASET [ROBOT] [--min-length N] [--world WORLD_CSV]
 
 Each track of at least N observations (default 8) in DATASET/robot_NN/features.csv is
 triangulated (Gauss-Newton on its stereo reprojections) in the true camera poses
 (groundtruth.kitti, the left camera in the front-end's datasets), and its residuals are read by
-position along the track. Printed per image coordinate (u, v of the left and right images):
+position along the track. With --world (the world.csv of a `concord sim --render` team, in the
+poses' frame) the point is instead the world's surface where the ray of the track's first left
+observation meets it, and the errors are against that true point: nothing is absorbed by a
+triangulation (the first left observation's error is zero by construction, and the right
+image's first error is the stereo match's). Printed per image coordinate (u, v of the left and
+right images):
 - the residuals' autocorrelation at lags 1, 2, 3 and 5 within tracks;
 - their RMS by position along the track (a U shape is a drift the triangulation half absorbs);
 - the spread over tracks of each track's least-squares slope (pixels a frame): a track's drift.
@@ -39,6 +44,7 @@ def main():
     parser.add_argument("dataset")
     parser.add_argument("robot", nargs="?", type=int, default=0)
     parser.add_argument("--min-length", type=int, default=8)
+    parser.add_argument("--world", help="world.csv of the rendered team (faces: corner, u, v)")
     args = parser.parse_args()
     camera = json.load(open(f"{args.dataset}/dataset.json"))["camera"]
     K = np.array(camera["K"])
@@ -57,11 +63,50 @@ def main():
         return np.array([fx * x / z + cx, fy * y / z + cy, fx * (x - baseline) / z + cx,
                          fy * y / z + cy])
 
+    faces = None
+    if args.world:
+        rows = list(csv.reader(open(args.world)))[1:]
+        faces = np.array([[float(x) for x in row[1:10]] for row in rows])
+
+    def cast(origin, direction):  # nearest face hit by the ray, or None
+        corner, edge_u, edge_v = faces[:, 0:3], faces[:, 3:6], faces[:, 6:9]
+        normal = np.cross(edge_u, edge_v)
+        denominator = normal @ direction
+        valid = np.abs(denominator) > 1e-12
+        t = np.where(valid, ((corner - origin) * normal).sum(1) / np.where(valid, denominator, 1.0),
+                     np.inf)
+        w = origin + t[:, None] * direction - corner
+        uu, vv, uv = (edge_u**2).sum(1), (edge_v**2).sum(1), (edge_u * edge_v).sum(1)
+        wu, wv = (w * edge_u).sum(1), (w * edge_v).sum(1)
+        det = np.where(uu * vv - uv * uv == 0.0, 1.0, uu * vv - uv * uv)
+        a, c = (wu * vv - wv * uv) / det, (wv * uu - wu * uv) / det
+        hit = valid & (t > 0.05) & (a >= 0) & (a <= 1) & (c >= 0) & (c <= 1)
+        if not hit.any():
+            return None
+        return origin + np.min(np.where(hit, t, np.inf)) * direction
+
     sequences = []
     for observations in tracks.values():
         if len(observations) < args.min_length:
             continue
         first_frame, uv = observations[0]
+        if faces is not None:
+            pose = world_camera[first_frame]
+            ray = pose[:3, :3] @ np.array([(uv[0] - cx) / fx, (uv[1] - cy) / fy, 1.0])
+            point = cast(pose[:3, 3], ray / np.linalg.norm(ray))
+            if point is None:
+                continue
+            errors = []
+            for frame, uv in observations:
+                T = camera_world[frame]
+                q = T[:3, :3] @ point + T[:3, 3]
+                if q[2] < 0.1:
+                    break
+                errors.append(uv - project(q))
+            errors = np.array(errors)
+            if len(errors) >= args.min_length and np.abs(errors).max() <= 3.0:
+                sequences.append(errors)
+            continue
         disparity = uv[0] - uv[2]
         if disparity <= 0.5:
             continue
@@ -92,7 +137,9 @@ def main():
                               for f, uv in observations])
         if np.abs(residuals).max() <= 2.0:
             sequences.append(residuals)
-    print(f"{folder}: {len(sequences)} tracks of at least {args.min_length} observations")
+    against = "the world's true points" if faces is not None else "their triangulation"
+    print(f"{folder}: {len(sequences)} tracks of at least {args.min_length} observations, "
+          f"against {against}")
     if not sequences:
         return
     longest = max(len(r) for r in sequences)
