@@ -1404,7 +1404,8 @@ TEST(ConfigOverrides, SetKeysOverTheConfigAndNameBadEntries) {
 
 /// How far the start pose (the window's oldest pose, frame 0) and the newest pose move when a
 /// neighbour's marginal of the one object says it is 5 cm to the side, for a robot that has seen
-/// it for 10 frames from a start of the given uncertainty.
+/// it for 10 frames from a start of the given uncertainty (metres and radians; 0: the options'
+/// default).
 struct ConsensusMoves {
   double start = 0.0;           ///< metres
   double start_rotation = 0.0;  ///< radians
