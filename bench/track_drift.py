@@ -39,6 +39,29 @@ def load_poses(path):
     return poses
 
 
+def world_caster(world_csv):
+    """A function (origin, unit direction) -> the nearest point where the ray meets one of the
+    rendered world's faces (world.csv: corner, edge u, edge v), or None."""
+    faces = np.array([[float(x) for x in row[1:10]] for row in list(csv.reader(open(world_csv)))[1:]])
+    corner, edge_u, edge_v = faces[:, 0:3], faces[:, 3:6], faces[:, 6:9]
+    normal = np.cross(edge_u, edge_v)
+    uu, vv, uv = (edge_u**2).sum(1), (edge_v**2).sum(1), (edge_u * edge_v).sum(1)
+    det = np.where(uu * vv - uv * uv == 0.0, 1.0, uu * vv - uv * uv)
+
+    def cast(origin, direction):
+        denominator = normal @ direction
+        valid = np.abs(denominator) > 1e-12
+        t = np.where(valid, ((corner - origin) * normal).sum(1) / np.where(valid, denominator, 1.0),
+                     np.inf)
+        w = origin + t[:, None] * direction - corner
+        wu, wv = (w * edge_u).sum(1), (w * edge_v).sum(1)
+        a, c = (wu * vv - wv * uv) / det, (wv * uu - wu * uv) / det
+        hit = valid & (t > 0.05) & (a >= 0) & (a <= 1) & (c >= 0) & (c <= 1)
+        return origin + np.min(np.where(hit, t, np.inf)) * direction if hit.any() else None
+
+    return cast
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("dataset")
@@ -63,34 +86,13 @@ def main():
         return np.array([fx * x / z + cx, fy * y / z + cy, fx * (x - baseline) / z + cx,
                          fy * y / z + cy])
 
-    faces = None
-    if args.world:
-        rows = list(csv.reader(open(args.world)))[1:]
-        faces = np.array([[float(x) for x in row[1:10]] for row in rows])
-
-    def cast(origin, direction):  # nearest face hit by the ray, or None
-        corner, edge_u, edge_v = faces[:, 0:3], faces[:, 3:6], faces[:, 6:9]
-        normal = np.cross(edge_u, edge_v)
-        denominator = normal @ direction
-        valid = np.abs(denominator) > 1e-12
-        t = np.where(valid, ((corner - origin) * normal).sum(1) / np.where(valid, denominator, 1.0),
-                     np.inf)
-        w = origin + t[:, None] * direction - corner
-        uu, vv, uv = (edge_u**2).sum(1), (edge_v**2).sum(1), (edge_u * edge_v).sum(1)
-        wu, wv = (w * edge_u).sum(1), (w * edge_v).sum(1)
-        det = np.where(uu * vv - uv * uv == 0.0, 1.0, uu * vv - uv * uv)
-        a, c = (wu * vv - wv * uv) / det, (wv * uu - wu * uv) / det
-        hit = valid & (t > 0.05) & (a >= 0) & (a <= 1) & (c >= 0) & (c <= 1)
-        if not hit.any():
-            return None
-        return origin + np.min(np.where(hit, t, np.inf)) * direction
-
+    cast = world_caster(args.world) if args.world else None
     sequences = []
     for observations in tracks.values():
         if len(observations) < args.min_length:
             continue
         first_frame, uv = observations[0]
-        if faces is not None:
+        if cast is not None:
             pose = world_camera[first_frame]
             ray = pose[:3, :3] @ np.array([(uv[0] - cx) / fx, (uv[1] - cy) / fy, 1.0])
             point = cast(pose[:3, 3], ray / np.linalg.norm(ray))
@@ -137,7 +139,7 @@ def main():
                               for f, uv in observations])
         if np.abs(residuals).max() <= 2.0:
             sequences.append(residuals)
-    against = "the world's true points" if faces is not None else "their triangulation"
+    against = "the world's true points" if cast is not None else "their triangulation"
     print(f"{folder}: {len(sequences)} tracks of at least {args.min_length} observations, "
           f"against {against}")
     if not sequences:

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Oracle variants of a front-end's point tracks on a rendered team (diagnosis, not a result).
 
-Usage: bench/track_oracle.py RENDERED FRONTEND OUT MODE
+Usage: bench/track_oracle.py RENDERED FRONTEND OUT MODE   (beside bench/track_drift.py, whose ray cast it uses)
 
 RENDERED is the `concord sim --render` team (its world.csv), FRONTEND the dataset `concord
 frontend` wrote from it, OUT a copy of FRONTEND whose features.csv is rewritten. Each track's
@@ -26,6 +26,8 @@ import sys
 
 import numpy as np
 
+from track_drift import load_poses, world_caster
+
 KEYS = ("u_left", "v_left", "u_right", "v_right")
 MODES = ("drift", "white", "noconst", "noslope", "nostereoconst")
 
@@ -40,23 +42,7 @@ def main():
     K = np.array(camera["K"])
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     baseline = camera["fx_times_baseline"] / fx
-    faces = np.array([[float(x) for x in row[1:10]]
-                      for row in list(csv.reader(open(f"{rendered}/world.csv")))[1:]])
-    corner, edge_u, edge_v = faces[:, 0:3], faces[:, 3:6], faces[:, 6:9]
-    normal = np.cross(edge_u, edge_v)
-    uu, vv, uv = (edge_u**2).sum(1), (edge_v**2).sum(1), (edge_u * edge_v).sum(1)
-    det = np.where(uu * vv - uv * uv == 0.0, 1.0, uu * vv - uv * uv)
-
-    def cast(origin, direction):
-        denominator = normal @ direction
-        valid = np.abs(denominator) > 1e-12
-        t = np.where(valid, ((corner - origin) * normal).sum(1) / np.where(valid, denominator, 1.0),
-                     np.inf)
-        w = origin + t[:, None] * direction - corner
-        wu, wv = (w * edge_u).sum(1), (w * edge_v).sum(1)
-        a, c = (wu * vv - wv * uv) / det, (wv * uu - wu * uv) / det
-        hit = valid & (t > 0.05) & (a >= 0) & (a <= 1) & (c >= 0) & (c <= 1)
-        return origin + np.min(np.where(hit, t, np.inf)) * direction if hit.any() else None
+    cast = world_caster(f"{rendered}/world.csv")
 
     def project(q):
         x, y, z = q
@@ -65,12 +51,7 @@ def main():
 
     changed = 0
     for robot in sorted(d for d in os.listdir(frontend) if d.startswith("robot_")):
-        poses = []
-        for line in open(f"{frontend}/{robot}/groundtruth.kitti"):
-            if line.strip():
-                pose = np.eye(4)
-                pose[:3, :] = np.array(list(map(float, line.split()))).reshape(3, 4)
-                poses.append(pose)
+        poses = load_poses(f"{frontend}/{robot}/groundtruth.kitti")
         rows = list(csv.DictReader(open(f"{frontend}/{robot}/features.csv")))
         by_track = collections.defaultdict(list)
         for k, row in enumerate(rows):
