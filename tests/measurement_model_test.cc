@@ -263,6 +263,61 @@ TEST(FeatureUpdate, ATrackIsUsedInChunksOfFeatureMaxObservations) {
   EXPECT_TRUE(options.validate().empty());
 }
 
+/// One track of 8 observations whose rows drift by `drift_px` a frame (both images), fed to a
+/// FeatureUpdater with `options`: the stats of the update at its eighth frame.
+FeatureUpdateStats drifting_track_update(const EstimatorOptions& options, double drift_px) {
+  const StereoCamera camera = kitti_like_camera();
+  FeatureUpdater updater(options, camera);
+  const Eigen::Vector3d p_world(30.0, 1.5, 0.5);
+  FeatureUpdateStats last;
+  for (int frame = 0; frame < 8; ++frame) {
+    State state;
+    for (int k = 0; k <= frame; ++k) {
+      Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
+      pose.translation() = Eigen::Vector3d(0.2 * k, 0.0, 0.0);
+      state.poses.push_back({k, pose});
+    }
+    state.covariance = 1e-8 * Eigen::MatrixXd::Identity(state.dimension(), state.dimension());
+    const auto projection = UpdaterHelper::project(camera, state.newest_pose().T_world_body, p_world);
+    EXPECT_TRUE(projection);
+    if (!projection) return last;
+    StereoObservation observation;
+    observation.id = 7;
+    observation.uv = camera.denormalize(projection->xy);
+    observation.uv[1] += drift_px * frame;
+    observation.uv[3] += drift_px * frame;
+    last = updater.process(state, {observation});
+  }
+  return last;
+}
+
+TEST(FeatureUpdate, ADriftModelTakesATrackThatDriftsForWhatItIs) {
+  EstimatorOptions options;
+  options.feature_noise = StereoNoise::isotropic(0.1);
+  options.feature_max_observations = 8;  // the track is used at its eighth frame
+  // A track whose rows drift by 0.3 px a frame (2.1 px over its frames) is no point seen with
+  // 0.1 px of white noise: the gate refuses it.
+  const FeatureUpdateStats white = drifting_track_update(options, 0.3);
+  EXPECT_EQ(white.tracks_used, 0);
+  EXPECT_EQ(white.tracks_rejected, 1);
+  // With a random slope of 0.3 px a frame in the model the same track is an ordinary one.
+  options.feature_drift_sigma = 0.3;
+  const FeatureUpdateStats modelled = drifting_track_update(options, 0.3);
+  EXPECT_EQ(modelled.tracks_used, 1);
+  EXPECT_EQ(modelled.tracks_rejected, 0);
+  // And a track without drift is still used.
+  EXPECT_EQ(drifting_track_update(options, 0.0).tracks_used, 1);
+  // Validation: finite and >= 0; not with the odometry correlation term.
+  EXPECT_TRUE(options.validate().empty());
+  options.feature_drift_sigma = -0.1;
+  ASSERT_EQ(options.validate().size(), 1u);
+  EXPECT_NE(options.validate().front().find("feature_drift_sigma"), std::string::npos);
+  options.feature_drift_sigma = 0.3;
+  options.feature_odometry_correlation[0] = 0.01;
+  ASSERT_EQ(options.validate().size(), 1u);
+  EXPECT_NE(options.validate().front().find("feature_odometry_correlation"), std::string::npos);
+}
+
 TEST(KalmanUpdate, CorrelatedNoiseMatchesGaussianConditioning) {
   // x ~ N(0, P), z = H x + v with Cov(x, v) = S: the posterior is the Gaussian conditional
   // of the joint (x, z), Cov(x, z) = P H^T + S, Cov(z) = H P H^T + V + H S + S^T H^T.

@@ -108,6 +108,7 @@ void for_each_field(Options& options, Visitor&& visit) {
   visit("object_archive_mode", options.object_archive_mode);
   visit("use_point_features", options.use_point_features);
   visit("feature_noise", options.feature_noise);
+  visit("feature_drift_sigma", options.feature_drift_sigma);
   visit("feature_min_observations", options.feature_min_observations);
   visit("feature_max_observations", options.feature_max_observations);
   visit("feature_max_reprojection_error", options.feature_max_reprojection_error);

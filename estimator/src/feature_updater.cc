@@ -1,5 +1,6 @@
 #include "concord/estimator/feature_updater.h"
 
+#include <Eigen/Cholesky>
 #include <algorithm>
 
 #include "concord/estimator/state_helper.h"
@@ -21,7 +22,42 @@ FeatureUpdater::FeatureUpdater(const EstimatorOptions& options, const StereoCame
   // Whitened like the observations: S^T rows are left-multiplied by the same matrix.
   correlation_transposed_ = whitening_ * correlation.transpose();
   has_correlation_ = !correlation.isZero(0.0);
+  // The slope is common to both images: (u_left, v_left, u_right, v_right) move by (a, b, a, b).
+  Eigen::Matrix4d common;
+  common << 1, 0, 1, 0,  //
+      0, 1, 0, 1,        //
+      1, 0, 1, 0,        //
+      0, 1, 0, 1;
+  const double sigma = options.feature_drift_sigma / camera.focal_length();
+  drift_covariance_ = whitening_ * (sigma * sigma * common) * whitening_.transpose();
 }
+
+namespace {
+
+/// Whitens a track's rows (already whitened observation by observation) for a random slope per
+/// track: their covariance is I + (k_a - k_mean)(k_b - k_mean) D between observations a and b.
+void whiten_drift(LinearizedTrack& track, const std::vector<TrackObservation>& observations,
+                  const Eigen::Matrix4d& drift) {
+  const auto n = static_cast<Eigen::Index>(observations.size());
+  if (track.residual.size() != 4 * n) return;
+  double mean_frame = 0.0;
+  for (const TrackObservation& observation : observations) mean_frame += observation.frame;
+  mean_frame /= static_cast<double>(n);
+  Eigen::MatrixXd covariance = Eigen::MatrixXd::Identity(4 * n, 4 * n);
+  for (Eigen::Index a = 0; a < n; ++a) {
+    const double ta = observations[a].frame - mean_frame;
+    for (Eigen::Index b = 0; b < n; ++b) {
+      covariance.block<4, 4>(4 * a, 4 * b) += ta * (observations[b].frame - mean_frame) * drift;
+    }
+  }
+  const Eigen::LLT<Eigen::MatrixXd> llt(covariance);  // identity plus a positive semi-definite term
+  const auto lower = llt.matrixL();
+  lower.solveInPlace(track.residual);
+  lower.solveInPlace(track.H_state);
+  lower.solveInPlace(track.H_point);
+}
+
+}  // namespace
 
 FeatureUpdateStats FeatureUpdater::process(State& state,
                                            const std::vector<StereoObservation>& features) {
@@ -85,6 +121,9 @@ FeatureUpdateStats FeatureUpdater::process(State& state,
       continue;
     }
     UpdaterHelper::whiten_inplace(*linearized, whitening_);
+    // A drift model with the odometry correlation term would need that term whitened too: the
+    // options refuse the two together.
+    if (options_.feature_drift_sigma > 0.0) whiten_drift(*linearized, track, drift_covariance_);
     Eigen::MatrixXd correlation_rows;  // S^T rows (rows x 6, newest pose columns), whitened
     Eigen::MatrixXd* extra = nullptr;
     if (has_correlation_) {

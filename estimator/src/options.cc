@@ -1,6 +1,7 @@
 #include "concord/estimator/options.h"
 
 #include <charconv>
+#include <algorithm>
 #include <cmath>
 #include <string>
 #include <string_view>
@@ -203,6 +204,9 @@ std::vector<std::string> EstimatorOptions::validate() const {
   }
 
   problems.check_stereo_noise("feature_noise", feature_noise);
+  if (!(std::isfinite(feature_drift_sigma) && feature_drift_sigma >= 0.0)) {
+    problems.add("feature_drift_sigma", feature_drift_sigma, "finite and >= 0 (0 disables)");
+  }
   problems.check_at_least("feature_min_observations", feature_min_observations, 2);
   if (feature_max_observations != 0 && feature_max_observations < feature_min_observations) {
     problems.add("feature_max_observations", feature_max_observations,
@@ -217,6 +221,12 @@ std::vector<std::string> EstimatorOptions::validate() const {
       problems.add("feature_odometry_correlation[" + std::to_string(index) + "]",
                    feature_odometry_correlation[index], "finite");
     }
+  }
+  if (feature_drift_sigma > 0.0 &&
+      std::any_of(feature_odometry_correlation.begin(), feature_odometry_correlation.end(),
+                  [](double value) { return value != 0.0; })) {
+    problems.add("feature_drift_sigma", feature_drift_sigma,
+                 "0 with feature_odometry_correlation (the drift model does not whiten that term)");
   }
 
   if (!(std::isfinite(consensus.max_condition_number) && consensus.max_condition_number > 1.0)) {

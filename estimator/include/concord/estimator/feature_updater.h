@@ -40,6 +40,9 @@ class FeatureUpdater {
   /// S^T of eq. (25) for one observation, 4 x 6, in normalized units, whitened.
   Eigen::Matrix<double, 4, 6> correlation_transposed_;
   bool has_correlation_;
+  /// The covariance of one track's slope (feature_drift_sigma) over an observation's four rows,
+  /// whitened like them; zero without a drift model.
+  Eigen::Matrix4d drift_covariance_ = Eigen::Matrix4d::Zero();
   std::map<LandmarkId, std::vector<TrackObservation>> tracks_;
 };
 

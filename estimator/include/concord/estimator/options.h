@@ -220,6 +220,13 @@ struct EstimatorOptions {
   /// feature_noise: noise of a point-feature observation (image units), a StereoNoise, in a
   /// config one number or a map as object_noise.
   StereoNoise feature_noise = StereoNoise::isotropic(1.0);
+  /// feature_drift_sigma: image units a frame, 0 (the default) for none. A track's errors drift:
+  /// each track gets a random slope (the same in both images, horizontal and vertical, standard
+  /// deviation feature_drift_sigma), so its observation at frame k is off by s (k - k_mean)
+  /// besides its white feature_noise. The track's rows are whitened with that covariance before
+  /// the null-space projection. A white-noise model takes such a drift as information (in the
+  /// columns the triangulated point takes it for parallax): docs/frontend.md, "Found by oracle".
+  double feature_drift_sigma = 0.0;
   /// feature_min_observations: stereo observations of a track needed to use it.
   int feature_min_observations = 3;
   /// feature_max_observations: a track is used in an update once it has this many observations
