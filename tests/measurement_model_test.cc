@@ -278,7 +278,8 @@ FeatureUpdateStats drifting_track_update(const EstimatorOptions& options, double
       state.poses.push_back({k, pose});
     }
     state.covariance = 1e-8 * Eigen::MatrixXd::Identity(state.dimension(), state.dimension());
-    const auto projection = UpdaterHelper::project(camera, state.newest_pose().T_world_body, p_world);
+    const auto projection =
+        UpdaterHelper::project(camera, state.newest_pose().T_world_body, p_world);
     EXPECT_TRUE(projection);
     if (!projection) return last;
     StereoObservation observation;

@@ -1,7 +1,7 @@
 #include "concord/estimator/options.h"
 
-#include <charconv>
 #include <algorithm>
+#include <charconv>
 #include <cmath>
 #include <string>
 #include <string_view>
