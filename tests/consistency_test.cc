@@ -997,6 +997,59 @@ TEST(Calibration, RecoversTheSimulatorsNoise) {
   EXPECT_THROW(calibration::calibrate(data, options), std::invalid_argument);
 }
 
+TEST(Calibration, FitsTheTracksDriftWhereTheTriangulatedPointAbsorbsPartOfIt) {
+  // Point-feature tracks whose errors (normalized units) are white, 0.002 per coordinate, plus a
+  // random slope per track, the same in both images, horizontal and vertical: 0.0004 a frame
+  // (about 0.2 px at a 537 px focal length, eight times the rendered tracks' drift). A slope in
+  // the columns looks like parallax, so the residuals against the triangulated point keep only
+  // part of it; the fit accounts for that exactly. And without the slope, next to no drift.
+  const auto tracks_with = [](double drift) {
+    sim::SimulationOptions simulation;
+    simulation.robots = 1;
+    simulation.frames = 400;
+    simulation.points_per_frame = 30;
+    simulation.point_track_loss = 0.08;
+    simulation.pixel_noise = 1e-7;
+    dataset::Dataset data = sim::simulate(simulation);
+    auto& features = data.robots.front().features;
+    std::map<LandmarkId, std::vector<int>> frames;
+    for (std::size_t k = 0; k < features.size(); ++k) {
+      for (const StereoObservation& o : features[k]) frames[o.id].push_back(static_cast<int>(k));
+    }
+    std::map<LandmarkId, std::pair<double, Eigen::Vector2d>> slopes;  // mean frame, slope
+    std::mt19937 random(17);
+    std::normal_distribution<double> normal(0.0, 1.0);
+    for (const auto& [id, seen] : frames) {
+      double mean = 0.0;
+      for (int k : seen) mean += k / static_cast<double>(seen.size());
+      slopes[id] = {mean, Eigen::Vector2d(drift * normal(random), drift * normal(random))};
+    }
+    for (std::size_t k = 0; k < features.size(); ++k) {
+      for (StereoObservation& o : features[k]) {
+        const auto& [mean, slope] = slopes[o.id];
+        const Eigen::Vector2d line = slope * (static_cast<double>(k) - mean);
+        for (int i = 0; i < 4; ++i) o.uv(i) += line(i % 2) + 0.002 * normal(random);
+      }
+    }
+    calibration::CalibrationOptions options;
+    options.frames = 400;
+    return std::pair(calibration::calibrate(data, options), options);
+  };
+  const auto [drifting, options] = tracks_with(0.0004);
+  const calibration::FeatureDrift& fit = drifting.feature_drift;
+  ASSERT_GT(fit.tracks, 500);
+  EXPECT_NEAR(fit.sigma, 0.0004, 0.1 * 0.0004);
+  for (int c = 0; c < 4; ++c) EXPECT_NEAR(fit.white(c), 0.002, 0.1 * 0.002) << c;
+  // The report offers it, commented, as the model to use instead of the inflated white noise.
+  const std::string yaml = calibration::to_yaml(drifting, options);
+  const std::size_t at = yaml.find("# feature_drift_sigma: ");
+  ASSERT_NE(at, std::string::npos);
+  EXPECT_NEAR(std::stod(yaml.substr(at + 23)), fit.sigma, 1e-3 * fit.sigma);
+  const calibration::FeatureDrift still = tracks_with(0.0).first.feature_drift;
+  EXPECT_LT(still.sigma, 0.1 * 0.0004);
+  EXPECT_NEAR(still.white(0), 0.002, 0.1 * 0.002);
+}
+
 /// One simulated robot's 400 frames of object observations with next to no noise (no point
 /// features): the detection errors are the test's to add.
 /// Three independent zero-mean Gaussians of standard deviations `sigma` (from `normal`, a

@@ -592,7 +592,8 @@ TEST(FrontendRun, ADetectorModelReplacesTheStatedObjectNoiseInEstimatorYaml) {
   write(
       "object_noise: {horizontal: 0.1, vertical: 0.04, disparity: 0.03, vertical_disparity: "
       "0.004}\nobject_offset_sigma: {horizontal: 0.7, vertical: 0.3, disparity: 0.2}\n"
-      "object_offset_walk: {horizontal: 0.4, vertical: 0.15, disparity: 0.1}\n");
+      "object_offset_walk: {horizontal: 0.4, vertical: 0.15, disparity: 0.1}\n"
+      "feature_drift_sigma: 0.03\n");
   FrontendRunOptions options;
   options.max_frames = 3;
   const fs::path stated = testing::temporary_folder("frontend_model_stated");
@@ -609,6 +610,8 @@ TEST(FrontendRun, ADetectorModelReplacesTheStatedObjectNoiseInEstimatorYaml) {
   EXPECT_DOUBLE_EQ(b.object_noise.vertical_disparity, 0.004);
   EXPECT_DOUBLE_EQ(b.object_offset_sigma.vertical, 0.3);
   EXPECT_DOUBLE_EQ(b.object_offset_walk.disparity, 0.1);
+  EXPECT_DOUBLE_EQ(a.feature_drift_sigma, 0.0);
+  EXPECT_DOUBLE_EQ(b.feature_drift_sigma, 0.03);  // the tracks' drift, measured with the detector
   EXPECT_DOUBLE_EQ(b.feature_noise.horizontal, a.feature_noise.horizontal);
   EXPECT_DOUBLE_EQ(b.odometry_translation_sigma, a.odometry_translation_sigma);
   EXPECT_DOUBLE_EQ(b.object_init_max_reprojection_error, a.object_init_max_reprojection_error);
@@ -633,6 +636,7 @@ TEST(FrontendRun, ADetectorModelReplacesTheStatedObjectNoiseInEstimatorYaml) {
               ::testing::HasSubstr("not a detector's key: odometry_translation_sigma"));
   EXPECT_THAT(refusal("object_offset_sigma: 0.5\nobject_noise_persistent: 0.5\n"),
               ::testing::HasSubstr("object_offset_sigma"));
+  EXPECT_THAT(refusal("feature_drift_sigma: -0.01\n"), ::testing::HasSubstr("feature_drift_sigma"));
   EXPECT_THAT(refusal("- 0.5\n"), ::testing::HasSubstr("a map of estimator object noise keys"));
   EXPECT_THAT(refusal("object_noise: [1, 2\n"), ::testing::HasSubstr(model.string()));
   EXPECT_THAT(refusal(""), ::testing::HasSubstr("a map of estimator object noise keys"));

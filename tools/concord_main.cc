@@ -326,6 +326,7 @@ int run_replay(const fs::path& dataset_dir, const fs::path& out, bool separate,
       {"objects_initialized", s.objects_initialized},
       {"object_observations_rejected", s.object_observations_rejected},
       {"feature_tracks_used", s.feature_tracks_used},
+      {"feature_tracks_rejected", s.feature_tracks_rejected},
       {"update_seconds", s.update_seconds},
       {"consensus_seconds", s.consensus_seconds},
       {"negotiation_seconds", s.negotiation_seconds},
@@ -787,7 +788,8 @@ int main(int argc, char** argv) {
   calibrate_command->add_option(
       "--detector-model", detector_model_out,
       "Also write the detector's error model (object_noise and a displacement's or an image "
-      "offset's sigma and walk) to FILE, for concord frontend --detector-model");
+      "offset's sigma and walk) and the point-feature tracks' drift (feature_drift_sigma) to "
+      "FILE, for concord frontend --detector-model");
   calibration::DetectorModelKind detector_model_kind =
       calibration::DetectorModelKind::kDisplacement;
   calibrate_command
@@ -1100,9 +1102,10 @@ int main(int argc, char** argv) {
       ->delimiter(',');
   frontend_command
       ->add_option("--detector-model", frontend_options.detector_model,
-                   "The detector's error model (estimator object noise keys, e.g. from concord "
-                   "calibrate --detector-model on a calibration segment), written to "
-                   "estimator.yaml instead of objects.detection_sigma")
+                   "The detector's error model (estimator object noise keys and "
+                   "feature_drift_sigma, e.g. from concord calibrate --detector-model on a "
+                   "calibration segment), written to estimator.yaml instead of "
+                   "objects.detection_sigma")
       ->check(CLI::ExistingFile);
   int frontend_threads = 0;
   frontend_command

@@ -264,9 +264,11 @@ RobotRun run_sequence(const fs::path& folder, int robot, bool single,
   return run;
 }
 
-/// The object noise keys a detector model may set (FrontendRunOptions::detector_model).
+/// The keys a detector model may set (FrontendRunOptions::detector_model): the object noise,
+/// and the point-feature tracks' drift measured on the same calibration sequence.
 const std::set<std::string>& detector_model_keys() {
-  static const std::set<std::string> keys = {"object_noise",
+  static const std::set<std::string> keys = {"feature_drift_sigma",
+                                             "object_noise",
                                              "object_noise_constant",
                                              "object_noise_persistent",
                                              "object_noise_correlation",
@@ -287,6 +289,7 @@ std::string load_detector_model(const fs::path& file) {
     if (!root.IsMap() || root.size() == 0) {
       throw FrontendError(file.string() +
                           ": a detector model is a map of estimator object noise keys "
+                          "(and feature_drift_sigma) "
                           "(concord calibrate --detector-model writes one)");
     }
     std::string refused;
@@ -441,11 +444,12 @@ FrontendRunSummary run_frontend(const fs::path& input, const fs::path& out,
   std::string estimator_yaml =
       "# Estimator options for this dataset, written by `concord frontend`: the noise values are\n"
       "# the front-end's own (odometry: median reported standard deviation; features: the tracks'\n"
-      "# consistency; objects: " +
-      (detector_model ? "the detector model " + options.detector_model.string()
-                      : std::string("the detector's stated accuracy, objects.detection_sigma")) +
-      "), the depth\n"
-      "# limits follow from fx * baseline. See docs/frontend.md.\n";
+      "# consistency" +
+      (detector_model ? ", and any drift the detector model gives; objects: the detector model\n# " +
+                            options.detector_model.string()
+                      : std::string("; objects: the detector's stated accuracy,\n# "
+                                    "objects.detection_sigma")) +
+      "); the depth limits follow from fx * baseline. See docs/frontend.md.\n";
   EstimatorOptions estimator = suggested_estimator_options(summary, data.camera, options.frontend);
   if (detector_model) {
     try {  // the model's keys over the front-end's own values, validated together

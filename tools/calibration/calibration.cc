@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <limits>
 #include <map>
+#include <optional>
 #include <stdexcept>
 
 #include "concord/estimator/lie.h"
@@ -384,6 +385,117 @@ class DisplacementErrors {
   TrackIndex index_;
 };
 
+/// Accumulates point-feature tracks' residuals against their points triangulated with the true
+/// poses for CalibrationReport::feature_drift: the method of moments for a white noise per
+/// stereo component plus a random slope per track (feature_drift_sigma). A triangulated point
+/// absorbs part of any error (a slope in the columns looks like parallax), so each track's
+/// residual r = P e, with P the projection off the point's three directions; for a statistic
+/// r^T A r its expectation under noise covariance C is tr(A P C P), linear in the unknown
+/// variances. Five statistics (each component's sum of squares, and the squared slope
+/// projections) give five equations for the four white variances and the slope's.
+/// Accumulates point-feature tracks' residuals against their points triangulated with the true
+/// poses, for CalibrationReport::feature_drift: white noise per stereo component plus a random
+/// slope per track (feature_drift_sigma), by the method of moments. A triangulated point absorbs
+/// part of any error (a slope in the columns looks like parallax), so a track's residual is
+/// r = P e, with P the projection off the point's three directions, and a statistic r^T A r has
+/// expectation tr(A P C P) under the errors' covariance C, linear in the unknown variances: each
+/// component's sum of squares and the squared slope projections give five equations for the four
+/// white variances and the slope's.
+class FeatureDriftFit {
+ public:
+  /// One track: its observations' residuals (image units, 4 a frame: u_left, v_left, u_right,
+  /// v_right), the Jacobian of their projections with respect to the point (4n x 3) and the
+  /// observations' frames.
+  void add(const Eigen::VectorXd& residual, const Eigen::MatrixXd& jacobian,
+           const std::vector<int>& frames) {
+    const Eigen::Index rows = residual.size();
+    const Eigen::Index n = rows / 4;
+    // Rotated, observation by observation, into the orthonormal components (common horizontal,
+    // common vertical, horizontal and vertical differences, each / sqrt 2): V^T r, V^T J.
+    Eigen::Matrix4d basis;
+    basis << 1, 0, 1, 0,  //
+        0, 1, 0, 1,       //
+        1, 0, -1, 0,      //
+        0, 1, 0, -1;
+    basis /= std::sqrt(2.0);
+    Track track;
+    track.residual.resize(rows);
+    Eigen::MatrixXd J(rows, 3);
+    track.slopes = Eigen::MatrixXd::Zero(rows, 2);
+    double mean_frame = 0.0;
+    for (int frame : frames) mean_frame += frame;
+    mean_frame /= static_cast<double>(n);
+    for (Eigen::Index a = 0; a < n; ++a) {
+      track.residual.segment<4>(4 * a) = basis * residual.segment<4>(4 * a);
+      J.middleRows<4>(4 * a) = basis * jacobian.middleRows<4>(4 * a);
+      // A slope s (k - k_mean) in both images' u is sqrt 2 s (k - k_mean) in the common u.
+      const double t = std::sqrt(2.0) * (frames[static_cast<std::size_t>(a)] - mean_frame);
+      track.slopes(4 * a, 0) = t;
+      track.slopes(4 * a + 1, 1) = t;
+    }
+    // N: an orthonormal basis of the residuals' space (the complement of J's columns).
+    const Eigen::HouseholderQR<Eigen::MatrixXd> qr(J);
+    const Eigen::MatrixXd Q = qr.householderQ() * Eigen::MatrixXd::Identity(rows, rows);
+    track.N = Q.rightCols(rows - 3);
+    tracks_.push_back(std::move(track));
+  }
+
+  /// The fit over every track (FeatureDrift).
+  FeatureDrift fit() const {
+    FeatureDrift out;
+    Eigen::Matrix<double, 5, 1> variances;
+    if (!solve(variances)) return out;
+    out.white = variances.head<4>().cwiseSqrt();
+    out.sigma = std::sqrt(variances(4));
+    out.tracks = static_cast<int>(tracks_.size());
+    return out;
+  }
+
+ private:
+  struct Track {
+    Eigen::VectorXd residual;  ///< V^T r
+    Eigen::MatrixXd slopes;    ///< V^T [g_u g_v]: the unit slopes in u and in v
+    Eigen::MatrixXd N;         ///< orthonormal basis of the residuals' space, rotated
+  };
+
+  /// The moment equations over the tracks: the four white variances and the slope's; false
+  /// when fewer than 20 tracks or a white variance is not positive. A negative slope variance:
+  /// the white variances alone (the slope's 0).
+  bool solve(Eigen::Matrix<double, 5, 1>& variances) const {
+    if (tracks_.size() < 20) return false;
+    Eigen::Matrix<double, 5, 5> M = Eigen::Matrix<double, 5, 5>::Zero();
+    Eigen::Matrix<double, 5, 1> y = Eigen::Matrix<double, 5, 1>::Zero();
+    for (const Track& track : tracks_) {
+      const Eigen::Index rows = track.residual.size();
+      const Eigen::MatrixXd P = track.N * track.N.transpose();
+      const Eigen::MatrixXd PG = P * track.slopes;  // rows x 2
+      const Eigen::Matrix2d GPG = track.slopes.transpose() * PG;
+      for (Eigen::Index a = 0; a < rows; ++a) {
+        const int i = static_cast<int>(a % 4);
+        y(i) += track.residual(a) * track.residual(a);
+        for (Eigen::Index b = 0; b < rows; ++b) M(i, b % 4) += P(a, b) * P(a, b);
+        M(i, 4) += PG.row(a).squaredNorm();
+      }
+      y(4) += (track.slopes.transpose() * track.residual).squaredNorm();
+      for (int j = 0; j < 4; ++j) {
+        double sum = 0.0;
+        for (Eigen::Index b = j; b < rows; b += 4) sum += PG.row(b).squaredNorm();
+        M(4, j) += sum;
+      }
+      M(4, 4) += GPG.squaredNorm();
+    }
+    variances = M.colPivHouseholderQr().solve(y);
+    if (!(variances(4) > 0.0)) {
+      variances.head<4>() = M.topLeftCorner<4, 4>().colPivHouseholderQr().solve(y.head<4>());
+      variances(4) = 0.0;
+    }
+    variances = variances.cwiseMax(0.0);
+    return variances.head<4>().allFinite() && (variances.head<4>().array() > 0.0).all();
+  }
+
+  std::vector<Track> tracks_;
+};
+
 std::string number(double value) {
   char text[32];
   std::snprintf(text, sizeof(text), "%.4g", value);
@@ -506,6 +618,7 @@ CalibrationReport calibrate(const dataset::Dataset& dataset, const CalibrationOp
     }
   }
   StereoErrors features;
+  FeatureDriftFit drift;
   for (const auto& [id, track] : tracks) {
     if (track.size() < 3) continue;
     std::vector<Eigen::Isometry3d> poses;
@@ -524,8 +637,37 @@ CalibrationReport calibrate(const dataset::Dataset& dataset, const CalibrationOp
       features.add(id, track[i].first,
                    deflation * (track[i].second - camera.denormalize(projection->xy)));
     }
+    if (track.size() < 4) continue;
+    // The residuals and their Jacobian with respect to the point (central differences, 1 mm).
+    const auto rows = static_cast<Eigen::Index>(4 * track.size());
+    Eigen::VectorXd residual(rows);
+    Eigen::MatrixXd jacobian(rows, 3);
+    std::vector<int> frames;
+    bool visible = true;
+    for (std::size_t i = 0; i < track.size() && visible; ++i) {
+      const auto row = static_cast<Eigen::Index>(4 * i);
+      const auto image = [&](const Eigen::Vector3d& p) -> std::optional<Eigen::Vector4d> {
+        const auto projection = UpdaterHelper::project(camera, poses[i], p);
+        if (!projection) return std::nullopt;
+        return camera.denormalize(projection->xy);
+      };
+      const auto at = image(*point);
+      visible = at.has_value();
+      if (!visible) break;
+      residual.segment<4>(row) = track[i].second - *at;
+      for (int axis = 0; axis < 3; ++axis) {
+        const Eigen::Vector3d step = 1e-3 * Eigen::Vector3d::Unit(axis);
+        const auto plus = image(*point + step), minus = image(*point - step);
+        visible = plus && minus;
+        if (!visible) break;
+        jacobian.block<4, 1>(row, axis) = (*plus - *minus) / 2e-3;
+      }
+      frames.push_back(track[i].first);
+    }
+    if (visible) drift.add(residual, jacobian, frames);
   }
   report.features = features.spread(options);
+  report.feature_drift = drift.fit();
 
   // 4. Level (a ground vehicle's level prior, docs/estimator.md):
   //    a. the level axis: the nominal up axis made perpendicular to the segment's direction of
@@ -610,6 +752,17 @@ std::string detector_model_yaml(const CalibrationReport& report, const Calibrati
                            segment + " (" + std::to_string(report.objects.offset_tracks) +
                            " object tracks, " + std::to_string(report.objects.observations) +
                            " observations): ";
+  // The point-feature tracks' drift on the same segment: the front-end's tracker is measured
+  // with its detector (its white noise the front-end measures itself).
+  const FeatureDrift& tracks = report.feature_drift;
+  const std::string drift =
+      tracks.tracks == 0
+          ? "# (no point-feature tracks of 4 or more observations on the segment: no drift)\n"
+          : "# The point-feature tracks' drift on the same segment (" +
+                std::to_string(tracks.tracks) +
+                " tracks): a random slope per track, image units a frame (docs/estimator.md, "
+                "\"Point-feature drift\").\nfeature_drift_sigma: " +
+                number(tracks.sigma) + "\n";
   if (displacement) {
     return head +
            "a displacement in space per (robot, object) that walks (metres, camera axes x right, "
@@ -617,13 +770,14 @@ std::string detector_model_yaml(const CalibrationReport& report, const Calibrati
            "displacements\"); the walk fitted over lags 1-" +
            std::to_string(report.object_displacement.lags) +
            " frames. For concord frontend --detector-model.\n" +
-           displacement_model_keys(report.objects, report.object_displacement);
+           displacement_model_keys(report.objects, report.object_displacement) + drift;
   }
   return head +
          "an offset per (robot, object) that walks, plus independent noise\n"
          "# (docs/estimator.md, \"Detection offsets\"); the walk fitted over lags 1-" +
          std::to_string(report.objects.offset_lags) +
-         " frames. For concord frontend --detector-model.\n" + detector_model_keys(report.objects);
+         " frames. For concord frontend --detector-model.\n" + detector_model_keys(report.objects) +
+         drift;
 }
 
 std::string to_yaml(const CalibrationReport& report, const CalibrationOptions& options) {
@@ -719,6 +873,16 @@ std::string to_yaml(const CalibrationReport& report, const CalibrationOptions& o
   };
   noise("object_noise", report.objects);
   noise("feature_noise", report.features);
+  const FeatureDrift& drift = report.feature_drift;
+  if (drift.tracks > 0) {
+    text += "# or, modelling the tracks' drift (docs/estimator.md, \"Point-feature drift\"; the "
+            "method of moments over " + std::to_string(drift.tracks) +
+            " tracks of 4 or more observations): white noise a coordinate " + number(drift.white(0)) +
+            " (common u), " + number(drift.white(1)) + " (common v), " + number(drift.white(2)) +
+            " (u difference), " + number(drift.white(3)) +
+            " (v difference), plus a random slope per track (what `--detector-model` writes):\n";
+    text += "# feature_drift_sigma: " + number(drift.sigma) + "\n";
+  }
   text += "# Level (" + options.up_axis + " nominally up): the axis level with the direction of travel " +
           vector_text(report.level_axis) + "; its tilt about the segment's up axis: RMS " +
           number(report.tilt_rms) + " rad, correlated over " +

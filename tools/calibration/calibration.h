@@ -106,6 +106,26 @@ struct DetectionDisplacement {
   int lags = 0;
 };
 
+/// Point-feature tracks' drift (the estimator's feature_drift_sigma; docs/estimator.md,
+/// "Point-feature drift"): each track's errors as white noise per stereo component plus a random
+/// slope, the same in both images, horizontal and vertical, of standard deviation `sigma` (image
+/// units a frame). Fitted by the method of moments on the residuals of each track against its
+/// point triangulated with the true poses, the part the point absorbs accounted for exactly
+/// (FeatureDriftFit in calibration.cc). `white`: the white noise's standard deviations of the
+/// orthonormal components (u_left + u_right, v_left + v_right, u_left - u_right,
+/// v_left - v_right, each / sqrt 2), that is, per image coordinate. Every track of at least 4
+/// observations counts: the fit is of second moments, and a front-end's drift is heavy-tailed
+/// (on the rendered calibration set a tenth of the tracks carry most of it), so leaving out the
+/// tracks that stand out would leave out the drift. For the same reason the white part comes out
+/// larger than the front-end's own estimate of its tracks' noise, which the filter keeps (its
+/// chi-square gate turns away the worst tracks): docs/frontend.md, "The random slope,
+/// measured". tracks = 0: fewer than 20 tracks, not fitted (sigma 0).
+struct FeatureDrift {
+  double sigma = 0.0;
+  Eigen::Vector4d white = Eigen::Vector4d::Zero();
+  int tracks = 0;
+};
+
 struct CalibrationReport {
   int frames = 0;  ///< odometry steps measured
   /// Odometry error xi = log(T_true_rel^-1 T_measured_rel) per frame: mean and RMS per axis of
@@ -122,6 +142,8 @@ struct CalibrationReport {
   /// Point features against their tracks triangulated with the true poses (tracks of at least
   /// 3 frames); observations = 0 when there are none.
   StereoErrorSpread features;
+  /// The same tracks' drift (tracks = 0 when there are none).
+  FeatureDrift feature_drift;
   /// Level (a ground vehicle's level prior): the body's level axis (the nominal up axis made
   /// perpendicular to the segment's direction of travel: level_up_axis); its tilt about the
   /// segment's mean up axis, the components across it (about the tilt angles, radians): their

@@ -219,6 +219,7 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
       statistics.objects_initialized += report.objects.initialized;
       statistics.object_observations_rejected += report.objects.rejected;
       statistics.feature_tracks_used += report.features.tracks_used;
+      statistics.feature_tracks_rejected += report.features.tracks_rejected;
       statistics.object_initializations_gated += report.objects.init_gated;
       statistics.objects_reactivated += report.objects.reactivated;
       statistics.update_failures += report.objects.update_failures + report.features.update_failures +

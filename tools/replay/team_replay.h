@@ -112,6 +112,7 @@ struct ReplayStatistics {
   long long objects_initialized = 0;
   long long object_observations_rejected = 0;
   long long feature_tracks_used = 0;
+  long long feature_tracks_rejected = 0;  ///< by the chi-square gate
   double update_seconds = 0.0;     ///< process() over all robots and frames
   double consensus_seconds = 0.0;  ///< marginals + fuse over all robots and rounds
   /// Negotiated runs: descriptions, messages, finish_round and re-anchoring, all robots.

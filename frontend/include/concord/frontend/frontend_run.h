@@ -71,11 +71,13 @@ struct FrontendRunOptions {
   /// The detector's error model (an estimator config fragment with the object noise keys only:
   /// object_noise, object_noise_constant, object_noise_persistent, object_noise_correlation,
   /// object_offset_sigma, object_offset_walk, object_displacement_sigma,
-  /// object_displacement_walk, object_init_max_reprojection_error), e.g. what
-  /// `concord calibrate --detector-model` measured on a calibration segment: written into
-  /// estimator.yaml in place of the isotropic objects.detection_sigma, so that the dataset's
-  /// config is the sensor's (camera and detector) whole. Empty: detection_sigma. Any other key
-  /// is an error (the front-end measures the odometry and feature noise itself).
+  /// object_displacement_walk, object_init_max_reprojection_error), and the point-feature
+  /// tracks' drift measured with it (feature_drift_sigma), e.g. what `concord calibrate
+  /// --detector-model` measured on a calibration segment: written into estimator.yaml in place
+  /// of the isotropic objects.detection_sigma (and no drift), so that the dataset's config is
+  /// the sensor's (camera, tracker and detector) whole. Empty: detection_sigma. Any other key
+  /// is an error (the front-end measures the odometry and the white feature noise itself, which
+  /// a calibration segment's ground truth cannot improve on: docs/frontend.md).
   std::filesystem::path detector_model;
   /// dataset.json "name" of the output (replay uses the estimator.yaml written beside it).
   std::string name = "frontend";
