@@ -267,16 +267,12 @@ RobotRun run_sequence(const fs::path& folder, int robot, bool single,
 /// The keys a detector model may set (FrontendRunOptions::detector_model): the object noise,
 /// and the point-feature tracks' drift measured on the same calibration sequence.
 const std::set<std::string>& detector_model_keys() {
-  static const std::set<std::string> keys = {"feature_drift_sigma",
-                                             "object_noise",
-                                             "object_noise_constant",
-                                             "object_noise_persistent",
-                                             "object_noise_correlation",
-                                             "object_offset_sigma",
-                                             "object_offset_walk",
-                                             "object_displacement_sigma",
-                                             "object_displacement_walk",
-                                             "object_init_max_reprojection_error"};
+  static const std::set<std::string> keys = {
+      "feature_drift_sigma",      "object_noise",
+      "object_noise_constant",    "object_noise_persistent",
+      "object_noise_correlation", "object_offset_sigma",
+      "object_offset_walk",       "object_displacement_sigma",
+      "object_displacement_walk", "object_init_max_reprojection_error"};
   return keys;
 }
 
@@ -445,10 +441,11 @@ FrontendRunSummary run_frontend(const fs::path& input, const fs::path& out,
       "# Estimator options for this dataset, written by `concord frontend`: the noise values are\n"
       "# the front-end's own (odometry: median reported standard deviation; features: the tracks'\n"
       "# consistency" +
-      (detector_model ? ", and any drift the detector model gives; objects: the detector model\n# " +
-                            options.detector_model.string()
-                      : std::string("; objects: the detector's stated accuracy,\n# "
-                                    "objects.detection_sigma")) +
+      (detector_model
+           ? ", and any drift the detector model gives; objects: the detector model\n# " +
+                 options.detector_model.string()
+           : std::string("; objects: the detector's stated accuracy,\n# "
+                         "objects.detection_sigma")) +
       "); the depth limits follow from fx * baseline. See docs/frontend.md.\n";
   EstimatorOptions estimator = suggested_estimator_options(summary, data.camera, options.frontend);
   if (detector_model) {

@@ -875,12 +875,14 @@ std::string to_yaml(const CalibrationReport& report, const CalibrationOptions& o
   noise("feature_noise", report.features);
   const FeatureDrift& drift = report.feature_drift;
   if (drift.tracks > 0) {
-    text += "# or, modelling the tracks' drift (docs/estimator.md, \"Point-feature drift\"; the "
-            "method of moments over " + std::to_string(drift.tracks) +
-            " tracks of 4 or more observations): white noise a coordinate " + number(drift.white(0)) +
-            " (common u), " + number(drift.white(1)) + " (common v), " + number(drift.white(2)) +
-            " (u difference), " + number(drift.white(3)) +
-            " (v difference), plus a random slope per track (what `--detector-model` writes):\n";
+    text +=
+        "# or, modelling the tracks' drift (docs/estimator.md, \"Point-feature drift\"; the "
+        "method of moments over " +
+        std::to_string(drift.tracks) +
+        " tracks of 4 or more observations): white noise a coordinate " + number(drift.white(0)) +
+        " (common u), " + number(drift.white(1)) + " (common v), " + number(drift.white(2)) +
+        " (u difference), " + number(drift.white(3)) +
+        " (v difference), plus a random slope per track (what `--detector-model` writes):\n";
     text += "# feature_drift_sigma: " + number(drift.sigma) + "\n";
   }
   text += "# Level (" + options.up_axis + " nominally up): the axis level with the direction of travel " +
