@@ -165,7 +165,8 @@ print("The estimator config is the `estimator.yaml` that `concord frontend` wrot
       "the odometry), objects "
       f"{per_coordinate_sigma('object_noise'):.1f} px (`objects.detection_sigma`, the detector's stated "
       "accuracy); the second row replaces the objects' noise by the detection model measured on a "
-      "calibration rendering (below), the must-show's team. The exact team runs on the simulator's own observations of the same paths, "
+      "calibration rendering, with the point tracks' drift measured on the same rendering "
+      "(below), the must-show's team. The exact team runs on the simulator's own observations of the same paths, "
       "objects and surfaces (its point tracks follow points on the rendered world's surfaces, "
       "drawn through uniformly random image positions, while both cameras see them), with noise "
       "chosen to be the front-end's (2 mm and 0.2 mrad odometry, 0.4 px on every coordinate, 200 "
@@ -201,7 +202,9 @@ print("The detection model (`concord calibrate --detector-model` on the front-en
       "of a calibration rendering, `concord sim --render --robots 1 --frames 400 --seed 11`, "
       "against its truth: a displacement in space per (robot, object) that walks, metres along the "
       "camera's axes, and independent image noise in pixels; docs/estimator.md, \"Detection "
-      "displacements\"), given to the front-end (`concord frontend --detector-model`), "
+      "displacements\"; and the point tracks' drift, a random slope per track in pixels a frame, "
+      "fitted on the same tracks against their points triangulated with the true poses; "
+      "docs/estimator.md, \"Point-feature drift\"), given to the front-end (`concord frontend --detector-model`), "
       "which writes it into the team's estimator.yaml:")
 print()
 print("```yaml")
@@ -255,8 +258,7 @@ if others:
               f"{sa['object_nees']['mean']:.1f} / {ca['object_nees']['mean']:.1f} |")
     print()
     print(f"Consensus beats separate on trajectory on {wins} of {len(others)} of these teams "
-          "(docs/frontend.md, \"The start prior, found\", says what was in its way and what "
-          "is left).")
+          "(docs/frontend.md, \"The random slope, measured\").")
     print()
 print("## EuRoC V1_01 (40 real stereo pairs, the vehicle standing still)")
 print()

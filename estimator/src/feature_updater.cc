@@ -2,6 +2,7 @@
 
 #include <Eigen/Cholesky>
 #include <algorithm>
+#include <cassert>
 
 #include "concord/estimator/state_helper.h"
 
@@ -36,21 +37,23 @@ namespace {
 
 /// Whitens a track's rows (already whitened observation by observation) for a random slope per
 /// track: their covariance is I + (k_a - k_mean)(k_b - k_mean) D between observations a and b.
+/// `covariance` is the caller's buffer (factored in place).
 void whiten_drift(LinearizedTrack& track, const std::vector<TrackObservation>& observations,
-                  const Eigen::Matrix4d& drift) {
+                  const Eigen::Matrix4d& drift, Eigen::MatrixXd& covariance) {
   const auto n = static_cast<Eigen::Index>(observations.size());
-  if (track.residual.size() != 4 * n) return;
+  assert(track.residual.size() == 4 * n);  // UpdaterHelper::linearize: 4 rows an observation
   double mean_frame = 0.0;
   for (const TrackObservation& observation : observations) mean_frame += observation.frame;
   mean_frame /= static_cast<double>(n);
-  Eigen::MatrixXd covariance = Eigen::MatrixXd::Identity(4 * n, 4 * n);
+  covariance.setIdentity(4 * n, 4 * n);
   for (Eigen::Index a = 0; a < n; ++a) {
     const double ta = observations[a].frame - mean_frame;
     for (Eigen::Index b = 0; b < n; ++b) {
       covariance.block<4, 4>(4 * a, 4 * b) += ta * (observations[b].frame - mean_frame) * drift;
     }
   }
-  const Eigen::LLT<Eigen::MatrixXd> llt(covariance);  // identity plus a positive semi-definite term
+  // Identity plus a positive semi-definite term: positive definite.
+  const Eigen::LLT<Eigen::Ref<Eigen::MatrixXd>> llt(covariance);
   const auto lower = llt.matrixL();
   lower.solveInPlace(track.residual);
   lower.solveInPlace(track.H_state);
@@ -123,7 +126,9 @@ FeatureUpdateStats FeatureUpdater::process(State& state,
     UpdaterHelper::whiten_inplace(*linearized, whitening_);
     // A drift model with the odometry correlation term would need that term whitened too: the
     // options refuse the two together.
-    if (options_.feature_drift_sigma > 0.0) whiten_drift(*linearized, track, drift_covariance_);
+    if (options_.feature_drift_sigma > 0.0) {
+      whiten_drift(*linearized, track, drift_covariance_, drift_rows_);
+    }
     Eigen::MatrixXd correlation_rows;  // S^T rows (rows x 6, newest pose columns), whitened
     Eigen::MatrixXd* extra = nullptr;
     if (has_correlation_) {

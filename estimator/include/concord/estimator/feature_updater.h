@@ -43,6 +43,9 @@ class FeatureUpdater {
   /// The covariance of one track's slope (feature_drift_sigma) over an observation's four rows,
   /// whitened like them; zero without a drift model.
   Eigen::Matrix4d drift_covariance_ = Eigen::Matrix4d::Zero();
+  /// A track's rows' covariance under the drift model, factored in place, kept between tracks
+  /// so that a frame's updates do not allocate it anew.
+  Eigen::MatrixXd drift_rows_;
   std::map<LandmarkId, std::vector<TrackObservation>> tracks_;
 };
 
