@@ -1003,7 +1003,8 @@ TEST(Calibration, FitsTheTracksDriftWhereTheTriangulatedPointAbsorbsPartOfIt) {
   // (about 0.2 px at a 537 px focal length, eight times the rendered tracks' drift). A slope in
   // the columns looks like parallax, so the residuals against the triangulated point keep only
   // part of it; the fit accounts for that exactly. And without the slope, next to no drift.
-  const auto tracks_with = [](double drift) {
+  // rectified: v_right = v_left exactly (as on KITTI's tracks), one component 0.
+  const auto tracks_with = [](double drift, bool rectified = false) {
     sim::SimulationOptions simulation;
     simulation.robots = 1;
     simulation.frames = 400;
@@ -1029,6 +1030,7 @@ TEST(Calibration, FitsTheTracksDriftWhereTheTriangulatedPointAbsorbsPartOfIt) {
         const auto& [mean, slope] = slopes[o.id];
         const Eigen::Vector2d line = slope * (static_cast<double>(k) - mean);
         for (int i = 0; i < 4; ++i) o.uv(i) += line(i % 2) + 0.002 * normal(random);
+        if (rectified) o.uv(3) = o.uv(1);
       }
     }
     calibration::CalibrationOptions options;
@@ -1048,6 +1050,9 @@ TEST(Calibration, FitsTheTracksDriftWhereTheTriangulatedPointAbsorbsPartOfIt) {
   const calibration::FeatureDrift still = tracks_with(0.0).first.feature_drift;
   EXPECT_LT(still.sigma, 0.1 * 0.0004);
   EXPECT_NEAR(still.white(0), 0.002, 0.1 * 0.002);
+  const calibration::FeatureDrift rectified = tracks_with(0.0004, true).first.feature_drift;
+  EXPECT_NEAR(rectified.sigma, 0.0004, 0.1 * 0.0004);
+  EXPECT_NEAR(rectified.white(3), 0.0, 1e-6);
 }
 
 /// One simulated robot's 400 frames of object observations with next to no noise (no point

@@ -459,7 +459,7 @@ class FeatureDriftFit {
   };
 
   /// The moment equations over the tracks: the four white variances and the slope's; false
-  /// when fewer than 20 tracks or a white variance is not positive. A negative slope variance:
+  /// when fewer than 20 tracks or no white variance is positive. A negative slope variance:
   /// the white variances alone (the slope's 0).
   bool solve(Eigen::Matrix<double, 5, 1>& variances) const {
     if (tracks_.size() < 20) return false;
@@ -490,7 +490,8 @@ class FeatureDriftFit {
       variances(4) = 0.0;
     }
     variances = variances.cwiseMax(0.0);
-    return variances.head<4>().allFinite() && (variances.head<4>().array() > 0.0).all();
+    // A component may be exactly 0 (rectified tracks' v_left = v_right), not all of them.
+    return variances.allFinite() && variances.head<4>().maxCoeff() > 0.0;
   }
 
   std::vector<Track> tracks_;
