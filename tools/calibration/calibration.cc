@@ -386,14 +386,6 @@ class DisplacementErrors {
 };
 
 /// Accumulates point-feature tracks' residuals against their points triangulated with the true
-/// poses for CalibrationReport::feature_drift: the method of moments for a white noise per
-/// stereo component plus a random slope per track (feature_drift_sigma). A triangulated point
-/// absorbs part of any error (a slope in the columns looks like parallax), so each track's
-/// residual r = P e, with P the projection off the point's three directions; for a statistic
-/// r^T A r its expectation under noise covariance C is tr(A P C P), linear in the unknown
-/// variances. Five statistics (each component's sum of squares, and the squared slope
-/// projections) give five equations for the four white variances and the slope's.
-/// Accumulates point-feature tracks' residuals against their points triangulated with the true
 /// poses, for CalibrationReport::feature_drift: white noise per stereo component plus a random
 /// slope per track (feature_drift_sigma), by the method of moments. A triangulated point absorbs
 /// part of any error (a slope in the columns looks like parallax), so a track's residual is
@@ -405,7 +397,7 @@ class FeatureDriftFit {
  public:
   /// One track: its observations' residuals (image units, 4 a frame: u_left, v_left, u_right,
   /// v_right), the Jacobian of their projections with respect to the point (4n x 3) and the
-  /// observations' frames.
+  /// observations' frames; its statistics are added to the sums (nothing of it is kept).
   void add(const Eigen::VectorXd& residual, const Eigen::MatrixXd& jacobian,
            const std::vector<int>& frames) {
     const Eigen::Index rows = residual.size();
@@ -418,83 +410,62 @@ class FeatureDriftFit {
         1, 0, -1, 0,      //
         0, 1, 0, -1;
     basis /= std::sqrt(2.0);
-    Track track;
-    track.residual.resize(rows);
+    Eigen::VectorXd r(rows);  // V^T residual
     Eigen::MatrixXd J(rows, 3);
-    track.slopes = Eigen::MatrixXd::Zero(rows, 2);
+    Eigen::MatrixXd slopes = Eigen::MatrixXd::Zero(rows, 2);  // V^T [g_u g_v], unit slopes
     double mean_frame = 0.0;
     for (int frame : frames) mean_frame += frame;
     mean_frame /= static_cast<double>(n);
     for (Eigen::Index a = 0; a < n; ++a) {
-      track.residual.segment<4>(4 * a) = basis * residual.segment<4>(4 * a);
+      r.segment<4>(4 * a) = basis * residual.segment<4>(4 * a);
       J.middleRows<4>(4 * a) = basis * jacobian.middleRows<4>(4 * a);
       // A slope s (k - k_mean) in both images' u is sqrt 2 s (k - k_mean) in the common u.
       const double t = std::sqrt(2.0) * (frames[static_cast<std::size_t>(a)] - mean_frame);
-      track.slopes(4 * a, 0) = t;
-      track.slopes(4 * a + 1, 1) = t;
+      slopes(4 * a, 0) = t;
+      slopes(4 * a + 1, 1) = t;
     }
-    // N: an orthonormal basis of the residuals' space (the complement of J's columns).
+    // P: the projection off the point's directions (onto the complement of J's columns).
     const Eigen::HouseholderQR<Eigen::MatrixXd> qr(J);
     const Eigen::MatrixXd Q = qr.householderQ() * Eigen::MatrixXd::Identity(rows, rows);
-    track.N = Q.rightCols(rows - 3);
-    tracks_.push_back(std::move(track));
+    const Eigen::MatrixXd P = Q.rightCols(rows - 3) * Q.rightCols(rows - 3).transpose();
+    // The statistics and their expectations' coefficients, summed over the tracks.
+    const Eigen::MatrixXd PG = P * slopes;  // rows x 2
+    for (Eigen::Index a = 0; a < rows; ++a) {
+      const auto i = static_cast<int>(a % 4);
+      y_(i) += r(a) * r(a);
+      for (Eigen::Index b = 0; b < rows; ++b) M_(i, static_cast<int>(b % 4)) += P(a, b) * P(a, b);
+      M_(i, 4) += PG.row(a).squaredNorm();
+      M_(4, i) += PG.row(a).squaredNorm();
+    }
+    y_(4) += (slopes.transpose() * r).squaredNorm();
+    M_(4, 4) += (slopes.transpose() * PG).squaredNorm();
+    ++tracks_;
   }
 
-  /// The fit over every track (FeatureDrift).
+  /// The fit over every track (FeatureDrift): the moment equations solved for the four white
+  /// variances and the slope's; not fitted (tracks 0) with fewer than 20 tracks or no positive
+  /// white variance (a component may be exactly 0: rectified tracks' v_left = v_right). A
+  /// negative slope variance: the white variances alone, the slope's 0.
   FeatureDrift fit() const {
     FeatureDrift out;
-    Eigen::Matrix<double, 5, 1> variances;
-    if (!solve(variances)) return out;
+    if (tracks_ < 20) return out;
+    Eigen::Matrix<double, 5, 1> variances = M_.colPivHouseholderQr().solve(y_);
+    if (!(variances(4) > 0.0)) {
+      variances.head<4>() = M_.topLeftCorner<4, 4>().colPivHouseholderQr().solve(y_.head<4>());
+      variances(4) = 0.0;
+    }
+    variances = variances.cwiseMax(0.0);
+    if (!variances.allFinite() || !(variances.head<4>().maxCoeff() > 0.0)) return out;
     out.white = variances.head<4>().cwiseSqrt();
     out.sigma = std::sqrt(variances(4));
-    out.tracks = static_cast<int>(tracks_.size());
+    out.tracks = tracks_;
     return out;
   }
 
  private:
-  struct Track {
-    Eigen::VectorXd residual;  ///< V^T r
-    Eigen::MatrixXd slopes;    ///< V^T [g_u g_v]: the unit slopes in u and in v
-    Eigen::MatrixXd N;         ///< orthonormal basis of the residuals' space, rotated
-  };
-
-  /// The moment equations over the tracks: the four white variances and the slope's; false
-  /// when fewer than 20 tracks or no white variance is positive. A negative slope variance:
-  /// the white variances alone (the slope's 0).
-  bool solve(Eigen::Matrix<double, 5, 1>& variances) const {
-    if (tracks_.size() < 20) return false;
-    Eigen::Matrix<double, 5, 5> M = Eigen::Matrix<double, 5, 5>::Zero();
-    Eigen::Matrix<double, 5, 1> y = Eigen::Matrix<double, 5, 1>::Zero();
-    for (const Track& track : tracks_) {
-      const Eigen::Index rows = track.residual.size();
-      const Eigen::MatrixXd P = track.N * track.N.transpose();
-      const Eigen::MatrixXd PG = P * track.slopes;  // rows x 2
-      const Eigen::Matrix2d GPG = track.slopes.transpose() * PG;
-      for (Eigen::Index a = 0; a < rows; ++a) {
-        const int i = static_cast<int>(a % 4);
-        y(i) += track.residual(a) * track.residual(a);
-        for (Eigen::Index b = 0; b < rows; ++b) M(i, b % 4) += P(a, b) * P(a, b);
-        M(i, 4) += PG.row(a).squaredNorm();
-      }
-      y(4) += (track.slopes.transpose() * track.residual).squaredNorm();
-      for (int j = 0; j < 4; ++j) {
-        double sum = 0.0;
-        for (Eigen::Index b = j; b < rows; b += 4) sum += PG.row(b).squaredNorm();
-        M(4, j) += sum;
-      }
-      M(4, 4) += GPG.squaredNorm();
-    }
-    variances = M.colPivHouseholderQr().solve(y);
-    if (!(variances(4) > 0.0)) {
-      variances.head<4>() = M.topLeftCorner<4, 4>().colPivHouseholderQr().solve(y.head<4>());
-      variances(4) = 0.0;
-    }
-    variances = variances.cwiseMax(0.0);
-    // A component may be exactly 0 (rectified tracks' v_left = v_right), not all of them.
-    return variances.allFinite() && variances.head<4>().maxCoeff() > 0.0;
-  }
-
-  std::vector<Track> tracks_;
+  Eigen::Matrix<double, 5, 5> M_ = Eigen::Matrix<double, 5, 5>::Zero();
+  Eigen::Matrix<double, 5, 1> y_ = Eigen::Matrix<double, 5, 1>::Zero();
+  int tracks_ = 0;
 };
 
 std::string number(double value) {
