@@ -98,10 +98,11 @@ run frontend-team-consensus "$frontend"
 # The detector's error model measured on a calibration rendering (another seed, one robot x 400
 # frames; never the reported team): the front-end's object observations against the truth,
 # fitted by `concord calibrate --detector-model` as a displacement in space per (robot, object)
-# that walks, plus independent image noise (docs/estimator.md, "Detection displacements"). The
-# front-end then runs on the team again with that model (--detector-model), which it writes into
-# estimator.yaml: the team is replayed with the front-end's config alone, one config for camera
-# and detector.
+# that walks, plus independent image noise (docs/estimator.md, "Detection displacements"), and
+# the point tracks' drift measured on the same tracks (feature_drift_sigma; "Point-feature
+# drift"). The front-end then runs on the team again with that model (--detector-model), which
+# it writes into estimator.yaml: the team is replayed with the front-end's config alone, one
+# config for camera, tracker and detector.
 calibration="$out/frontend-calibration-rendered"
 render "$calibration" 1 400 11
 calibration_frontend="$out/frontend-calibration"
