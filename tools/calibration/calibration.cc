@@ -6,7 +6,6 @@
 #include <cstdio>
 #include <limits>
 #include <map>
-#include <optional>
 #include <stdexcept>
 
 #include "concord/estimator/lie.h"
@@ -591,6 +590,10 @@ CalibrationReport calibrate(const dataset::Dataset& dataset, const CalibrationOp
   }
   StereoErrors features;
   FeatureDriftFit drift;
+  // d(image) / d(normalized) of a stereo observation: the intrinsics' 2x2 part, both images.
+  Eigen::Matrix4d to_image = Eigen::Matrix4d::Zero();
+  to_image.topLeftCorner<2, 2>() = camera.K.topLeftCorner<2, 2>();
+  to_image.bottomRightCorner<2, 2>() = camera.K.topLeftCorner<2, 2>();
   for (const auto& [id, track] : tracks) {
     if (track.size() < 3) continue;
     std::vector<Eigen::Isometry3d> poses;
@@ -603,40 +606,26 @@ CalibrationReport calibrate(const dataset::Dataset& dataset, const CalibrationOp
     if (!point) continue;
     const double n = 4.0 * static_cast<double>(track.size());
     const double deflation = std::sqrt(n / (n - 3.0));
-    for (std::size_t i = 0; i < track.size(); ++i) {
-      const auto projection = UpdaterHelper::project(camera, poses[i], *point);
-      if (!projection) continue;
-      features.add(id, track[i].first,
-                   deflation * (track[i].second - camera.denormalize(projection->xy)));
-    }
-    if (track.size() < 4) continue;
-    // The residuals and their Jacobian with respect to the point (central differences, 1 mm).
+    // The residuals (image units) and their Jacobian with respect to the point, for the drift
+    // fit: tracks of 4 or more observations, all in front of both cameras.
     const auto rows = static_cast<Eigen::Index>(4 * track.size());
     Eigen::VectorXd residual(rows);
     Eigen::MatrixXd jacobian(rows, 3);
     std::vector<int> frames;
     bool visible = true;
-    for (std::size_t i = 0; i < track.size() && visible; ++i) {
-      const auto row = static_cast<Eigen::Index>(4 * i);
-      const auto image = [&](const Eigen::Vector3d& p) -> std::optional<Eigen::Vector4d> {
-        const auto projection = UpdaterHelper::project(camera, poses[i], p);
-        if (!projection) return std::nullopt;
-        return camera.denormalize(projection->xy);
-      };
-      const auto at = image(*point);
-      visible = at.has_value();
-      if (!visible) break;
-      residual.segment<4>(row) = track[i].second - *at;
-      for (int axis = 0; axis < 3; ++axis) {
-        const Eigen::Vector3d step = 1e-3 * Eigen::Vector3d::Unit(axis);
-        const auto plus = image(*point + step), minus = image(*point - step);
-        visible = plus && minus;
-        if (!visible) break;
-        jacobian.block<4, 1>(row, axis) = (*plus - *minus) / 2e-3;
+    for (std::size_t i = 0; i < track.size(); ++i) {
+      const auto projection = UpdaterHelper::project(camera, poses[i], *point);
+      if (!projection) {
+        visible = false;
+        continue;
       }
+      const auto row = static_cast<Eigen::Index>(4 * i);
+      residual.segment<4>(row) = track[i].second - camera.denormalize(projection->xy);
+      jacobian.middleRows<4>(row) = to_image * projection->jacobian_point;
       frames.push_back(track[i].first);
+      features.add(id, track[i].first, deflation * residual.segment<4>(row));
     }
-    if (visible) drift.add(residual, jacobian, frames);
+    if (visible && track.size() >= 4) drift.add(residual, jacobian, frames);
   }
   report.features = features.spread(options);
   report.feature_drift = drift.fit();
