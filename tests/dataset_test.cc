@@ -14,6 +14,7 @@
 namespace concord::dataset {
 namespace {
 
+using ::testing::AnyOf;
 using ::testing::HasSubstr;
 
 /// The DatasetError message of `action`; fails the test if it throws nothing or something else.
@@ -660,6 +661,33 @@ TEST_F(DatasetTest, OdometryCovarianceIsReadIntoTheFrameInputsAndChecked) {
   const std::string once = odometry_covariance_file("1", 0.25);
   EXPECT_THAT(error_reading_with(file, once + once.substr(once.find('\n') + 1)),
               HasSubstr("frame 1 given twice"));
+}
+
+TEST_F(DatasetTest, FeaturesMayCarryEachObservationsOwnNoise) {
+  const std::string header = "frame,id,u_left,v_left,u_right,v_right,sigma_left,sigma_right\n";
+  write_text(robot_folder(0) / "features.csv",
+             header + "1,1000,10,20,5,20,0.25,0.5\n2,1000,11,20,6,20,0,0\n");
+  const Dataset dataset = read_dataset(dataset_folder_);
+  const auto& features = dataset.robots[0].features;
+  EXPECT_EQ(features[1][0].sigma, Eigen::Vector2d(0.25, 0.5));
+  EXPECT_EQ(features[2][0].sigma, Eigen::Vector2d::Zero());  // the configured noise
+  // Written back with the columns, and read back the same.
+  write_dataset(dataset, folder_ / "copy");
+  EXPECT_EQ(read_text(folder_ / "copy" / "robot_00" / "features.csv").substr(0, header.size()),
+            header);
+  EXPECT_EQ(read_dataset(folder_ / "copy").robots[0].features[1][0].sigma,
+            Eigen::Vector2d(0.25, 0.5));
+
+  const std::string file = "robot_00/features.csv";
+  for (const std::string row : {"1,1000,10,20,5,20,0.25,0\n", "1,1000,10,20,5,20,-0.25,0.5\n",
+                                "1,1000,10,20,5,20,nan,0.5\n"}) {
+    EXPECT_THAT(error_reading_with(file, header + row),
+                AnyOf(HasSubstr("sigma_left and sigma_right must both be > 0"),
+                      HasSubstr("is not a number"), HasSubstr("is not finite")))
+        << row;
+  }
+  EXPECT_THAT(error_reading_with(file, header + "1,1000,10,20,5,20,0.25\n"),
+              HasSubstr("expected 8 comma-separated fields, found 7"));
 }
 
 TEST_F(DatasetTest, WriteThenReadTheFixtureIsExact) {

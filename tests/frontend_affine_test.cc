@@ -177,5 +177,58 @@ TEST(AffineAlignment, APreparedTemplateFollowsItsPatchThroughASequenceOfWarps) {
   EXPECT_FALSE(anchor.align(image, warp, 15, 0.02));
 }
 
+TEST(AffineAlignment, ItsPositionVarianceFollowsTheImageNoiseAndTheErrorsUpToAScale) {
+  // The same patch aligned into copies of its image with Gaussian noise added: the variance the
+  // alignment reports grows with the noise's variance, as the spread of its errors does.
+  const cv::Mat image = texture(160, 160, 21);
+  const cv::Point2f centre(80.0f, 80.0f);
+  AffineTemplate patch;
+  ASSERT_TRUE(patch.prepare(image, centre, WarpModel::kAffine, 15));
+  cv::RNG random(5);
+  const cv::Point2f truth(80.3f, 79.6f);
+  const cv::Mat clean = warped(image, cv::Matx22f::eye(), centre, truth);
+  // The spread of the errors about their mean (the sampling's own bias is the same every trial).
+  const auto trials = [&](double noise) {
+    double reported = 0.0;
+    std::vector<cv::Point2f> found;
+    for (int trial = 0; trial < 300; ++trial) {
+      cv::Mat target;
+      cv::Mat noisy;
+      clean.convertTo(noisy, CV_32F);
+      cv::Mat added(noisy.size(), CV_32F);
+      random.fill(added, cv::RNG::NORMAL, 0.0, noise);
+      cv::Mat sum = noisy + added;
+      sum.convertTo(target, CV_8U);
+      AffineWarp warp;
+      warp.t = truth;
+      if (!patch.align(target, warp, 15, 0.02)) continue;
+      reported += warp.position_variance;
+      found.push_back(warp.t);
+    }
+    EXPECT_GE(found.size(), 280u);
+    cv::Point2f mean(0.0f, 0.0f);
+    for (const cv::Point2f& t : found) mean += t;
+    mean *= 1.0f / static_cast<float>(found.size());
+    double spread = 0.0;
+    for (const cv::Point2f& t : found)
+      spread += 0.5 * (std::pow(t.x - mean.x, 2) + std::pow(t.y - mean.y, 2));
+    return std::pair{reported / found.size(), spread / found.size()};
+  };
+  const auto [low_reported, low_error] = trials(3.0);
+  const auto [high_reported, high_error] = trials(12.0);
+  // Sixteen times the noise's variance: the reported variance grows about tenfold (the
+  // sampling's own error is a floor), the errors' spread sixteenfold.
+  EXPECT_GT(high_reported, 6.0 * low_reported);
+  EXPECT_GT(high_error, 6.0 * low_error);
+  // The errors' spread is the reported variance's up to a factor of one to three: the bilinear
+  // sampling smooths the noise, which the residual then understates. The front-end scales the
+  // variances to its tracks' own noise level (ObservationNoise) for that reason.
+  for (const auto& [reported, error] :
+       {std::pair{low_reported, low_error}, std::pair{high_reported, high_error}}) {
+    EXPECT_GT(error, 1.0 * reported);
+    EXPECT_LT(error, 3.0 * reported);
+  }
+}
+
 }  // namespace
 }  // namespace concord::frontend

@@ -549,6 +549,86 @@ TEST(FrontendRendered, RunWritesADatasetThatReadsBack) {
   EXPECT_THROW((void)run_frontend(rendered_sequence().team, out, options), FrontendError);
 }
 
+TEST(FrontendRendered, TheTrackerReportsEachMatchsAlignmentVariance) {
+  // A track's first left observation is its anchor (no alignment measured it); later ones and
+  // the stereo matches carry the alignment's variance, which differs from match to match.
+  StereoSequence sequence = read_stereo_sequence(rendered_sequence().sequence);
+  StereoTracker tracker(FrontendOptions{}.tracker);
+  std::map<LandmarkId, int> seen;
+  int anchors = 0, measured_left = 0, measured_stereo = 0, observations = 0;
+  float smallest = std::numeric_limits<float>::infinity(), largest = 0.0f;
+  for (int frame = 0; frame < 8; ++frame) {
+    const auto [left, right] = images(sequence, frame);
+    const TrackedFrame tracked = tracker.track(left, right);
+    ASSERT_EQ(tracked.alignment_variances.size(), tracked.observations.size());
+    for (std::size_t n = 0; n < tracked.observations.size(); ++n) {
+      const auto [v_left, v_stereo] = tracked.alignment_variances[n];
+      ++observations;
+      if (seen[tracked.observations[n].id]++ == 0) {
+        EXPECT_TRUE(std::isnan(v_left));  // the anchor
+        ++anchors;
+      } else if (std::isfinite(v_left)) {
+        EXPECT_GE(v_left, 0.0f);
+        ++measured_left;
+      }
+      if (std::isfinite(v_stereo)) {
+        EXPECT_GE(v_stereo, 0.0f);
+        ++measured_stereo;
+        smallest = std::min(smallest, v_stereo);
+        largest = std::max(largest, v_stereo);
+      }
+    }
+  }
+  EXPECT_GT(anchors, 150);
+  EXPECT_GT(measured_left, (observations - anchors) * 8 / 10);
+  EXPECT_GT(measured_stereo, observations / 2);
+  EXPECT_GT(largest, 5.0f * smallest);
+}
+
+TEST(FrontendRun, EachTrackObservationGetsItsOwnNoiseAtTheTracksLevel) {
+  // features.csv carries each observation's sigma_left and sigma_right from the alignments'
+  // variances, scaled so that their mean level is the tracks' own noise; with
+  // observation_noise off it carries none.
+  const fs::path out = testing::temporary_folder("frontend_observation_noise");
+  FrontendRunOptions options;
+  options.max_frames = 10;
+  const FrontendRunSummary summary = run_frontend(rendered_sequence().team, out, options);
+  const ObservationNoise& noise = summary.robots.at(0).observation_noise;
+  ASSERT_TRUE(noise.valid());
+  const double level = std::max(summary.robots[0].feature_track_sigma, 0.05);
+  const dataset::RobotData robot = dataset::read_dataset(out).robots.at(0);
+  double left = 0.0, stereo = 0.0, smallest = 1e9, largest = 0.0;
+  long long count = 0;
+  for (const auto& frame : robot.features) {
+    for (const StereoObservation& observation : frame) {
+      const Eigen::Vector2d& sigma = observation.sigma;
+      ASSERT_GT(sigma(0), 0.0);
+      ASSERT_GE(sigma(1), sigma(0));  // the right image's match adds the stereo alignment's
+      left += sigma(0) * sigma(0);
+      stereo += sigma(1) * sigma(1) - sigma(0) * sigma(0);
+      smallest = std::min(smallest, sigma(0));
+      largest = std::max(largest, sigma(0));
+      ++count;
+    }
+  }
+  ASSERT_EQ(count, noise.observations);
+  EXPECT_NEAR(left / count, level * level, 1e-6 * level * level);
+  EXPECT_NEAR(stereo / count, level * level, 1e-6 * level * level);
+  EXPECT_GT(largest, 3.0 * smallest);  // the alignments tell good matches from poor ones
+
+  options.observation_noise = false;
+  const fs::path constant = testing::temporary_folder("frontend_constant_noise");
+  EXPECT_FALSE(run_frontend(rendered_sequence().team, constant, options)
+                   .robots.at(0)
+                   .observation_noise.valid());
+  const dataset::Dataset without = dataset::read_dataset(constant);
+  for (const auto& frame : without.robots.at(0).features) {
+    for (const StereoObservation& observation : frame) {
+      EXPECT_EQ(observation.sigma, Eigen::Vector2d::Zero());
+    }
+  }
+}
+
 TEST(FrontendRun, AnUpAxisAlongTheCamerasVerticalMakesObjectsUpright) {
   // The rendered body is the left camera looking forward on a level robot: up is -y, the
   // camera's vertical; +z (forward) is not. The objects' rows follow (ObjectOptions::upright),

@@ -319,6 +319,189 @@ TEST(FeatureUpdate, ADriftModelTakesATrackThatDriftsForWhatItIs) {
   EXPECT_NE(options.validate().front().find("feature_odometry_correlation"), std::string::npos);
 }
 
+/// A window of `n` poses 0.2 m apart along x with a small prior covariance, and one track of a
+/// point seen from each, its observations moved by `offsets` (pixels, one a frame) and given
+/// `sigmas` (pixels; zero: the configured noise).
+struct OneTrack {
+  State state;
+  std::vector<StereoObservation> observations;
+};
+OneTrack one_track(int n, const std::vector<Eigen::Vector4d>& offsets,
+                   const std::vector<Eigen::Vector2d>& sigmas) {
+  const StereoCamera camera = kitti_like_camera();
+  const Eigen::Vector3d p_world(30.0, 1.5, 0.5);
+  OneTrack out;
+  for (int k = 0; k < n; ++k) {
+    Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
+    pose.translation() = Eigen::Vector3d(0.2 * k, 0.0, 0.0);
+    out.state.poses.push_back({k, pose});
+    const auto projection = UpdaterHelper::project(camera, pose, p_world);
+    StereoObservation observation;
+    observation.id = 7;
+    observation.uv = camera.denormalize(projection->xy) + offsets[k];
+    observation.sigma = sigmas[k];
+    out.observations.push_back(observation);
+  }
+  std::mt19937 random(3);
+  std::normal_distribution<double> normal;
+  const int dimension = out.state.dimension();
+  Eigen::MatrixXd A(dimension, dimension);
+  for (int i = 0; i < dimension; ++i) {
+    for (int j = 0; j < dimension; ++j) A(i, j) = normal(random);
+  }
+  out.state.covariance =
+      1e-8 * (A * A.transpose() / dimension + Eigen::MatrixXd::Identity(dimension, dimension));
+  return out;
+}
+
+/// The FeatureUpdater's update of `track` at its last frame (the window's poses all in the state
+/// from the start, so the update sees the track whole): the state after it, and the stats.
+std::pair<State, FeatureUpdateStats> update_with(const EstimatorOptions& options, OneTrack track) {
+  FeatureUpdater updater(options, kitti_like_camera());
+  State state = track.state;
+  FeatureUpdateStats stats;
+  const auto poses = state.poses;
+  for (std::size_t k = 0; k < poses.size(); ++k) {
+    // The updater reads the newest pose's frame: the window grows as frames come.
+    state.poses.assign(poses.begin(), poses.begin() + static_cast<std::ptrdiff_t>(k + 1));
+    State current = track.state;
+    current.poses = state.poses;
+    const int dimension = current.dimension();
+    current.covariance = track.state.covariance.topLeftCorner(dimension, dimension);
+    stats = updater.process(current, {track.observations[k]});
+    state = current;
+  }
+  return {state, stats};
+}
+
+TEST(FeatureUpdate, AnObservationsOwnNoiseOfTheConfiguredSizeChangesNothing) {
+  EstimatorOptions options;
+  options.feature_noise = StereoNoise::isotropic(0.2);
+  options.feature_drift_sigma = 0.05;
+  options.feature_max_observations = 6;
+  std::vector<Eigen::Vector4d> offsets(6, Eigen::Vector4d(0.1, -0.1, 0.05, -0.1));
+  const auto [configured, configured_stats] =
+      update_with(options, one_track(6, offsets, std::vector<Eigen::Vector2d>(6, {0.0, 0.0})));
+  const auto [own, own_stats] =
+      update_with(options, one_track(6, offsets, std::vector<Eigen::Vector2d>(6, {0.2, 0.2})));
+  ASSERT_EQ(configured_stats.tracks_used, 1);
+  ASSERT_EQ(own_stats.tracks_used, 1);
+  EXPECT_LT((configured.covariance - own.covariance).cwiseAbs().maxCoeff(), 1e-15);
+  // And the update did something: the covariance shrank.
+  EXPECT_LT(own.covariance.trace(),
+            one_track(6, offsets, {6, {0.0, 0.0}}).state.covariance.trace());
+}
+
+TEST(FeatureUpdate, ADriftModelWithOwnNoiseMatchesTheDenseWhitening) {
+  // The updater whitens a track's rows for each observation's own noise, then for the slope
+  // (rank 2) with the inverse square root of I + U U^T. Against the dense way: the rows' whole
+  // covariance (own noise plus the slope's, 4n x 4n) factored and solved.
+  const int n = 7;
+  EstimatorOptions options;
+  options.feature_noise = StereoNoise::isotropic(0.3);
+  options.feature_drift_sigma = 0.08;
+  options.feature_max_observations = n;
+  options.feature_chi2_probability = 0.0;  // no gate: the update itself is compared
+  std::vector<Eigen::Vector4d> offsets;
+  std::vector<Eigen::Vector2d> sigmas;
+  for (int k = 0; k < n; ++k) {
+    offsets.emplace_back(0.07 * k, -0.05 * k + 0.1 * (k % 2), 0.07 * k - 0.2, -0.05 * k);
+    sigmas.emplace_back(0.1 + 0.05 * k, 0.25 + 0.03 * (k % 3));
+  }
+  const OneTrack track = one_track(n, offsets, sigmas);
+  const auto [updated, stats] = update_with(options, track);
+  ASSERT_EQ(stats.tracks_used, 1);
+
+  const StereoCamera camera = kitti_like_camera();
+  State dense = track.state;
+  std::vector<TrackObservation> observations;
+  std::vector<Eigen::Isometry3d> poses;
+  std::vector<Eigen::Vector4d> xy;
+  for (int k = 0; k < n; ++k) {
+    observations.push_back({k, camera.normalize(track.observations[k].uv), sigmas[k]});
+    poses.push_back(dense.poses[k].T_world_body);
+    xy.push_back(observations.back().xy);
+  }
+  const auto point = UpdaterHelper::triangulate(camera, poses, xy);
+  ASSERT_TRUE(point);
+  auto linearized = UpdaterHelper::linearize(dense, camera, observations, *point);
+  ASSERT_TRUE(linearized);
+  const double fx = camera.K(0, 0), fy = camera.K(1, 1);
+  const double slope = options.feature_drift_sigma / camera.focal_length();
+  Eigen::MatrixXd covariance = Eigen::MatrixXd::Zero(4 * n, 4 * n);
+  Eigen::Matrix4d common;
+  common << 1, 0, 1, 0, 0, 1, 0, 1, 1, 0, 1, 0, 0, 1, 0, 1;
+  const double mean_frame = (n - 1) / 2.0;
+  for (int a = 0; a < n; ++a) {
+    const double l = sigmas[a](0), r = sigmas[a](1);
+    covariance.block<4, 4>(4 * a, 4 * a) =
+        Eigen::Vector4d(l * l / (fx * fx), l * l / (fy * fy), r * r / (fx * fx), r * r / (fy * fy))
+            .asDiagonal();
+    for (int b = 0; b < n; ++b) {
+      covariance.block<4, 4>(4 * a, 4 * b) +=
+          (a - mean_frame) * (b - mean_frame) * slope * slope * common;
+    }
+  }
+  const Eigen::LLT<Eigen::MatrixXd> llt(covariance);
+  ASSERT_EQ(llt.info(), Eigen::Success);
+  const Eigen::MatrixXd lower = llt.matrixL();
+  linearized->residual = lower.triangularView<Eigen::Lower>().solve(linearized->residual);
+  linearized->H_state = lower.triangularView<Eigen::Lower>().solve(linearized->H_state);
+  linearized->H_point = lower.triangularView<Eigen::Lower>().solve(linearized->H_point);
+  UpdaterHelper::nullspace_project_inplace(linearized->H_state, linearized->H_point,
+                                           linearized->residual);
+  const Eigen::Index rows = linearized->residual.size();
+  ASSERT_TRUE(StateHelper::update(dense, linearized->H_state, linearized->residual,
+                                  Eigen::MatrixXd::Identity(rows, rows)));
+  EXPECT_LT((updated.covariance - dense.covariance).cwiseAbs().maxCoeff(),
+            1e-9 * dense.covariance.cwiseAbs().maxCoeff());
+  for (int k = 0; k < n; ++k) {
+    EXPECT_LT((updated.poses[k].T_world_body.matrix() - dense.poses[k].T_world_body.matrix())
+                  .cwiseAbs()
+                  .maxCoeff(),
+              1e-9);
+  }
+  // The track moved the poses (the comparison is not of two untouched states).
+  EXPECT_GT((dense.poses[n - 1].T_world_body.translation() -
+             track.state.poses[n - 1].T_world_body.translation())
+                .norm(),
+            1e-6);
+}
+
+TEST(FeatureUpdate, AnObservationWithALargeOwnNoiseWeighsLittle) {
+  // One observation 3 px off: under the configured 0.1 px the gate refuses the track; given its
+  // own noise of 3 px, the track is used, and that observation moves the estimate a tenth as
+  // much as it does under the configured noise with the gate off.
+  EstimatorOptions options;
+  options.feature_noise = StereoNoise::isotropic(0.1);
+  options.feature_max_observations = 6;
+  std::vector<Eigen::Vector4d> offsets(6, Eigen::Vector4d::Zero());
+  const std::vector<Eigen::Vector4d> clean_offsets = offsets;
+  offsets[3] = Eigen::Vector4d(3.0, -3.0, 3.0, -3.0);
+  std::vector<Eigen::Vector2d> configured(6, Eigen::Vector2d::Zero());
+  EXPECT_EQ(update_with(options, one_track(6, offsets, configured)).second.tracks_rejected, 1);
+  std::vector<Eigen::Vector2d> own = configured;
+  own[3] = Eigen::Vector2d(3.0, 3.0);
+  const auto [state, stats] = update_with(options, one_track(6, offsets, own));
+  EXPECT_EQ(stats.tracks_used, 1);
+  const auto shift = [&](const std::vector<Eigen::Vector2d>& sigmas, const EstimatorOptions& o) {
+    const State with = update_with(o, one_track(6, offsets, sigmas)).first;
+    const State without = update_with(o, one_track(6, clean_offsets, sigmas)).first;
+    double largest = 0.0;
+    for (int k = 0; k < 6; ++k) {
+      largest = std::max(largest, (with.poses[k].T_world_body.translation() -
+                                   without.poses[k].T_world_body.translation())
+                                      .norm());
+    }
+    return largest;
+  };
+  EstimatorOptions ungated = options;
+  ungated.feature_chi2_probability = 0.0;
+  const double configured_shift = shift(configured, ungated);
+  EXPECT_GT(configured_shift, 0.0);
+  EXPECT_LT(shift(own, options), 0.1 * configured_shift);
+}
+
 TEST(KalmanUpdate, CorrelatedNoiseMatchesGaussianConditioning) {
   // x ~ N(0, P), z = H x + v with Cov(x, v) = S: the posterior is the Gaussian conditional
   // of the joint (x, z), Cov(x, z) = P H^T + S, Cov(z) = H P H^T + V + H S + S^T H^T.

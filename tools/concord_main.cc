@@ -1101,6 +1101,11 @@ int main(int argc, char** argv) {
                    "alike for robots processed in separate runs. Default: the names the "
                    "detections use")
       ->delimiter(',');
+  bool constant_feature_noise = false;
+  frontend_command->add_flag(
+      "--constant-feature-noise", constant_feature_noise,
+      "Write no noise per observation (features.csv without sigma_left, sigma_right): the "
+      "estimator's feature_noise for every observation");
   frontend_command
       ->add_option("--detector-model", frontend_options.detector_model,
                    "The detector's error model (estimator object noise keys and "
@@ -1193,6 +1198,7 @@ int main(int argc, char** argv) {
     if (frontend_eval_command->parsed()) return run_frontend_eval(dataset_dir, world_file);
     if (frontend_command->parsed()) {
       if (frames > 0) frontend_options.max_frames = frames;
+      frontend_options.observation_noise = !constant_feature_noise;
       if (!frontend_object_ids.empty()) {
         frontend_options.object_ids = frontend_object_ids == "private"
                                           ? dataset::ObjectIds::kPrivate

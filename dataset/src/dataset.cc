@@ -39,6 +39,8 @@ constexpr std::array<std::string_view, 6> kObservationColumns{"frame",  "id",   
                                                               "v_left", "u_right", "v_right"};
 /// objects.csv may carry the detector's class after the observation columns.
 constexpr std::array<std::string_view, 1> kObjectClassColumn{"class"};
+/// features.csv may carry each observation's own noise (StereoObservation::sigma) after them.
+constexpr std::array<std::string_view, 2> kFeatureSigmaColumns{"sigma_left", "sigma_right"};
 constexpr std::array<std::string_view, 2> kObjectTruthIdsColumns{"id", "truth_id"};
 
 /// The NN of a robot_NN folder name (two or more digits); nullopt if the name does not start
@@ -204,9 +206,10 @@ std::vector<std::vector<StereoObservation>> read_observations(
     const std::filesystem::path& file, int num_frames,
     std::vector<std::vector<int>>* classes = nullptr, bool* has_classes = nullptr) {
   std::vector<std::vector<StereoObservation>> per_frame(num_frames);
+  // objects.csv: an optional class; features.csv: an optional noise per observation.
   CsvReader table(file, kObservationColumns,
                   classes != nullptr ? std::span<const std::string_view>(kObjectClassColumn)
-                                     : std::span<const std::string_view>());
+                                     : std::span<const std::string_view>(kFeatureSigmaColumns));
   if (classes != nullptr) classes->assign(num_frames, {});
   if (has_classes != nullptr) *has_classes = table.has_optional_columns();
   while (table.next_row()) {
@@ -220,6 +223,15 @@ std::vector<std::vector<StereoObservation>> read_observations(
     observation.id = table.integer(1);
     observation.uv =
         Eigen::Vector4d(table.number(2), table.number(3), table.number(4), table.number(5));
+    if (classes == nullptr && table.has_optional_columns()) {
+      observation.sigma = Eigen::Vector2d(table.number(6), table.number(7));
+      const bool given = observation.sigma(0) > 0.0 && observation.sigma(1) > 0.0;
+      if (!(observation.sigma.allFinite() && (given || observation.sigma.isZero(0.0)))) {
+        table.fail(
+            "sigma_left and sigma_right must both be > 0 (the observation's own noise, "
+            "pixels) or both 0 (the configured feature_noise)");
+      }
+    }
     per_frame[frame].push_back(observation);
     if (classes != nullptr && table.has_optional_columns()) {
       const std::int64_t object_class = table.integer(6);
@@ -325,10 +337,21 @@ RobotData read_robot(const std::filesystem::path& folder, int index, const ReadO
   return robot;
 }
 
+/// Writes observations, with the classes' column when given, else with the noise columns when
+/// any observation has its own noise.
 std::string format_observations(const std::vector<std::vector<StereoObservation>>& per_frame,
                                 const std::vector<std::vector<int>>* classes = nullptr) {
   std::string out = text_parsing::csv_header(kObservationColumns);
+  const bool sigmas =
+      classes == nullptr && std::any_of(per_frame.begin(), per_frame.end(), [](const auto& frame) {
+        return std::any_of(frame.begin(), frame.end(), [](const StereoObservation& observation) {
+          return !observation.sigma.isZero(0.0);
+        });
+      });
   if (classes != nullptr) out += "," + std::string(kObjectClassColumn[0]);
+  if (sigmas) {
+    for (const std::string_view column : kFeatureSigmaColumns) out += "," + std::string(column);
+  }
   out += '\n';
   for (std::size_t frame = 0; frame < per_frame.size(); ++frame) {
     for (std::size_t n = 0; n < per_frame[frame].size(); ++n) {
@@ -343,6 +366,10 @@ std::string format_observations(const std::vector<std::vector<StereoObservation>
       if (classes != nullptr) {
         out += ',';
         append_integer(out, (*classes)[frame][n]);
+      }
+      for (int side = 0; sigmas && side < 2; ++side) {
+        out += ',';
+        append_number(out, observation.sigma[side]);
       }
       out += '\n';
     }

@@ -1,8 +1,9 @@
 #include "concord/estimator/feature_updater.h"
 
-#include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cassert>
+#include <cmath>
 
 #include "concord/estimator/state_helper.h"
 
@@ -20,47 +21,75 @@ FeatureUpdater::FeatureUpdater(const EstimatorOptions& options, const StereoCame
     }
   }
   correlation /= camera.focal_length();
-  // Whitened like the observations: S^T rows are left-multiplied by the same matrix.
-  correlation_transposed_ = whitening_ * correlation.transpose();
+  correlation_transposed_ = correlation.transpose();
   has_correlation_ = !correlation.isZero(0.0);
-  // The slope is common to both images: (u_left, v_left, u_right, v_right) move by (a, b, a, b).
-  Eigen::Matrix4d common;
-  common << 1, 0, 1, 0,  //
-      0, 1, 0, 1,        //
-      1, 0, 1, 0,        //
-      0, 1, 0, 1;
-  const double sigma = options.feature_drift_sigma / camera.focal_length();
-  drift_covariance_ = whitening_ * (sigma * sigma * common) * whitening_.transpose();
+}
+
+Eigen::Matrix4d FeatureUpdater::observation_whitening(const TrackObservation& observation) const {
+  if (observation.sigma.isZero(0.0)) return whitening_;
+  // Independent coordinates: the inverse standard deviations, in normalized units.
+  const double fx = camera_.K(0, 0), fy = camera_.K(1, 1);
+  const double left = observation.sigma(0), right = observation.sigma(1);
+  return Eigen::Vector4d(fx / left, fy / left, fx / right, fy / right).asDiagonal();
 }
 
 namespace {
 
-/// Whitens a track's rows (already whitened observation by observation) for a random slope per
-/// track: their covariance is I + (k_a - k_mean)(k_b - k_mean) D between observations a and b.
-/// `covariance` is the caller's buffer (factored in place).
-void whiten_drift(LinearizedTrack& track, const std::vector<TrackObservation>& observations,
-                  const Eigen::Matrix4d& drift, Eigen::MatrixXd& covariance) {
-  const auto n = static_cast<Eigen::Index>(observations.size());
-  assert(track.residual.size() == 4 * n);  // UpdaterHelper::linearize: 4 rows an observation
-  double mean_frame = 0.0;
-  for (const TrackObservation& observation : observations) mean_frame += observation.frame;
-  mean_frame /= static_cast<double>(n);
-  covariance.setIdentity(4 * n, 4 * n);
-  for (Eigen::Index a = 0; a < n; ++a) {
-    const double ta = observations[a].frame - mean_frame;
-    for (Eigen::Index b = 0; b < n; ++b) {
-      covariance.block<4, 4>(4 * a, 4 * b) += ta * (observations[b].frame - mean_frame) * drift;
-    }
-  }
-  // Identity plus a positive semi-definite term: positive definite.
-  const Eigen::LLT<Eigen::Ref<Eigen::MatrixXd>> llt(covariance);
-  const auto lower = llt.matrixL();
-  lower.solveInPlace(track.residual);
-  lower.solveInPlace(track.H_state);
-  lower.solveInPlace(track.H_point);
+/// -1 / (sqrt(1 + s) (1 + sqrt(1 + s))) = ((1 + s)^(-1/2) - 1) / s, without the cancellation
+/// at small s (-1/2 at s = 0).
+double inverse_root_step(double s) {
+  const double root = std::sqrt(1.0 + s);
+  return -1.0 / (root * (1.0 + root));
+}
+
+/// Left-multiplies `rows` by (I + U U^T)^(-1/2) (U: 4n x 2). With U = Q diag(sqrt(s)) V^T (thin
+/// SVD; U^T U = V diag(s) V^T) that is I + U V diag(inverse_root_step(s)) V^T U^T: O(n) instead
+/// of factoring a 4n x 4n matrix.
+template <typename Rows>
+void apply_inverse_root(const Eigen::MatrixXd& U, const Eigen::Matrix2d& middle, Rows&& rows) {
+  const Eigen::Matrix<double, 2, Eigen::Dynamic> projected = U.transpose() * rows;
+  rows.noalias() += U * (middle * projected);
 }
 
 }  // namespace
+
+void FeatureUpdater::whiten(LinearizedTrack& track,
+                            const std::vector<TrackObservation>& observations) {
+  const auto n = static_cast<Eigen::Index>(observations.size());
+  assert(track.residual.size() == 4 * n);  // UpdaterHelper::linearize: 4 rows an observation
+  // 1. Each observation's own noise: its four rows get the identity covariance.
+  for (Eigen::Index a = 0; a < n; ++a) {
+    const Eigen::Matrix4d whitening = observation_whitening(observations[a]);
+    track.H_state.middleRows<4>(4 * a) = (whitening * track.H_state.middleRows<4>(4 * a)).eval();
+    track.H_point.middleRows<4>(4 * a) = (whitening * track.H_point.middleRows<4>(4 * a)).eval();
+    track.residual.segment<4>(4 * a) = (whitening * track.residual.segment<4>(4 * a)).eval();
+  }
+  if (options_.feature_drift_sigma <= 0.0) return;
+  // 2. A random slope per track, common to both images: observation a moves by
+  //    (k_a - k_mean) (c, d, c, d), (c, d) ~ N(0, sigma^2 I). In the rows whitened above its
+  //    covariance is U U^T, U's rows of observation a (k_a - k_mean) W_a C sigma, C = [I; I]:
+  //    the rows' covariance is I + U U^T, whitened by its inverse square root (rank 2).
+  double mean_frame = 0.0;
+  for (const TrackObservation& observation : observations) mean_frame += observation.frame;
+  mean_frame /= static_cast<double>(n);
+  const double sigma = options_.feature_drift_sigma / camera_.focal_length();
+  Eigen::Matrix<double, 4, 2> common;
+  common << 1, 0, 0, 1, 1, 0, 0, 1;
+  drift_rows_.resize(4 * n, 2);
+  for (Eigen::Index a = 0; a < n; ++a) {
+    drift_rows_.middleRows<4>(4 * a) = ((observations[a].frame - mean_frame) * sigma) *
+                                       (observation_whitening(observations[a]) * common);
+  }
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d> eigen(drift_rows_.transpose() * drift_rows_);
+  const Eigen::Vector2d s = eigen.eigenvalues().cwiseMax(0.0);
+  const Eigen::Matrix2d middle =
+      eigen.eigenvectors() *
+      Eigen::Vector2d(inverse_root_step(s(0)), inverse_root_step(s(1))).asDiagonal() *
+      eigen.eigenvectors().transpose();
+  apply_inverse_root(drift_rows_, middle, track.residual);
+  apply_inverse_root(drift_rows_, middle, track.H_state);
+  apply_inverse_root(drift_rows_, middle, track.H_point);
+}
 
 FeatureUpdateStats FeatureUpdater::process(State& state,
                                            const std::vector<StereoObservation>& features) {
@@ -68,7 +97,8 @@ FeatureUpdateStats FeatureUpdater::process(State& state,
   const int frame = state.newest_pose().frame;
   const int oldest_frame = state.poses.front().frame;
   for (const StereoObservation& observation : features) {
-    tracks_[observation.id].push_back({frame, camera_.normalize(observation.uv)});
+    tracks_[observation.id].push_back(
+        {frame, camera_.normalize(observation.uv), observation.sigma});
     ++stats.observations;
   }
 
@@ -123,18 +153,17 @@ FeatureUpdateStats FeatureUpdater::process(State& state,
       ++stats.tracks_rejected;
       continue;
     }
-    UpdaterHelper::whiten_inplace(*linearized, whitening_);
-    // A drift model with the odometry correlation term would need that term whitened too: the
-    // options refuse the two together.
-    if (options_.feature_drift_sigma > 0.0) {
-      whiten_drift(*linearized, track, drift_covariance_, drift_rows_);
-    }
+    // A drift model with the odometry correlation term would need that term whitened for the
+    // drift too: the options refuse the two together.
+    whiten(*linearized, track);
     Eigen::MatrixXd correlation_rows;  // S^T rows (rows x 6, newest pose columns), whitened
     Eigen::MatrixXd* extra = nullptr;
     if (has_correlation_) {
       correlation_rows = Eigen::MatrixXd::Zero(linearized->residual.size(), 6);
       if (linearized->newest_frame_row >= 0) {
-        correlation_rows.middleRows<4>(linearized->newest_frame_row) = correlation_transposed_;
+        // Whitened like the newest observation's rows.
+        correlation_rows.middleRows<4>(linearized->newest_frame_row) =
+            observation_whitening(track.back()) * correlation_transposed_;
       }
       extra = &correlation_rows;
     }

@@ -61,6 +61,7 @@ bool AffineTemplate::prepare(const cv::Mat& image, const cv::Point2f& centre, Wa
   values.array() -= values.mean();
   const float norm = values.squaredNorm();
   if (!(norm > 0.0f)) return false;
+  template_norm_ = norm;
   const Eigen::Matrix<float, 1, kParameters> along_mean = descent.colwise().mean();
   const Eigen::Matrix<float, 1, kParameters> along_template =
       (values.transpose() * descent) / norm;
@@ -144,7 +145,19 @@ bool AffineTemplate::align(const cv::Mat& image, AffineWarp& warp, int max_itera
     const double moved = std::abs(step[4]) + std::abs(step[5]) +
                          corner * (std::abs(step[0]) + std::abs(step[1]) + std::abs(step[2]) +
                                    std::abs(step[3]));
-    if (moved < epsilon) return true;
+    if (moved < epsilon) {
+      // The residual's variance with the brightness's offset (the mean) and gain (along the
+      // zero-mean template) projected out, over the degrees of freedom the fit leaves.
+      const Eigen::Map<const Eigen::VectorXf> template_values(values_.data(), count);
+      const double sum = error_vector.sum();
+      const double along = error_vector.dot(template_values);
+      const double residual = static_cast<double>(error_vector.squaredNorm()) - sum * sum / count -
+                              along * along / template_norm_;
+      const double variance = std::max(residual, 0.0) / (count - kParameters - 2);
+      warp.position_variance =
+          static_cast<float>(variance * 0.5 * (inverse_(4, 4) + inverse_(5, 5)));
+      return true;
+    }
     // A fit whose steps stop shrinking is not converging (a patch across a depth edge, whose
     // two views no warp relates): give up early.
     growing = moved >= previous_moved ? growing + 1 : 0;

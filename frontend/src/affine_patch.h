@@ -24,6 +24,11 @@ namespace concord::frontend {
 struct AffineWarp {
   cv::Matx22f A = cv::Matx22f::eye();
   cv::Point2f t;
+  /// After a converged AffineTemplate::align: the Lucas-Kanade variance of t, pixels^2 per axis
+  /// (the final residual's variance, brightness gain and offset projected out of it, times the
+  /// mean of the translation's two diagonal entries of the inverse Gauss-Newton matrix): how well
+  /// the patch's texture pinned the match down.
+  float position_variance = 0.0f;
 };
 
 /// Which warps are fitted.
@@ -67,8 +72,9 @@ class AffineTemplate {
  private:
   int side_ = 0;
   bool valid_ = false;
-  /// The zero-mean template, side x side row by row.
+  /// The zero-mean template, side x side row by row, and its squared norm.
   std::vector<float> values_;
+  double template_norm_ = 0.0;
   /// The six descent images, one after the other (a count x 6 column-major matrix).
   std::vector<float> descent_;
   /// Inverse of descent^T descent (a parameter left out by the model has a zero row and column).

@@ -137,6 +137,7 @@ class StereoFrontend::Impl {
     out.mean_track_length =
         tracked.track_lengths.empty() ? 0.0 : length_sum / tracked.track_lengths.size();
     out.input.features = tracked.observations;
+    out.alignment_variances = std::move(tracked.alignment_variances);
     previous_tracks_ = std::move(tracked.observations);
     ++frame_;
     out.timings.total = milliseconds_since(start);
@@ -170,10 +171,12 @@ class StereoFrontend::Impl {
       if (std::find(ids.begin(), ids.end(), tracked.observations[index].id) != ids.end()) continue;
       tracked.observations[kept] = tracked.observations[index];
       tracked.track_lengths[kept] = tracked.track_lengths[index];
+      tracked.alignment_variances[kept] = tracked.alignment_variances[index];
       ++kept;
     }
     tracked.observations.resize(kept);
     tracked.track_lengths.resize(kept);
+    tracked.alignment_variances.resize(kept);
   }
 
   StereoSequence sequence_;

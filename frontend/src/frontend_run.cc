@@ -26,6 +26,10 @@ namespace fs = std::filesystem;
 
 namespace {
 
+/// The least point-feature noise the front-end writes, pixels: a floor that keeps a perfectly
+/// static or texture-poor sequence from claiming none.
+constexpr double kMinFeatureSigma = 0.05;
+
 Percentiles percentiles_of(std::vector<double> values) {
   Percentiles result;
   if (values.empty()) return result;
@@ -58,6 +62,16 @@ nlohmann::ordered_json options_json(const FrontendOptions& options) {
   return document;
 }
 
+/// The noise per observation's scales, or null when none was written.
+nlohmann::ordered_json observation_noise_json(const ObservationNoise& noise) {
+  if (!noise.valid()) return nullptr;
+  return {{"scale_left", noise.scale_left},
+          {"scale_stereo", noise.scale_stereo},
+          {"typical_left_variance", noise.typical_left},
+          {"typical_stereo_variance", noise.typical_stereo},
+          {"observations", noise.observations}};
+}
+
 nlohmann::ordered_json summary_json(const SequenceSummary& s) {
   return {{"sequence", s.sequence},
           {"frames", s.frames},
@@ -75,6 +89,7 @@ nlohmann::ordered_json summary_json(const SequenceSummary& s) {
           {"odometry_rotation_sigma", s.odometry_rotation_sigma},
           {"feature_pixel_sigma", s.feature_pixel_sigma},
           {"feature_track_sigma", s.feature_track_sigma},
+          {"observation_noise", observation_noise_json(s.observation_noise)},
           {"detections", s.detections},
           {"objects_observed", s.objects_observed},
           {"objects_ambiguous", s.objects_ambiguous},
@@ -188,6 +203,7 @@ RobotRun run_sequence(const fs::path& folder, int robot, bool single,
   double track_sum = 0.0, length_sum = 0.0, circular = 0.0, epipolar = 0.0, ransac = 0.0,
          outliers = 0.0, reanchored = 0.0;
   LandmarkId largest_id = -1;
+  std::vector<std::vector<std::array<float, 2>>> alignment_variances;
   while (!frontend.done()) {
     FrontendFrame frame = frontend.process_next();
     const int tracks = static_cast<int>(frame.input.features.size());
@@ -229,6 +245,7 @@ RobotRun run_sequence(const fs::path& folder, int robot, bool single,
     run.data.objects.push_back(std::move(frame.input.objects));
     run.class_names.push_back(std::move(frame.object_class_names));
     run.data.features.push_back(std::move(frame.input.features));
+    alignment_variances.push_back(std::move(frame.alignment_variances));
     if (options.progress) options.progress(robot, frame.input.frame, frames);
   }
   if (groundtruth) {
@@ -253,6 +270,18 @@ RobotRun run_sequence(const fs::path& folder, int robot, bool single,
   s.odometry_rotation_sigma = median_of(rotation_sigmas);
   s.feature_pixel_sigma = median_of(row_sigmas);
   s.feature_track_sigma = track_consistency(run.camera, run.data.odometry, run.data.features).sigma;
+  if (options.observation_noise) {
+    s.observation_noise = fit_observation_noise(run.data.features, alignment_variances,
+                                                std::max(s.feature_track_sigma, kMinFeatureSigma));
+    if (s.observation_noise.valid()) {
+      for (std::size_t frame = 0; frame < run.data.features.size(); ++frame) {
+        for (std::size_t n = 0; n < run.data.features[frame].size(); ++n) {
+          const auto& variances = alignment_variances[frame][n];
+          run.data.features[frame][n].sigma = s.observation_noise.sigma(variances[0], variances[1]);
+        }
+      }
+    }
+  }
   s.total_ms = percentiles_of(total);
   s.total_cpu_ms = percentiles_of(total_cpu);
   s.processing_cpu_ms = percentiles_of(processing_cpu);
@@ -324,7 +353,7 @@ EstimatorOptions suggested_estimator_options(const FrontendRunSummary& summary,
   // A floor keeps a perfectly static or texture-poor sequence from claiming zero noise.
   estimator.odometry_translation_sigma = std::max(median_of(translation), 1e-4);
   estimator.odometry_rotation_sigma = std::max(median_of(rotation), 1e-5);
-  const double feature_sigma = std::max(median_of(feature), 0.05);
+  const double feature_sigma = std::max(median_of(feature), kMinFeatureSigma);
   estimator.feature_noise = StereoNoise::isotropic(feature_sigma);
   estimator.feature_max_reprojection_error = 0.0;  // no fixed bound: the chi-square gate decides
   // The tracker's KLT follows a feature frame to frame, so its error drifts along a track: the

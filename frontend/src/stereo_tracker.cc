@@ -37,6 +37,9 @@ double robust_sigma_of_differences(std::vector<double> differences) {
 /// Tracks whose median flow predicts the next frame's (fewer: no prediction).
 constexpr std::size_t kMinFlowTracks = 16;
 
+/// An alignment variance no alignment measured (TrackedFrame::alignment_variances).
+constexpr float kUnmeasured = std::numeric_limits<float>::quiet_NaN();
+
 class Klt {
  public:
   Klt(const TrackerOptions& options, int window)
@@ -127,12 +130,14 @@ void StereoTracker::Tracks::keep(const std::vector<unsigned char>& keep_mask) {
     anchors[kept] = anchors[index];
     temporal_warps[kept] = temporal_warps[index];
     stereo_warps[kept] = stereo_warps[index];
+    variances[kept] = variances[index];
     ++kept;
   }
   ids.resize(kept);
   left.resize(kept);
   right.resize(kept);
   lengths.resize(kept);
+  variances.resize(kept);
   anchor_frames.resize(kept);
   anchors.resize(kept);
   temporal_warps.resize(kept);
@@ -157,6 +162,7 @@ void StereoTracker::Tracks::sort_by_id() {
   permute(anchors);
   permute(temporal_warps);
   permute(stereo_warps);
+  permute(variances);
 }
 
 StereoTracker::StereoTracker(const TrackerOptions& options) : options_(options) {
@@ -222,6 +228,7 @@ TrackedFrame StereoTracker::track(const cv::Mat& left, const cv::Mat& right) {
     out.observations.push_back(observation);
   }
   out.track_lengths = tracks_.lengths;
+  out.alignment_variances = tracks_.variances;
   std::swap(previous_left_pyramid_, spare_left_pyramid_);
   std::swap(previous_right_pyramid_, spare_right_pyramid_);
   ++frame_;
@@ -243,6 +250,8 @@ void StereoTracker::continue_tracks(const std::vector<cv::Mat>& left_pyramid,
   //    again from where it was (the motion changed).
   std::vector<cv::Point2f> left_now = tracks_.left;
   for (cv::Point2f& point : left_now) point += predicted_flow_;
+  std::fill(tracks_.variances.begin(), tracks_.variances.end(),
+            std::array<float, 2>{kUnmeasured, kUnmeasured});
   temporal.track(previous_left_pyramid_, left_pyramid, tracks_.left, left_now,
                  options_.temporal_pyramid_levels, status);
   if (predicted_flow_ != cv::Point2f(0.0f, 0.0f)) {
@@ -284,7 +293,7 @@ void StereoTracker::continue_tracks(const std::vector<cv::Mat>& left_pyramid,
         continue;
       }
       anchored[index] = refine_affine(*tracks_.anchors[index], left_pyramid[0], left_now[index],
-                                      tracks_.temporal_warps[index])
+                                      tracks_.temporal_warps[index], tracks_.variances[index][0])
                             ? 1
                             : 0;
     }
@@ -312,7 +321,8 @@ void StereoTracker::continue_tracks(const std::vector<cv::Mat>& left_pyramid,
     for (std::size_t index = 0; index < count; ++index) {
       if (keep[index] && patch.prepare(left_pyramid[0], left_now[index],
                                        WarpModel::kRectifiedStereo, options_.affine_window)) {
-        refine_affine(patch, right_pyramid[0], right_now[index], tracks_.stereo_warps[index]);
+        refine_affine(patch, right_pyramid[0], right_now[index], tracks_.stereo_warps[index],
+                      tracks_.variances[index][1]);
       }
     }
   }
@@ -392,6 +402,7 @@ void StereoTracker::continue_tracks(const std::vector<cv::Mat>& left_pyramid,
       tracks_.anchor_frames[index] = frame_;
       tracks_.anchors[index] = make_anchor(left_pyramid[0], tracks_.left[index]);
       tracks_.temporal_warps[index] = cv::Matx22f::eye();
+      tracks_.variances[index][0] = kUnmeasured;  // its anchor, from now on
       ++out.counts.reanchored;
     }
   }
@@ -534,12 +545,13 @@ void StereoTracker::add_features(const cv::Mat& left, const std::vector<cv::Mat>
       // the candidates that may be kept are refined). The new track's stereo warp is not kept:
       // its next frame starts again from the identity (measured better on rendered seed 2: a
       // warp fitted from the coarse first match misleads).
+      float stereo_variance = kUnmeasured;
       if (options_.stereo_affine) {
         AffineTemplate& patch = stereo_patch();
         cv::Matx22f warp = cv::Matx22f::eye();
         if (patch.prepare(left_pyramid[0], left_points[index], WarpModel::kRectifiedStereo,
                           options_.affine_window)) {
-          refine_affine(patch, right_pyramid[0], right_points[index], warp);
+          refine_affine(patch, right_pyramid[0], right_points[index], warp, stereo_variance);
         }
       }
       if (!on_row_in_range(left_points[index], right_points[index])) {
@@ -554,6 +566,7 @@ void StereoTracker::add_features(const cv::Mat& left, const std::vector<cv::Mat>
       tracks_.anchors.push_back(make_anchor(left, left_points[index]));
       tracks_.temporal_warps.push_back(cv::Matx22f::eye());
       tracks_.stereo_warps.push_back(cv::Matx22f::eye());
+      tracks_.variances.push_back({kUnmeasured, stereo_variance});
       ++out.counts.added;
     }
   }
@@ -568,7 +581,7 @@ std::shared_ptr<const AffineTemplate> StereoTracker::make_anchor(const cv::Mat& 
 }
 
 bool StereoTracker::refine_affine(const AffineTemplate& patch, const cv::Mat& image,
-                                  cv::Point2f& point, cv::Matx22f& warp) const {
+                                  cv::Point2f& point, cv::Matx22f& warp, float& variance) const {
   AffineWarp fit;
   fit.A = warp;
   fit.t = point;
@@ -579,6 +592,7 @@ bool StereoTracker::refine_affine(const AffineTemplate& patch, const cv::Mat& im
   }
   point = fit.t;
   warp = fit.A;
+  variance = fit.position_variance;
   return true;
 }
 

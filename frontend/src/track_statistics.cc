@@ -5,6 +5,7 @@
 #include <unordered_map>
 
 #include "concord/frontend/stereo_odometry.h"
+#include "sample_median.h"
 
 namespace concord::frontend {
 
@@ -105,6 +106,51 @@ TrackConsistency track_consistency(const StereoCamera& camera,
                                       static_cast<double>(result.residuals - parameters));
   result.sigma = 1.4826 * *middle * correction;
   return result;
+}
+
+Eigen::Vector2d ObservationNoise::sigma(float left_variance, float stereo_variance) const {
+  const auto measured_or = [](float variance, double typical) {
+    // A variance next to zero (an alignment that fitted its patch exactly) is floored.
+    return std::isfinite(variance) ? std::max<double>(variance, kFloor * typical) : typical;
+  };
+  const double left = scale_left * measured_or(left_variance, typical_left);
+  const double stereo = scale_stereo * measured_or(stereo_variance, typical_stereo);
+  return Eigen::Vector2d(std::sqrt(left), std::sqrt(left + stereo));
+}
+
+ObservationNoise fit_observation_noise(
+    const std::vector<std::vector<StereoObservation>>& features,
+    const std::vector<std::vector<std::array<float, 2>>>& variances, double sigma) {
+  ObservationNoise noise;
+  if (!(sigma > 0.0) || variances.size() != features.size()) return noise;
+  for (std::size_t frame = 0; frame < features.size(); ++frame) {
+    if (variances[frame].size() != features[frame].size()) return noise;
+  }
+  // Each kind's median over the measured variances: what an unmeasured one takes.
+  for (int kind = 0; kind < 2; ++kind) {
+    std::vector<double> measured;
+    for (const auto& frame : variances) {
+      for (const auto& pair : frame) {
+        if (std::isfinite(pair[kind]) && pair[kind] > 0.0f) measured.push_back(pair[kind]);
+      }
+    }
+    (kind == 0 ? noise.typical_left : noise.typical_stereo) = median_of(std::move(measured));
+  }
+  if (!(noise.typical_left > 0.0 && noise.typical_stereo > 0.0)) return ObservationNoise{};
+  // With unit scales sigma() gives the variances as used; their means set the scales.
+  noise.scale_left = noise.scale_stereo = 1.0;
+  double left = 0.0, stereo = 0.0;
+  for (const auto& frame : variances) {
+    for (const auto& pair : frame) {
+      const Eigen::Vector2d unit = noise.sigma(pair[0], pair[1]);
+      left += unit(0) * unit(0);
+      stereo += unit(1) * unit(1) - unit(0) * unit(0);
+      ++noise.observations;
+    }
+  }
+  noise.scale_left = sigma * sigma * noise.observations / left;
+  noise.scale_stereo = sigma * sigma * noise.observations / stereo;
+  return noise;
 }
 
 }  // namespace concord::frontend

@@ -33,18 +33,21 @@ class FeatureUpdater {
   std::size_t num_tracks() const { return tracks_.size(); }
 
  private:
+  /// Whitens a track's rows (normalized units): each observation's own noise (its sigma, or the
+  /// configured noise) and, with feature_drift_sigma, the track's random slope.
+  void whiten(LinearizedTrack& track, const std::vector<TrackObservation>& observations);
+  /// The matrix that whitens one observation's four rows (normalized units).
+  Eigen::Matrix4d observation_whitening(const TrackObservation& observation) const;
+
   EstimatorOptions options_;
   StereoCamera camera_;
-  /// Whitens an observation's four rows (normalized units): its noise becomes the identity.
+  /// Whitens an observation's four rows (normalized units) under the configured feature_noise.
   Eigen::Matrix4d whitening_;
-  /// S^T of eq. (25) for one observation, 4 x 6, in normalized units, whitened.
+  /// S^T of eq. (25) for one observation, 4 x 6, in normalized units (whitened where used).
   Eigen::Matrix<double, 4, 6> correlation_transposed_;
   bool has_correlation_;
-  /// The covariance of one track's slope (feature_drift_sigma) over an observation's four rows,
-  /// whitened like them; zero without a drift model.
-  Eigen::Matrix4d drift_covariance_ = Eigen::Matrix4d::Zero();
-  /// A track's rows' covariance under the drift model, factored in place, kept between tracks
-  /// so that a frame's updates do not allocate it anew.
+  /// A track's slope in its whitened rows (4n x 2, the drift model's U), kept between tracks so
+  /// that a frame's updates do not allocate it anew.
   Eigen::MatrixXd drift_rows_;
   std::map<LandmarkId, std::vector<TrackObservation>> tracks_;
 };

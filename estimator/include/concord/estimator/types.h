@@ -17,6 +17,8 @@ namespace concord {
 struct TrackObservation {
   int frame = 0;
   Eigen::Vector4d xy = Eigen::Vector4d::Zero();
+  /// The observation's own noise, image units (StereoObservation::sigma); zero: the configured.
+  Eigen::Vector2d sigma = Eigen::Vector2d::Zero();
 };
 
 
@@ -50,6 +52,11 @@ struct StereoCamera {
 struct StereoObservation {
   LandmarkId id = 0;
   Eigen::Vector4d uv = Eigen::Vector4d::Zero();
+  /// This observation's own noise when its tracker measured it: the standard deviation of each
+  /// coordinate of the left image's position and of the right image's, independent, in image
+  /// units. Zero (the default): the configured noise (feature_noise). Point features only; an
+  /// object observation's noise is its model's (object_noise and the rest).
+  Eigen::Vector2d sigma = Eigen::Vector2d::Zero();
 };
 
 /// Everything a robot measures at one frame.

@@ -8,6 +8,7 @@
 /// detections into stereo object observations (observe_object). Everything is in rectified pixels
 /// of camera() (docs/frontend.md). OpenCV-free, so the daemon and the CLI include it freely.
 
+#include <array>
 #include <memory>
 #include <vector>
 
@@ -52,6 +53,9 @@ struct FrontendFrame {
   double mean_track_length = 0.0;
   /// The tracker's noise estimate from the stereo rows (TrackedFrame::row_noise_sigma).
   double row_noise_sigma = 0.0;
+  /// The point features' alignment variances (TrackedFrame::alignment_variances), in the order
+  /// of input.features.
+  std::vector<std::array<float, 2>> alignment_variances;
   /// Detections of the frame, how many gave observations, and how many were refused for an
   /// ambiguous or left-right inconsistent stereo match (ObjectSkip).
   int detections = 0;

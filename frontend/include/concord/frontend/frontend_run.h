@@ -34,6 +34,7 @@
 #include "concord/estimator/options.h"
 #include "concord/estimator/types.h"
 #include "concord/frontend/frontend_options.h"
+#include "concord/frontend/track_statistics.h"
 
 namespace concord::frontend {
 
@@ -79,6 +80,10 @@ struct FrontendRunOptions {
   /// is an error (the front-end measures the odometry and the white feature noise itself, which
   /// a calibration segment's ground truth cannot improve on: docs/frontend.md).
   std::filesystem::path detector_model;
+  /// Each point-feature observation's own noise, from the tracker's alignment variances scaled
+  /// by the robot's own tracks (ObservationNoise), written as features.csv's sigma_left and
+  /// sigma_right. False: none (the estimator's feature_noise for every observation).
+  bool observation_noise = true;
   /// dataset.json "name" of the output (replay uses the estimator.yaml written beside it).
   std::string name = "frontend";
   /// Called after each frame with (robot, frame, frames of that robot).
@@ -118,6 +123,9 @@ struct SequenceSummary {
   /// Noise of a track coordinate from the tracks' own consistency under the odometry
   /// (track_consistency), pixels: the value the estimator's feature_noise (per coordinate) should take.
   double feature_track_sigma = 0.0;
+  /// The noise per observation written (FrontendRunOptions::observation_noise; not valid when
+  /// off or when too few alignments measured it).
+  ObservationNoise observation_noise;
   /// Detections, the observations made from them, and the detections refused for an ambiguous or
   /// left-right inconsistent stereo match.
   long long detections = 0;

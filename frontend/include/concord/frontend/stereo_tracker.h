@@ -15,6 +15,7 @@
 ///
 /// Names OpenCV types: for the front-end library and its tests.
 
+#include <array>
 #include <cstdint>
 #include <functional>
 #include <memory>
@@ -38,6 +39,12 @@ struct TrackedFrame {
   std::vector<StereoObservation> observations;
   /// Frames each track has been observed, including this one (same order as observations).
   std::vector<int> track_lengths;
+  /// Each observation's Lucas-Kanade position variances, pixels^2 per axis (same order as
+  /// observations): of the left image's match (the affine alignment of the track's anchor patch)
+  /// and of the right image's against the left (the stereo alignment). NaN where no alignment
+  /// measured it: a track's first frame in the left image (its anchor: the point it follows), a
+  /// match the alignment did not refine.
+  std::vector<std::array<float, 2>> alignment_variances;
   TrackingCounts counts;
   /// Median left-image flow of the continued tracks from k-1 to k, pixels.
   double median_flow = 0.0;
@@ -87,6 +94,8 @@ class StereoTracker {
     std::vector<std::shared_ptr<const AffineTemplate>> anchors;
     std::vector<cv::Matx22f> temporal_warps;
     std::vector<cv::Matx22f> stereo_warps;
+    /// This frame's alignment variances (TrackedFrame::alignment_variances).
+    std::vector<std::array<float, 2>> variances;
     std::size_t size() const { return ids.size(); }
     void keep(const std::vector<unsigned char>& keep_mask);
     void sort_by_id();
@@ -102,10 +111,10 @@ class StereoTracker {
   std::shared_ptr<const AffineTemplate> make_anchor(const cv::Mat& image,
                                                     const cv::Point2f& point) const;
   /// Aligns `patch` into `image`, starting at `point` with the affine part `warp`; on success
-  /// updates both and returns true. Fails when the alignment fails or lands more than
-  /// affine_tolerance away.
+  /// updates both (and `variance`, the fit's position variance) and returns true. Fails when the
+  /// alignment fails or lands more than affine_tolerance away.
   bool refine_affine(const AffineTemplate& patch, const cv::Mat& image, cv::Point2f& point,
-                     cv::Matx22f& warp) const;
+                     cv::Matx22f& warp, float& variance) const;
   bool inside(const cv::Point2f& point, const cv::Size& size) const;
   /// The epipolar check of a rectified match: on the same row (within the tolerance), its
   /// disparity in [min_disparity, max_disparity].

@@ -9,6 +9,7 @@
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
+#include <array>
 #include <vector>
 
 #include "concord/estimator/types.h"
@@ -28,5 +29,34 @@ struct TrackConsistency {
 [[nodiscard]] TrackConsistency track_consistency(
     const StereoCamera& camera, const std::vector<Eigen::Isometry3d>& odometry,
     const std::vector<std::vector<StereoObservation>>& features, int min_observations = 4);
+
+/// A noise level per observation from the tracker's alignment variances
+/// (TrackedFrame::alignment_variances): sigma_left^2 = scale_left * v_left for each coordinate of
+/// the left image's position, sigma_right^2 = sigma_left^2 + scale_stereo * v_stereo for the right
+/// image's (its match is the left one's plus the stereo alignment's). The scales keep the run's
+/// mean level at the front-end's own (track_consistency's sigma, no ground truth): the left
+/// image's mean variance is sigma^2, and so is the stereo part's (docs/frontend.md, "A noise
+/// level per observation").
+struct ObservationNoise {
+  double scale_left = 0.0;
+  double scale_stereo = 0.0;
+  /// The variance an observation takes where none was measured: each kind's median over the run.
+  double typical_left = 0.0;
+  double typical_stereo = 0.0;
+  long long observations = 0;
+  /// A measured variance is at least this fraction of the typical one.
+  static constexpr double kFloor = 0.01;
+
+  /// Fitted (false: no variance of one kind was measured, or no noise level to scale to).
+  bool valid() const { return scale_left > 0.0; }
+  /// (sigma_left, sigma_right) of an observation with these variances (NaN: not measured), px.
+  Eigen::Vector2d sigma(float left_variance, float stereo_variance) const;
+};
+
+/// The ObservationNoise of a run whose mean noise per coordinate is `sigma` (px): `variances[k][n]`
+/// belongs to `features[k][n]`.
+[[nodiscard]] ObservationNoise fit_observation_noise(
+    const std::vector<std::vector<StereoObservation>>& features,
+    const std::vector<std::vector<std::array<float, 2>>>& variances, double sigma);
 
 }  // namespace concord::frontend
