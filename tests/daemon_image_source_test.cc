@@ -30,6 +30,11 @@ TEST(DaemonImageSource, ConfigReadsTheSequenceDetectionsAndFrontEndOptions) {
   EXPECT_EQ(config.source.detections, fs::path("/base/seq/boxes.csv"));
   EXPECT_EQ(config.source.frontend, fs::path("/base/fe.yaml"));
   EXPECT_DOUBLE_EQ(config.source.rate_hz, 20.0);
+  EXPECT_TRUE(config.source.observation_noise);  // each point observation's own noise
+  EXPECT_FALSE(parse_daemon_config("consensus: {mode: off}\nsource: {kind: images, images: seq, "
+                                   "observation_noise: false}\n",
+                                   "robot.yaml", "/")
+                   .source.observation_noise);
   try {
     (void)parse_daemon_config("consensus: {mode: off}\nsource: {kind: images}\n", "robot.yaml",
                               "/");

@@ -629,6 +629,28 @@ TEST(FrontendRun, EachTrackObservationGetsItsOwnNoiseAtTheTracksLevel) {
   }
 }
 
+TEST(FrontendRun, ALiveSourceScalesItsVariancesByTheirRunningMeans) {
+  // The daemon's image source: sigma_left^2 = sigma^2 v_left / mean(v_left so far), and the
+  // stereo part likewise; an unmeasured variance takes the running mean; nothing until both
+  // kinds were measured.
+  const float unmeasured = std::numeric_limits<float>::quiet_NaN();
+  RunningObservationNoise noise(0.2);
+  std::vector<StereoObservation> features(2);
+  noise.apply(features, {{0.002f, unmeasured}, {0.004f, unmeasured}});
+  for (const StereoObservation& feature : features)
+    EXPECT_EQ(feature.sigma, Eigen::Vector2d::Zero());
+  features.assign(3, {});
+  noise.apply(features, {{unmeasured, 0.001f}, {0.006f, 0.003f}, {0.004f, unmeasured}});
+  const double mean_left = (0.002 + 0.004 + 0.006 + 0.004) / 4, mean_stereo = 0.002;
+  const auto expected = [&](double v_left, double v_stereo) {
+    const double left = 0.04 * v_left / mean_left;
+    return Eigen::Vector2d(std::sqrt(left), std::sqrt(left + 0.04 * v_stereo / mean_stereo));
+  };
+  EXPECT_TRUE(features[0].sigma.isApprox(expected(mean_left, 0.001), 1e-6));
+  EXPECT_TRUE(features[1].sigma.isApprox(expected(0.006, 0.003), 1e-6));
+  EXPECT_TRUE(features[2].sigma.isApprox(expected(0.004, mean_stereo), 1e-6));
+}
+
 TEST(FrontendRun, AnUpAxisAlongTheCamerasVerticalMakesObjectsUpright) {
   // The rendered body is the left camera looking forward on a level robot: up is -y, the
   // camera's vertical; +z (forward) is not. The objects' rows follow (ObjectOptions::upright),

@@ -253,6 +253,7 @@ DaemonConfig parse_daemon_config(const std::string& yaml_text, const std::string
   source.read("images", config.source.images, base_directory);
   source.read("detections", config.source.detections, base_directory);
   source.read("frontend", config.source.frontend, base_directory);
+  source.read("observation_noise", config.source.observation_noise);
   source.read("ingest_authenticated", config.source.ingest_authenticated);
   source.read("max_translation_m", config.source.max_translation_m);
   source.read("max_rotation_rad", config.source.max_rotation_rad);

@@ -7,6 +7,7 @@
 #include <atomic>
 #include <boost/asio/io_context.hpp>
 #include <boost/asio/signal_set.hpp>
+#include <charconv>
 #include <cmath>
 #include <condition_variable>
 #include <cstdio>
@@ -14,7 +15,6 @@
 #include <iterator>
 #include <mutex>
 #include <nlohmann/json.hpp>
-#include <charconv>
 #include <optional>
 #include <random>
 #include <sstream>
@@ -22,9 +22,9 @@
 
 #include "bounded_queue.h"
 #include "checkpoint.h"
+#include "concord/config/options_file.h"
 #include "concord/daemon/association_session.h"
 #include "concord/daemon/consensus_exchange.h"
-#include "concord/config/options_file.h"
 #include "concord/daemon/wire.h"
 #include "concord/dataset/dataset.h"
 #include "concord/dataset/radio.h"
@@ -32,6 +32,7 @@
 #include "concord/estimator/estimator.h"
 #include "concord/frontend/frontend.h"
 #include "concord/frontend/frontend_options_file.h"
+#include "concord/frontend/track_statistics.h"
 #include "concord/net/frame_listener.h"
 #include "concord/net/log_limiter.h"
 #include "concord/net/peer_network.h"
@@ -226,6 +227,8 @@ class Daemon::Impl {
   // Source data (replay; images through the front-end).
   std::optional<dataset::RobotData> robot_;
   std::unique_ptr<frontend::StereoFrontend> frontend_;
+  /// The image source's noise per observation (source.observation_noise).
+  std::optional<frontend::RunningObservationNoise> observation_noise_;
   /// The image source's numbering of its detections' class names, when it passes classes.
   std::optional<frontend::ClassNumbering> class_numbering_;
   /// The detections have class names that are not passed (no source.classes; not numbers).
@@ -332,6 +335,16 @@ bool Daemon::Impl::load_source() {
       frontend_ = std::make_unique<frontend::StereoFrontend>(std::move(sequence), options,
                                                              std::move(detections));
       camera_ = frontend_->camera();
+      if (source.observation_noise) {
+        // The mean level: the left image's per-coordinate standard deviation under the
+        // configured feature_noise (common-mode plus half the disparity, both axes).
+        const StereoNoise& noise = config_.estimator.feature_noise;
+        const double variance =
+            0.5 * (noise.horizontal * noise.horizontal + 0.25 * noise.disparity * noise.disparity +
+                   noise.vertical * noise.vertical +
+                   0.25 * noise.vertical_disparity * noise.vertical_disparity);
+        observation_noise_.emplace(std::sqrt(variance));
+      }
       spdlog::info("source: images of {} through the front-end ({} frames{})",
                    source.images.string(), frames, detections.empty() ? "" : ", with detections");
     } else {
@@ -647,6 +660,8 @@ void Daemon::Impl::image_frames() {
           static_cast<std::uint64_t>(frame.objects_ambiguous + frame.objects_inconsistent);
       live_.frontend_odometry_failures += odometry_failed ? 1 : 0;
     }
+    if (observation_noise_)
+      observation_noise_->apply(frame.input.features, frame.alignment_variances);
     std::vector<int> object_classes;
     if (class_numbering_) {
       for (const std::string& name : frame.object_class_names)

@@ -153,4 +153,26 @@ ObservationNoise fit_observation_noise(
   return noise;
 }
 
+void RunningObservationNoise::apply(std::vector<StereoObservation>& features,
+                                    const std::vector<std::array<float, 2>>& variances) {
+  if (variances.size() != features.size() || !(sigma_ > 0.0)) return;
+  for (const auto& pair : variances) {
+    for (int kind = 0; kind < 2; ++kind) {
+      if (std::isfinite(pair[kind]) && pair[kind] > 0.0f) {
+        sums_[kind] += pair[kind];
+        ++counts_[kind];
+      }
+    }
+  }
+  if (counts_[0] == 0 || counts_[1] == 0) return;
+  ObservationNoise noise;
+  noise.typical_left = sums_[0] / static_cast<double>(counts_[0]);
+  noise.typical_stereo = sums_[1] / static_cast<double>(counts_[1]);
+  noise.scale_left = sigma_ * sigma_ / noise.typical_left;
+  noise.scale_stereo = sigma_ * sigma_ / noise.typical_stereo;
+  for (std::size_t n = 0; n < features.size(); ++n) {
+    features[n].sigma = noise.sigma(variances[n][0], variances[n][1]);
+  }
+}
+
 }  // namespace concord::frontend

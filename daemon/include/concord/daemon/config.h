@@ -58,6 +58,10 @@ struct SourceConfig {
   std::filesystem::path images;
   std::filesystem::path detections;
   std::filesystem::path frontend;
+  /// Images (source.observation_noise): each point observation's own noise from the front-end's
+  /// alignments (frontend::RunningObservationNoise, at the mean level of the estimator's
+  /// feature_noise); false: feature_noise for every observation.
+  bool observation_noise = true;
   /// Replay: read features.csv (point features) where present.
   bool point_features = true;
   /// Replay (source.frame_period_s): seconds between frames of the dataset, for the time stamps

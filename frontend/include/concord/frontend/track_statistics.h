@@ -59,4 +59,23 @@ struct ObservationNoise {
     const std::vector<std::vector<StereoObservation>>& features,
     const std::vector<std::vector<std::array<float, 2>>>& variances, double sigma);
 
+/// The ObservationNoise of a live source (the daemon's image source), frame by frame: each
+/// kind's scale from the mean of the variances measured so far (which an unmeasured one also
+/// takes), the mean level `sigma` (px, per coordinate) given, e.g. the estimator's feature_noise.
+/// The same model as fit_observation_noise, with running means for the run's.
+class RunningObservationNoise {
+ public:
+  explicit RunningObservationNoise(double sigma) : sigma_(sigma) {}
+
+  /// Adds this frame's variances (same order as `features`) to the running means and sets each
+  /// observation's sigma; leaves them zero (the configured noise) until both kinds were measured.
+  void apply(std::vector<StereoObservation>& features,
+             const std::vector<std::array<float, 2>>& variances);
+
+ private:
+  double sigma_;
+  std::array<double, 2> sums_{0.0, 0.0};
+  std::array<long long, 2> counts_{0, 0};
+};
+
 }  // namespace concord::frontend
