@@ -567,6 +567,13 @@ int run_frontend_command(const fs::path& input, const fs::path& out,
                  "negotiation cannot refuse an alignment that tilts one robot's frame against "
                  "another's";
   }
+  if (options.observation_noise && options.detector_model.empty()) {
+    std::cout << "\nconcord frontend: each point observation's noise is its own, but without a "
+                 "detector model (--detector-model) estimator.yaml has no feature_drift_sigma: "
+                 "the filter then takes the well-pinned tracks' drift for information and is "
+                 "overconfident; give the model, or --constant-feature-noise (docs/frontend.md, "
+                 "\"It needs the drift model\")";
+  }
   std::cout << "\nconcord frontend: wrote " << out.string() << " (statistics in "
             << (out / "frontend.json").string() << ")\n";
   return 0;
