@@ -44,11 +44,13 @@ double inverse_root_step(double s) {
 
 /// Left-multiplies `rows` by (I + U U^T)^(-1/2) (U: 4n x 2). With U = Q diag(sqrt(s)) V^T (thin
 /// SVD; U^T U = V diag(s) V^T) that is I + U V diag(inverse_root_step(s)) V^T U^T: O(n) instead
-/// of factoring a 4n x 4n matrix.
+/// of factoring a 4n x 4n matrix. `U_middle` is U V diag(inverse_root_step(s)) V^T; `projected`
+/// the caller's buffer.
 template <typename Rows>
-void apply_inverse_root(const Eigen::MatrixXd& U, const Eigen::Matrix2d& middle, Rows&& rows) {
-  const Eigen::Matrix<double, 2, Eigen::Dynamic> projected = U.transpose() * rows;
-  rows.noalias() += U * (middle * projected);
+void apply_inverse_root(const Eigen::MatrixXd& U, const Eigen::MatrixXd& U_middle, Rows&& rows,
+                        Eigen::Matrix<double, 2, Eigen::Dynamic>& projected) {
+  projected.noalias() = U.transpose() * rows;
+  rows.noalias() += U_middle * projected;
 }
 
 }  // namespace
@@ -86,9 +88,10 @@ void FeatureUpdater::whiten(LinearizedTrack& track,
       eigen.eigenvectors() *
       Eigen::Vector2d(inverse_root_step(s(0)), inverse_root_step(s(1))).asDiagonal() *
       eigen.eigenvectors().transpose();
-  apply_inverse_root(drift_rows_, middle, track.residual);
-  apply_inverse_root(drift_rows_, middle, track.H_state);
-  apply_inverse_root(drift_rows_, middle, track.H_point);
+  drift_rows_middle_.noalias() = drift_rows_ * middle;
+  apply_inverse_root(drift_rows_, drift_rows_middle_, track.residual, drift_projected_);
+  apply_inverse_root(drift_rows_, drift_rows_middle_, track.H_state, drift_projected_);
+  apply_inverse_root(drift_rows_, drift_rows_middle_, track.H_point, drift_projected_);
 }
 
 FeatureUpdateStats FeatureUpdater::process(State& state,

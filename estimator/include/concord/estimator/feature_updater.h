@@ -46,9 +46,12 @@ class FeatureUpdater {
   /// S^T of eq. (25) for one observation, 4 x 6, in normalized units (whitened where used).
   Eigen::Matrix<double, 4, 6> correlation_transposed_;
   bool has_correlation_;
-  /// A track's slope in its whitened rows (4n x 2, the drift model's U), kept between tracks so
-  /// that a frame's updates do not allocate it anew.
+  /// A track's slope in its whitened rows (4n x 2, the drift model's U), U times the inverse
+  /// root's middle factor, and U^T times the rows: kept between tracks so that a frame's updates
+  /// do not allocate them anew.
   Eigen::MatrixXd drift_rows_;
+  Eigen::MatrixXd drift_rows_middle_;
+  Eigen::Matrix<double, 2, Eigen::Dynamic> drift_projected_;
   std::map<LandmarkId, std::vector<TrackObservation>> tracks_;
 };
 
