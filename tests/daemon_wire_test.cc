@@ -229,6 +229,7 @@ TEST(DaemonWire, SensorFrameRoundTrip) {
   frame.odometry_covariance = concord::testing::random_spd(6, random, 1e-4, 1e-2);
   frame.objects.push_back({5, Eigen::Vector4d(100, 50, 90, 50)});
   frame.features.push_back({77, Eigen::Vector4d(0.1, 0.2, 0.05, 0.2)});
+  frame.features.push_back({78, Eigen::Vector4d(0.3, 0.2, 0.25, 0.2), Eigen::Vector2d(0.4, 0.6)});
   v1::SensorFrame message;
   to_wire(frame, 1.5, message);
   std::string error;
@@ -242,8 +243,10 @@ TEST(DaemonWire, SensorFrameRoundTrip) {
   ASSERT_EQ(back->objects.size(), 1u);
   EXPECT_EQ(back->objects[0].id, 5);
   EXPECT_EQ(back->objects[0].uv, frame.objects[0].uv);
-  ASSERT_EQ(back->features.size(), 1u);
+  ASSERT_EQ(back->features.size(), 2u);
   EXPECT_EQ(back->features[0].id, 77);
+  EXPECT_EQ(back->features[0].sigma, Eigen::Vector2d::Zero());    // the configured noise
+  EXPECT_EQ(back->features[1].sigma, Eigen::Vector2d(0.4, 0.6));  // its own
 }
 
 TEST(DaemonWire, ASensorFrameCarriesOneClassPerObjectOrNone) {
@@ -293,6 +296,20 @@ TEST(DaemonWire, MalformedSensorFramesAreRejected) {
   auto* observation = not_finite.add_objects();
   observation->set_u_left(std::numeric_limits<double>::infinity());
   EXPECT_FALSE(from_wire(not_finite, error));
+
+  // A feature's own noise: both sigmas > 0, or both 0.
+  for (const auto& [left, right] :
+       {std::pair{0.5, 0.0}, std::pair{-0.5, 0.5}, std::pair{std::nan(""), 0.5}}) {
+    v1::SensorFrame noisy;
+    noisy.set_frame(1);
+    auto* feature = noisy.add_features();
+    feature->set_sigma_left(left);
+    feature->set_sigma_right(right);
+    EXPECT_FALSE(from_wire(noisy, error));
+    EXPECT_NE(error.find("sigma_left and sigma_right must both be > 0 or both 0"),
+              std::string::npos)
+        << error;
+  }
 
   // odometry_covariance: none, or 21 values of a positive definite 6x6 matrix.
   v1::SensorFrame covariance;

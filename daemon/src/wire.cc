@@ -16,6 +16,8 @@ void to_wire(const StereoObservation& observation, v1::StereoObservation& out) {
   out.set_v_left(observation.uv[1]);
   out.set_u_right(observation.uv[2]);
   out.set_v_right(observation.uv[3]);
+  out.set_sigma_left(observation.sigma(0));
+  out.set_sigma_right(observation.sigma(1));
 }
 
 bool from_wire(const google::protobuf::RepeatedPtrField<v1::StereoObservation>& messages,
@@ -28,6 +30,13 @@ bool from_wire(const google::protobuf::RepeatedPtrField<v1::StereoObservation>& 
     if (!observation.uv.allFinite()) {
       error = std::string(what) + " observation of id " + std::to_string(observation.id) +
               " has a non-finite coordinate";
+      return false;
+    }
+    observation.sigma = {message.sigma_left(), message.sigma_right()};
+    const bool given = observation.sigma(0) > 0.0 && observation.sigma(1) > 0.0;
+    if (!(observation.sigma.allFinite() && (given || observation.sigma.isZero(0.0)))) {
+      error = std::string(what) + " observation of id " + std::to_string(observation.id) +
+              ": sigma_left and sigma_right must both be > 0 or both 0";
       return false;
     }
     out.push_back(observation);
