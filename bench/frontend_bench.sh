@@ -184,7 +184,8 @@ fi
 
 # Other rendered teams (seeds, sizes and lengths used to build nothing; FRONTEND_TEAMS, a list
 # of seed:robots:frames, "" for none): the front-end with the calibration rendering's detector
-# model, replayed with the estimator.yaml it wrote alone, separate and consensus.
+# model, replayed with the estimator.yaml it wrote alone, separate and consensus; and the same
+# team on the simulator's exact tracks (the exact config), consensus.
 for team in ${FRONTEND_TEAMS-2:3:300 7:2:300 17:5:150 23:4:100}; do
   IFS=: read -r seed robots frames <<<"$team"
   other_rendered="$out/frontend-rendered-s$seed"
@@ -194,6 +195,7 @@ for team in ${FRONTEND_TEAMS-2:3:300 7:2:300 17:5:150 23:4:100}; do
   frontend_of "$other_rendered" "$other" "sim-render-s$seed" --detector-model "$detection_model"
   run "frontend-s$seed-separate" "$other" --separate
   run "frontend-s$seed-consensus" "$other"
+  run "frontend-s$seed-exact-consensus" "$other_rendered" --config "$exact_config"
 done
 
 # Speed: each rendered robot's sequence again, alone, SPEED_RUNS times (default 3, robots
