@@ -299,7 +299,8 @@ TEST(DaemonWire, MalformedSensorFramesAreRejected) {
 
   // A feature's own noise: both sigmas > 0, or both 0.
   for (const auto& [left, right] :
-       {std::pair{0.5, 0.0}, std::pair{-0.5, 0.5}, std::pair{std::nan(""), 0.5}}) {
+       {std::pair{0.5, 0.0}, std::pair{-0.5, 0.5}, std::pair{std::nan(""), 0.5},
+        std::pair{1e-300, 0.5}, std::pair{0.5, 1e300}}) {
     v1::SensorFrame noisy;
     noisy.set_frame(1);
     auto* feature = noisy.add_features();

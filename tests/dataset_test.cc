@@ -680,7 +680,8 @@ TEST_F(DatasetTest, FeaturesMayCarryEachObservationsOwnNoise) {
 
   const std::string file = "robot_00/features.csv";
   for (const std::string row : {"1,1000,10,20,5,20,0.25,0\n", "1,1000,10,20,5,20,-0.25,0.5\n",
-                                "1,1000,10,20,5,20,nan,0.5\n"}) {
+                                "1,1000,10,20,5,20,nan,0.5\n", "1,1000,10,20,5,20,1e-300,0.5\n",
+                                "1,1000,10,20,5,20,0.25,1e300\n"}) {
     EXPECT_THAT(error_reading_with(file, header + row),
                 AnyOf(HasSubstr("sigma_left and sigma_right must both be > 0"),
                       HasSubstr("is not a number"), HasSubstr("is not finite")))

@@ -33,10 +33,10 @@ bool from_wire(const google::protobuf::RepeatedPtrField<v1::StereoObservation>& 
       return false;
     }
     observation.sigma = {message.sigma_left(), message.sigma_right()};
-    const bool given = observation.sigma(0) > 0.0 && observation.sigma(1) > 0.0;
-    if (!(observation.sigma.allFinite() && (given || observation.sigma.isZero(0.0)))) {
+    if (!valid_observation_sigma(observation.sigma)) {
       error = std::string(what) + " observation of id " + std::to_string(observation.id) +
-              ": sigma_left and sigma_right must both be > 0 or both 0";
+              ": sigma_left and sigma_right must both be > 0 or both 0 (from 1e-6 to 1e6 "
+              "when given)";
       return false;
     }
     out.push_back(observation);

@@ -225,11 +225,10 @@ std::vector<std::vector<StereoObservation>> read_observations(
         Eigen::Vector4d(table.number(2), table.number(3), table.number(4), table.number(5));
     if (classes == nullptr && table.has_optional_columns()) {
       observation.sigma = Eigen::Vector2d(table.number(6), table.number(7));
-      const bool given = observation.sigma(0) > 0.0 && observation.sigma(1) > 0.0;
-      if (!(observation.sigma.allFinite() && (given || observation.sigma.isZero(0.0)))) {
+      if (!valid_observation_sigma(observation.sigma)) {
         table.fail(
-            "sigma_left and sigma_right must both be > 0 (the observation's own noise, "
-            "pixels) or both 0 (the configured feature_noise)");
+            "sigma_left and sigma_right must both be > 0 (the observation's own noise, pixels, "
+            "from 1e-6 to 1e6) or both 0 (the configured feature_noise)");
       }
     }
     per_frame[frame].push_back(observation);

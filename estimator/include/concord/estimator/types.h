@@ -59,6 +59,18 @@ struct StereoObservation {
   Eigen::Vector2d sigma = Eigen::Vector2d::Zero();
 };
 
+/// The range of an observation's own noise (image units): a sigma far below it would make the
+/// observation's whitened rows overflow (one bad input poisoning the filter).
+inline constexpr double kMinObservationSigma = 1e-6;
+inline constexpr double kMaxObservationSigma = 1e6;
+
+/// Whether `sigma` may be a StereoObservation::sigma: both 0 (the configured noise), or both
+/// within [kMinObservationSigma, kMaxObservationSigma] (NaN is neither).
+inline bool valid_observation_sigma(const Eigen::Vector2d& sigma) {
+  const auto within = [](double s) { return s >= kMinObservationSigma && s <= kMaxObservationSigma; };
+  return sigma.isZero(0.0) || (within(sigma(0)) && within(sigma(1)));
+}
+
 /// Everything a robot measures at one frame.
 struct FrameInput {
   int frame = 0;
