@@ -59,29 +59,30 @@ void FeatureUpdater::whiten(LinearizedTrack& track,
                             const std::vector<TrackObservation>& observations) {
   const auto n = static_cast<Eigen::Index>(observations.size());
   assert(track.residual.size() == 4 * n);  // UpdaterHelper::linearize: 4 rows an observation
-  // 1. Each observation's own noise: its four rows get the identity covariance.
-  for (Eigen::Index a = 0; a < n; ++a) {
-    const Eigen::Matrix4d whitening = observation_whitening(observations[a]);
-    track.H_state.middleRows<4>(4 * a) = (whitening * track.H_state.middleRows<4>(4 * a)).eval();
-    track.H_point.middleRows<4>(4 * a) = (whitening * track.H_point.middleRows<4>(4 * a)).eval();
-    track.residual.segment<4>(4 * a) = (whitening * track.residual.segment<4>(4 * a)).eval();
-  }
-  if (options_.feature_drift_sigma <= 0.0) return;
+  // 1. Each observation's own noise (W_a): its four rows get the identity covariance.
   // 2. A random slope per track, common to both images: observation a moves by
-  //    (k_a - k_mean) (c, d, c, d), (c, d) ~ N(0, sigma^2 I). In the rows whitened above its
+  //    (k_a - k_mean) (c, d, c, d), (c, d) ~ N(0, sigma^2 I). In the rows whitened by 1. its
   //    covariance is U U^T, U's rows of observation a (k_a - k_mean) W_a C sigma, C = [I; I]:
   //    the rows' covariance is I + U U^T, whitened by its inverse square root (rank 2).
+  const bool drift = options_.feature_drift_sigma > 0.0;
   double mean_frame = 0.0;
   for (const TrackObservation& observation : observations) mean_frame += observation.frame;
   mean_frame /= static_cast<double>(n);
   const double sigma = options_.feature_drift_sigma / camera_.focal_length();
   Eigen::Matrix<double, 4, 2> common;
   common << 1, 0, 0, 1, 1, 0, 0, 1;
-  drift_rows_.resize(4 * n, 2);
+  if (drift) drift_rows_.resize(4 * n, 2);
   for (Eigen::Index a = 0; a < n; ++a) {
-    drift_rows_.middleRows<4>(4 * a) = ((observations[a].frame - mean_frame) * sigma) *
-                                       (observation_whitening(observations[a]) * common);
+    const Eigen::Matrix4d whitening = observation_whitening(observations[a]);
+    track.H_state.middleRows<4>(4 * a) = (whitening * track.H_state.middleRows<4>(4 * a)).eval();
+    track.H_point.middleRows<4>(4 * a) = (whitening * track.H_point.middleRows<4>(4 * a)).eval();
+    track.residual.segment<4>(4 * a) = (whitening * track.residual.segment<4>(4 * a)).eval();
+    if (drift) {
+      drift_rows_.middleRows<4>(4 * a) =
+          ((observations[a].frame - mean_frame) * sigma) * (whitening * common);
+    }
   }
+  if (!drift) return;
   const Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d> eigen(drift_rows_.transpose() * drift_rows_);
   const Eigen::Vector2d s = eigen.eigenvalues().cwiseMax(0.0);
   const Eigen::Matrix2d middle =
