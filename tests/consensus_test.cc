@@ -6,6 +6,7 @@
 
 #include <Eigen/Eigenvalues>
 #include <limits>
+#include <map>
 #include <random>
 
 #include "allocation_counter.h"
@@ -441,6 +442,88 @@ TEST(ConsensusSafeguards, MalformedAndIllConditionedMarginalsAreSkipped) {
   EXPECT_EQ(report.neighbours_skipped, 4);
   EXPECT_EQ(report.landmarks_fused, 0);
   EXPECT_TRUE(state.landmarks[0].p_world.isApprox(before.landmarks[0].p_world));
+}
+
+TEST(ConsensusSafeguards, ANonFiniteEntryAnywhereMakesAMarginalMalformed) {
+  // Marginal::well_formed tests finiteness in one sum (x * 0 is NaN for an infinite or NaN x):
+  // every kind of non-finite value, in the mean, a joint block and an archived block, at the
+  // first, a middle and the last entry.
+  std::mt19937 random(12);
+  State state = testing::random_state(2, 3, random);
+  state.archived[40] = {40, Eigen::Vector3d(1, 2, 3), 0.5 * Eigen::Matrix3d::Identity()};
+  const Marginal good = Consensus::marginal(state, state.object_ids());
+  ASSERT_EQ(good.blocks.size(), 2u);
+  ASSERT_TRUE(good.well_formed());
+  const double bad_values[] = {std::numeric_limits<double>::infinity(),
+                               -std::numeric_limits<double>::infinity(),
+                               std::numeric_limits<double>::quiet_NaN()};
+  for (const double bad : bad_values) {
+    for (int where = 0; where < 3; ++where) {
+      Marginal m = good;
+      Eigen::Index entries[] = {0, m.mean.size() / 2, m.mean.size() - 1};
+      m.mean(entries[where]) = bad;
+      EXPECT_FALSE(m.well_formed()) << bad << " in the mean at " << entries[where];
+      for (std::size_t b = 0; b < good.blocks.size(); ++b) {
+        Marginal block = good;
+        Eigen::MatrixXd& covariance = block.blocks[b];
+        const Eigen::Index cells[] = {0, covariance.size() / 2, covariance.size() - 1};
+        covariance(cells[where]) = bad;
+        EXPECT_FALSE(block.well_formed()) << bad << " in block " << b << " at " << cells[where];
+      }
+    }
+  }
+  // Large finite values are finite.
+  Marginal large = good;
+  large.mean *= 1e300;
+  EXPECT_TRUE(large.well_formed());
+}
+
+TEST(ConsensusAverage, ANeighboursIdsInAnyOrderFuseAsSorted) {
+  // A marginal's landmarks are found by id whatever the order of its ids and blocks (a peer's
+  // message may list them in any order): the archived objects' 3x3 blocks in a shuffled order
+  // fuse exactly as sorted by id. (The in-state landmarks are one joint block, first in both:
+  // the order of in-state groups is part of the average, see GroupsEqualSuccessive...)
+  std::mt19937 random(44);
+  State base = testing::random_state(2, 2, random);
+  for (LandmarkId id : {40, 41, 42, 43, 44}) {
+    base.archived[id] = {id, testing::random_vector(3, random, 1.0),
+                         testing::random_spd(3, random, 0.2, 0.6)};
+  }
+  const Eigen::VectorXd joint_mean = Consensus::marginal(base, {100, 101}).mean +
+                                     testing::random_vector(6, random, 0.05);
+  const Eigen::MatrixXd joint_covariance = testing::random_spd(6, random, 0.2, 0.6);
+  std::map<LandmarkId, ObjectEstimate> theirs;
+  for (const auto& [id, own] : base.archived) {
+    theirs[id] = {id, own.p_world + testing::random_vector(3, random, 0.05),
+                  testing::random_spd(3, random, 0.2, 0.6)};
+  }
+  const auto marginal_in = [&](const std::vector<LandmarkId>& archived_order) {
+    Marginal m{{100, 101}, joint_mean, joint_covariance};
+    m.mean.conservativeResize(6 + 3 * static_cast<Eigen::Index>(archived_order.size()));
+    for (std::size_t i = 0; i < archived_order.size(); ++i) {
+      const ObjectEstimate& estimate = theirs.at(archived_order[i]);
+      m.ids.push_back(estimate.id);
+      m.mean.segment<3>(6 + 3 * static_cast<Eigen::Index>(i)) = estimate.p_world;
+      m.blocks.push_back(estimate.covariance);
+    }
+    return m;
+  };
+  State sorted = base, shuffled = base;
+  const auto a = Consensus::fuse(sorted, {{0.4, marginal_in({40, 41, 42, 43, 44})}}, no_safeguards());
+  const auto b =
+      Consensus::fuse(shuffled, {{0.4, marginal_in({43, 40, 44, 42, 41})}}, no_safeguards());
+  EXPECT_EQ(a.landmarks_fused, 7);
+  EXPECT_EQ(b.landmarks_fused, 7);
+  EXPECT_TRUE(shuffled.covariance.isApprox(sorted.covariance, 1e-14));
+  for (const auto& [id, estimate] : sorted.archived) {
+    EXPECT_TRUE(shuffled.archived.at(id).p_world.isApprox(estimate.p_world, 1e-14)) << id;
+    EXPECT_TRUE(shuffled.archived.at(id).covariance.isApprox(estimate.covariance, 1e-14)) << id;
+  }
+  for (std::size_t j = 0; j < sorted.landmarks.size(); ++j) {
+    EXPECT_TRUE(shuffled.landmarks[j].p_world.isApprox(sorted.landmarks[j].p_world, 1e-14)) << j;
+  }
+  // Not a test that cannot fail: the fuse moved the state.
+  EXPECT_FALSE(sorted.archived.at(42).p_world.isApprox(base.archived.at(42).p_world, 1e-6));
 }
 
 TEST(ConsensusSafeguards, NeighboursBeyondTheChiSquareBoundAreRefusedAndCounted) {

@@ -67,10 +67,26 @@ struct Location {
 
 using Locations = std::vector<std::pair<LandmarkId, Location>>;
 
+/// Sorts locations by id. They most often come as two ascending runs (a marginal's joint block,
+/// then its archived objects; the robot's: the state, then the archive): those are merged
+/// through `spare` in linear time, anything else is sorted.
+void sort_by_id(Locations& locations, Locations& spare) {
+  const auto by_id = [](const auto& a, const auto& b) { return a.first < b.first; };
+  const auto middle = std::is_sorted_until(locations.begin(), locations.end(), by_id);
+  if (middle == locations.end()) return;
+  if (!std::is_sorted(middle, locations.end(), by_id)) {
+    std::sort(locations.begin(), locations.end(), by_id);
+    return;
+  }
+  spare.resize(locations.size());
+  std::merge(locations.begin(), middle, middle, locations.end(), spare.begin(), by_id);
+  std::copy(spare.begin(), spare.end(), locations.begin());
+}
+
 /// Fills `locations` with (id, location) of every landmark of a block-diagonal Gaussian, sorted
 /// by id; false when an id repeats.
 bool locate(const std::vector<LandmarkId>& ids, const std::vector<Eigen::MatrixXd>& blocks,
-            Locations& locations) {
+            Locations& locations, Locations& spare) {
   locations.clear();
   int position = 0;
   for (std::size_t b = 0; b < blocks.size(); ++b) {
@@ -79,8 +95,7 @@ bool locate(const std::vector<LandmarkId>& ids, const std::vector<Eigen::MatrixX
       ++position;
     }
   }
-  std::sort(locations.begin(), locations.end(),
-            [](const auto& a, const auto& b) { return a.first < b.first; });
+  sort_by_id(locations, spare);
   const auto repeated = std::adjacent_find(
       locations.begin(), locations.end(), [](const auto& a, const auto& b) { return a.first == b.first; });
   return repeated == locations.end();
@@ -118,9 +133,10 @@ struct Member {
 
 /// Checks a neighbour's marginal (shapes, finite values, no repeated id) into `member`; false
 /// when malformed.
-bool check(const Marginal& marginal, int index, double weight, Member& member) {
+bool check(const Marginal& marginal, int index, double weight, Member& member,
+           Locations& spare) {
   if (!marginal.well_formed()) return false;
-  if (!locate(marginal.ids, marginal.blocks, member.locations)) return false;
+  if (!locate(marginal.ids, marginal.blocks, member.locations, spare)) return false;
   member.index = index;
   member.weight = weight;
   member.marginal = &marginal;
@@ -131,7 +147,7 @@ bool check(const Marginal& marginal, int index, double weight, Member& member) {
 
 /// The robot itself as a member: every object it holds, in its state or archived.
 void own_member(const State& state, double weight, std::vector<const ObjectEstimate*>& archived,
-                Member& member) {
+                Member& member, Locations& spare) {
   member.index = -1;
   member.weight = weight;
   member.marginal = nullptr;
@@ -148,8 +164,7 @@ void own_member(const State& state, double weight, std::vector<const ObjectEstim
     member.locations.push_back({id, {position, 1 + position, 0}});
     archived.push_back(&estimate);
   }
-  std::sort(member.locations.begin(), member.locations.end(),
-            [](const auto& a, const auto& b) { return a.first < b.first; });
+  sort_by_id(member.locations, spare);
 }
 
 /// The inverse of a covariance, into `inverse` (symmetrised), if the covariance is positive
@@ -232,13 +247,29 @@ void gather(const Eigen::Ref<const Eigen::MatrixXd>& P, const std::vector<Run>& 
   }
 }
 
+/// Copies the lower triangle of a square matrix onto its upper one, in 8x8 tiles, so that
+/// neither the reads nor the writes stride a whole column apart element after element.
+void mirror_lower(Eigen::Ref<Eigen::MatrixXd> P) {
+  constexpr Eigen::Index tile = 8;
+  const Eigen::Index n = P.rows();
+  for (Eigen::Index c = 0; c < n; c += tile) {
+    const Eigen::Index width = std::min(tile, n - c);
+    P.block(c, c, width, width).triangularView<Eigen::StrictlyUpper>() =
+        P.block(c, c, width, width).transpose();
+    for (Eigen::Index r = c + width; r < n; r += tile) {
+      const Eigen::Index height = std::min(tile, n - r);
+      P.block(c, r, width, height) = P.block(r, c, height, width).transpose();
+    }
+  }
+}
+
 /// Buffers of proposition_two, kept across calls.
 struct PropositionTwoScratch {
   std::vector<Run> y_runs;
   std::vector<Run> x_runs;
   std::vector<unsigned char> in_y;
   std::vector<int> others;
-  Scratch own_covariance, factor, step, difference, correction, gain_transpose, cross, update,
+  Scratch own_covariance, factor, step, difference, correction, gain, cross, update,
       x_correction;
 };
 
@@ -290,36 +321,43 @@ bool proposition_two(Eigen::Ref<Eigen::MatrixXd> P, const std::vector<int>& indi
   const bool leading = m > 0 && others.back() == static_cast<int>(m) - 1;
   if (m > 0) {
     runs_of(others, scratch.x_runs);
-    MatrixMap gain_transpose = scratch.gain_transpose.matrix(k, m);  // L^T
-    gather(P, y_runs, scratch.x_runs, gain_transpose);
-    llt.solveInPlace(gain_transpose);
+    // L = P_xy P_yy^-1, solved from the right (the trsm kernel is faster with the many
+    // right-hand sides as rows than as columns).
+    MatrixMap gain = scratch.gain.matrix(m, k);
+    gather(P, scratch.x_runs, y_runs, gain);
+    llt.matrixU().solveInPlace<Eigen::OnTheRight>(gain);
+    llt.matrixL().solveInPlace<Eigen::OnTheRight>(gain);
     VectorMap x_correction = scratch.x_correction.vector(m);
-    x_correction.noalias() = gain_transpose.transpose() * step;
+    x_correction.noalias() = gain * step;
     for (Eigen::Index c = 0; c < m; ++c) correction(others[c]) = x_correction(c);
-    MatrixMap cross = scratch.cross.matrix(k, m);  // (L D)^T
-    cross.noalias() = D * gain_transpose;
+    MatrixMap cross = scratch.cross.matrix(m, k);  // L D
+    cross.noalias() = gain * D;
     if (leading) {
-      P.topLeftCorner(m, m).triangularView<Eigen::Lower>() +=
-          gain_transpose.transpose() * cross;  // L D L^T
-      P.topLeftCorner(m, m).triangularView<Eigen::StrictlyUpper>() =
-          P.topLeftCorner(m, m).transpose();
-      for (Eigen::Index a = 0; a < k; ++a) {
-        P.row(indices[a]).head(m) += cross.row(a);
-        P.col(indices[a]).head(m) = P.row(indices[a]).head(m).transpose();
+      P.topLeftCorner(m, m).triangularView<Eigen::Lower>() += cross * gain.transpose();  // L D L^T
+      mirror_lower(P.topLeftCorner(m, m));
+      for (const Run& run : y_runs) {
+        P.block(0, run.start, m, run.length) += cross.middleCols(run.position, run.length);
+        P.block(run.start, 0, run.length, m) = P.block(0, run.start, m, run.length).transpose();
       }
     } else {
       MatrixMap update = scratch.update.matrix(m, m);
-      update.triangularView<Eigen::Lower>() = gain_transpose.transpose() * cross;  // L D L^T
+      update.triangularView<Eigen::Lower>() = cross * gain.transpose();  // L D L^T
       for (Eigen::Index c = 0; c < m; ++c) {
         const Eigen::Index column = others[c];
         for (Eigen::Index r = c; r < m; ++r) P(others[r], column) += update(r, c);
-        for (Eigen::Index a = 0; a < k; ++a) P(indices[a], column) += cross(a, c);
       }
-      // The lower triangle of P_xx and every P_yx entry were written: mirror them.
+      for (Eigen::Index a = 0; a < k; ++a) {
+        const Eigen::Index column = indices[a];
+        for (Eigen::Index r = 0; r < m; ++r) P(others[r], column) += cross(r, a);
+      }
+      // The lower triangle of P_xx and every P_xy entry were written: mirror them.
       for (Eigen::Index c = 0; c < m; ++c) {
         const Eigen::Index column = others[c];
         for (Eigen::Index r = c + 1; r < m; ++r) P(column, others[r]) = P(others[r], column);
-        for (Eigen::Index a = 0; a < k; ++a) P(column, indices[a]) = P(indices[a], column);
+      }
+      for (Eigen::Index a = 0; a < k; ++a) {
+        const Eigen::Index column = indices[a];
+        for (Eigen::Index r = 0; r < m; ++r) P(column, others[r]) = P(others[r], column);
       }
     }
   }
@@ -369,13 +407,14 @@ bool proposition_two_single(Eigen::Ref<Eigen::MatrixXd> P, Eigen::Index c,
   M = 0.5 * (M + M.transpose()).eval();
   Eigen::Map<Columns3> BM = scratch.BM.matrix<Columns3>(n, 3);
   BM.noalias() = B * M;
-  P.triangularView<Eigen::Lower>() += BM * B.transpose();
+  // P's lower triangle += BM B^T, column by column (three axpys each: faster than the blocked
+  // triangular product for a rank of 3).
+  for (Eigen::Index j = 0; j < n; ++j) {
+    const Eigen::Index rows = n - j;
+    P.col(j).tail(rows) += BM.col(0).tail(rows) * B(j, 0) + BM.col(1).tail(rows) * B(j, 1) +
+                           BM.col(2).tail(rows) * B(j, 2);
+  }
   return true;
-}
-
-/// Copies the lower triangle of a square matrix onto its upper one.
-void mirror_lower(Eigen::Ref<Eigen::MatrixXd> P) {
-  P.triangularView<Eigen::StrictlyUpper>() = P.transpose();
 }
 
 /// A landmark's holders: (position among the neighbour members, where it sits in that one's
@@ -465,11 +504,13 @@ struct ConsensusWorkspace::Buffers {
   ConsensusReport report;
   // The members.
   std::vector<const ObjectEstimate*> own_archived;
+  Locations spare_locations;  // sort_by_id's
   Member own;
   std::vector<Member> neighbour_members;  // the first neighbour_count hold this round's
   std::size_t neighbour_count = 0;
   // The landmarks accepted for averaging and their holders.
   std::vector<Holder> holder_buffer;
+  std::vector<std::size_t> cursors;  // a neighbour's position in its locations, by id
   std::vector<std::pair<LandmarkId, std::pair<std::size_t, std::size_t>>> accepted_ranges;
   std::vector<std::pair<LandmarkId, Holders>> accepted;
   // Groups.
@@ -651,7 +692,7 @@ const ConsensusReport& Consensus::fuse(State& state,
     // Positive definiteness and conditioning are checked per averaged group, below.
     const bool usable = neighbours[j].weight > 0.0 && neighbours[j].weight < 1.0 &&
                         check(m, static_cast<int>(j), neighbours[j].weight,
-                              w.neighbour_members[w.neighbour_count]);
+                              w.neighbour_members[w.neighbour_count], w.spare_locations);
     if (!usable) {
       ++report.neighbours_skipped;
       continue;
@@ -664,7 +705,7 @@ const ConsensusReport& Consensus::fuse(State& state,
   if (neighbour_members.empty() || (state.landmarks.empty() && state.archived.empty())) {
     return report;
   }
-  own_member(state, 1.0 - neighbour_weight, w.own_archived, w.own);
+  own_member(state, 1.0 - neighbour_weight, w.own_archived, w.own, w.spare_locations);
   const Member* const own = &w.own;
   const double refusal_bound =
       options.neighbour_chi2_probability > 0.0
@@ -679,17 +720,24 @@ const ConsensusReport& Consensus::fuse(State& state,
   std::vector<Holder>& holder_buffer = w.holder_buffer;
   holder_buffer.clear();
   w.accepted_ranges.clear();
+  // Every member's locations are sorted by id: one cursor a neighbour walks them alongside the
+  // robot's (a merge, not a search a landmark and neighbour).
+  w.cursors.assign(neighbour_members.size(), 0);
   for (const auto& [id, own_at] : own->locations) {  // sorted by id
     const std::size_t first = holder_buffer.size();
+    const Eigen::Vector3d own_mean = own->mean(own_at);
+    const Eigen::Matrix3d own_covariance = own->covariance(own_at);
     for (std::size_t j = 0; j < neighbour_members.size(); ++j) {
       const Member& neighbour = neighbour_members[j];
-      const Location* found = neighbour.find(id);
-      if (found == nullptr) continue;
+      const Locations& theirs = neighbour.locations;
+      std::size_t& cursor = w.cursors[j];
+      while (cursor < theirs.size() && theirs[cursor].first < id) ++cursor;
+      if (cursor == theirs.size() || theirs[cursor].first != id) continue;
+      const Location* found = &theirs[cursor].second;
       ++report.tested_per_neighbour[neighbour.index];
       if (options.neighbour_chi2_probability > 0.0) {
-        const Eigen::Vector3d difference = neighbour.mean(*found) - own->mean(own_at);
-        const Eigen::LLT<Eigen::Matrix3d> sum(own->covariance(own_at) +
-                                              neighbour.covariance(*found));
+        const Eigen::Vector3d difference = neighbour.mean(*found) - own_mean;
+        const Eigen::LLT<Eigen::Matrix3d> sum(own_covariance + neighbour.covariance(*found));
         if (sum.info() != Eigen::Success ||
             !(difference.dot(sum.solve(difference)) <= refusal_bound)) {
           ++report.landmarks_refused;

@@ -114,17 +114,24 @@ struct Marginal {
   }
 
   std::size_t size() const { return ids.size(); }
+  /// Whether every entry is finite, in one vectorized sum: x * 0 is 0 for a finite x and NaN for
+  /// an infinite or NaN one (Eigen's allFinite tests entry by entry, and a receiver checks every
+  /// marginal of every round).
+  template <typename Derived>
+  static bool all_finite(const Eigen::DenseBase<Derived>& values) {
+    return (values.derived().array() * 0.0).sum() == 0.0;
+  }
   /// Whether the shapes agree: mean of 3k finite numbers, square finite blocks whose sizes are
   /// multiples of 3 and add up to 3k (k = number of ids).
   bool well_formed() const { return shapes_agree(ids, mean, blocks); }
   static bool shapes_agree(const std::vector<LandmarkId>& ids, const Eigen::VectorXd& mean,
                            const std::vector<Eigen::MatrixXd>& blocks) {
     const auto d = static_cast<Eigen::Index>(3 * ids.size());
-    if (mean.size() != d || !mean.allFinite()) return false;
+    if (mean.size() != d || !all_finite(mean)) return false;
     Eigen::Index covered = 0;
     for (const Eigen::MatrixXd& block : blocks) {
       if (block.rows() != block.cols() || block.rows() == 0 || block.rows() % 3 != 0 ||
-          !block.allFinite()) {
+          !all_finite(block)) {
         return false;
       }
       covered += block.rows();
