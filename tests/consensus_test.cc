@@ -489,8 +489,8 @@ TEST(ConsensusAverage, ANeighboursIdsInAnyOrderFuseAsSorted) {
     base.archived[id] = {id, testing::random_vector(3, random, 1.0),
                          testing::random_spd(3, random, 0.2, 0.6)};
   }
-  const Eigen::VectorXd joint_mean = Consensus::marginal(base, {100, 101}).mean +
-                                     testing::random_vector(6, random, 0.05);
+  const Eigen::VectorXd joint_mean =
+      Consensus::marginal(base, {100, 101}).mean + testing::random_vector(6, random, 0.05);
   const Eigen::MatrixXd joint_covariance = testing::random_spd(6, random, 0.2, 0.6);
   std::map<LandmarkId, ObjectEstimate> theirs;
   for (const auto& [id, own] : base.archived) {
@@ -509,7 +509,8 @@ TEST(ConsensusAverage, ANeighboursIdsInAnyOrderFuseAsSorted) {
     return m;
   };
   State sorted = base, shuffled = base;
-  const auto a = Consensus::fuse(sorted, {{0.4, marginal_in({40, 41, 42, 43, 44})}}, no_safeguards());
+  const auto a =
+      Consensus::fuse(sorted, {{0.4, marginal_in({40, 41, 42, 43, 44})}}, no_safeguards());
   const auto b =
       Consensus::fuse(shuffled, {{0.4, marginal_in({43, 40, 44, 42, 41})}}, no_safeguards());
   EXPECT_EQ(a.landmarks_fused, 7);

@@ -133,8 +133,7 @@ struct Member {
 
 /// Checks a neighbour's marginal (shapes, finite values, no repeated id) into `member`; false
 /// when malformed.
-bool check(const Marginal& marginal, int index, double weight, Member& member,
-           Locations& spare) {
+bool check(const Marginal& marginal, int index, double weight, Member& member, Locations& spare) {
   if (!marginal.well_formed()) return false;
   if (!locate(marginal.ids, marginal.blocks, member.locations, spare)) return false;
   member.index = index;
@@ -269,8 +268,7 @@ struct PropositionTwoScratch {
   std::vector<Run> x_runs;
   std::vector<unsigned char> in_y;
   std::vector<int> others;
-  Scratch own_covariance, factor, step, difference, correction, gain, cross, update,
-      x_correction;
+  Scratch own_covariance, factor, step, difference, correction, gain, cross, update, x_correction;
 };
 
 /// Proposition 2 on the covariance P of a Gaussian: replaces the marginal of the coordinates
