@@ -12,6 +12,7 @@
 #include "allocation_counter.h"
 #include "concord/estimator/lie.h"
 #include "concord/estimator/state_helper.h"
+#include "concord/estimator/updater_helper.h"
 #include "replay/team_replay.h"
 #include "test_support.h"
 
@@ -544,6 +545,82 @@ TEST(ConsensusSafeguards, NeighboursBeyondTheChiSquareBoundAreRefusedAndCounted)
   // The near one is averaged with weight 1/4, the robot keeps 3/4 (the refused and the
   // non-holder's weights included): equal covariances, so the mean is 5.6 / 4.
   EXPECT_NEAR(state.landmarks[0].p_world.x(), 1.4, 1e-12);
+}
+
+TEST(ConsensusAverage, CorrelatedAxesGiveTheInformationAverageInAndOutOfTheState) {
+  // Eq. (19) for one in-state landmark and one archived object whose covariances (the robot's
+  // and two neighbours') have correlated axes, against the average computed with general
+  // inverses: sum_j w_j P_j^-1, its inverse, and the weighted information vector.
+  std::mt19937 random(71);
+  State state;
+  state.poses.push_back({0, Eigen::Isometry3d::Identity()});
+  state.landmarks.push_back({5, testing::random_vector(3, random), 0});
+  state.rebuild_landmark_index();
+  state.covariance = Eigen::MatrixXd::Identity(9, 9);
+  state.covariance.block<3, 3>(6, 6) = testing::random_spd(3, random, 0.1, 2.0);
+  state.archived[9] = {9, testing::random_vector(3, random),
+                       testing::random_spd(3, random, 0.1, 2.0)};
+  const State before = state;
+  const double weights[] = {0.3, 0.25};
+  std::vector<WeightedMarginal> neighbours;
+  for (const double weight : weights) {
+    Marginal m;
+    m.ids = {5, 9};
+    m.mean = before.landmarks[0].p_world.replicate(2, 1) + testing::random_vector(6, random, 0.3);
+    m.mean.tail<3>() += before.archived.at(9).p_world - before.landmarks[0].p_world;
+    m.blocks = {testing::random_spd(3, random, 0.1, 2.0), testing::random_spd(3, random, 0.1, 2.0)};
+    neighbours.push_back({weight, m});
+  }
+  const auto report = Consensus::fuse(state, neighbours, no_safeguards());
+  ASSERT_EQ(report.landmarks_fused, 2);
+  for (int which = 0; which < 2; ++which) {
+    const Eigen::Matrix3d own_covariance = which == 0 ? Eigen::Matrix3d(before.covariance.block<3, 3>(6, 6))
+                                                      : before.archived.at(9).covariance;
+    const Eigen::Vector3d own_mean =
+        which == 0 ? before.landmarks[0].p_world : before.archived.at(9).p_world;
+    Eigen::Matrix3d information = (1.0 - weights[0] - weights[1]) * own_covariance.inverse();
+    Eigen::Vector3d vector = information * own_mean;
+    for (std::size_t j = 0; j < neighbours.size(); ++j) {
+      const Marginal& m = neighbours[j].marginal;
+      const Eigen::Matrix3d their_information = m.blocks[static_cast<std::size_t>(which)].inverse();
+      information += weights[j] * their_information;
+      vector += weights[j] * their_information * m.mean.segment<3>(3 * which);
+    }
+    const Eigen::Matrix3d covariance = information.inverse();
+    const Eigen::Vector3d mean = covariance * vector;
+    const Eigen::Vector3d fused_mean =
+        which == 0 ? state.landmarks[0].p_world : state.archived.at(9).p_world;
+    const Eigen::Matrix3d fused_covariance = which == 0 ? Eigen::Matrix3d(state.covariance.block<3, 3>(6, 6))
+                                                        : state.archived.at(9).covariance;
+    EXPECT_TRUE(fused_mean.isApprox(mean, 1e-12)) << which;
+    EXPECT_TRUE(fused_covariance.isApprox(covariance, 1e-12)) << which;
+    EXPECT_FALSE(fused_mean.isApprox(own_mean, 1e-3)) << which;  // it moved
+  }
+}
+
+TEST(ConsensusSafeguards, TheChiSquareTestWeighsTheDifferenceByTheFullSumOfCovariances) {
+  // Own and neighbour covariances with correlated axes: a neighbour's mean is refused just
+  // beyond the 99.9 % bound of d^T (P_own + P_theirs)^-1 d and accepted just inside it, in
+  // directions that the sum's diagonal alone would misjudge.
+  std::mt19937 random(29);
+  ConsensusOptions options;
+  options.neighbour_chi2_probability = 0.999;
+  const double bound = UpdaterHelper::chi2_quantile(0.999, 3);
+  for (int trial = 0; trial < 20; ++trial) {
+    State state = single_landmark_state();
+    state.covariance.block<3, 3>(6, 6) = testing::random_spd(3, random, 0.05, 3.0);
+    const Eigen::Matrix3d theirs = testing::random_spd(3, random, 0.05, 3.0);
+    const Eigen::Matrix3d sum = state.covariance.block<3, 3>(6, 6) + theirs;
+    const Eigen::Vector3d direction = testing::random_vector(3, random).normalized();
+    const double distance = direction.dot(sum.inverse() * direction);  // of a unit step
+    for (const double scale : {0.999, 1.001}) {
+      State trial_state = state;
+      const Eigen::Vector3d mean = direction * std::sqrt(scale * bound / distance);
+      const auto report = Consensus::fuse(trial_state, {{0.5, Marginal{{5}, mean, theirs}}}, options);
+      EXPECT_EQ(report.landmarks_refused, scale > 1.0 ? 1 : 0) << trial << " " << scale;
+      EXPECT_EQ(report.landmarks_fused, scale > 1.0 ? 0 : 1) << trial << " " << scale;
+    }
+  }
 }
 
 TEST(ConsensusAverage, LandmarksInDifferentBlocksOfANeighbourAreAveragedSeparately) {

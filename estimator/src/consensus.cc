@@ -183,21 +183,57 @@ bool checked_inverse(const Eigen::Ref<const Eigen::MatrixXd>& covariance,
   return condition <= max_condition_number;
 }
 
-/// checked_inverse for one landmark's 3x3 covariance, in closed form: positive definite when its
-/// leading principal minors are positive (Sylvester), the inverse from the cofactors. Like the
-/// Cholesky factorization, it reads the lower triangle only (the matrix is taken as symmetric).
+/// The inverse of a symmetric 3x3 matrix given by its lower triangle, in closed form, if it is
+/// positive definite (Sylvester: its leading principal minors are positive; false for NaN too).
+/// The adjugate of a symmetric matrix is symmetric: so is the inverse, exactly.
+std::optional<Eigen::Matrix3d> positive_definite_inverse3(const Eigen::Matrix3d& P) {
+  const double a = P(0, 0), b = P(1, 0), c = P(2, 0), d = P(1, 1), e = P(2, 1), f = P(2, 2);
+  const double minor2 = a * d - b * b;
+  const double c00 = d * f - e * e, c10 = c * e - b * f, c20 = b * e - c * d;
+  const double determinant = a * c00 + b * c10 + c * c20;
+  if (!(a > 0.0 && minor2 > 0.0 && determinant > 0.0)) return std::nullopt;
+  const double scale = 1.0 / determinant;
+  const double c11 = a * f - c * c, c21 = b * c - a * e;
+  Eigen::Matrix3d inverse;
+  inverse << c00, c10, c20,  //
+      c10, c11, c21,         //
+      c20, c21, minor2;
+  inverse *= scale;
+  return inverse;
+}
+
+/// The largest absolute column sum of a 3x3 matrix (its 1-norm).
+double norm1(const Eigen::Matrix3d& A) { return A.cwiseAbs().colwise().sum().maxCoeff(); }
+
+/// checked_inverse for one landmark's 3x3 covariance (read as symmetric, from its lower
+/// triangle), in closed form (positive_definite_inverse3).
 std::optional<Eigen::Matrix3d> checked_inverse3(const Eigen::Matrix3d& covariance,
                                                 double max_condition_number) {
-  const Eigen::Matrix3d P = covariance.selfadjointView<Eigen::Lower>();
-  const double minor2 = P(0, 0) * P(1, 1) - P(0, 1) * P(1, 0);
-  const double determinant = P.determinant();
-  if (!(P(0, 0) > 0.0 && minor2 > 0.0 && determinant > 0.0)) return std::nullopt;
-  Eigen::Matrix3d inverse = P.inverse();
-  inverse = 0.5 * (inverse + inverse.transpose()).eval();
-  const double condition = P.cwiseAbs().colwise().sum().maxCoeff() *
-                           inverse.cwiseAbs().colwise().sum().maxCoeff();
+  auto inverse = positive_definite_inverse3(covariance);
+  if (!inverse) return std::nullopt;
+  const double condition =
+      norm1(covariance.selfadjointView<Eigen::Lower>()) * norm1(*inverse);
   if (!(condition <= max_condition_number)) return std::nullopt;
   return inverse;
+}
+
+/// r^T S^-1 r for S = A + B, two symmetric 3x3 matrices read from their lower triangles, through
+/// S = L diag(p) L^T in closed form; nullopt when a pivot p is not positive (S not positive
+/// definite, or NaN).
+std::optional<double> inverse_quadratic3(const Eigen::Matrix3d& A, const Eigen::Matrix3d& B,
+                                         const Eigen::Vector3d& r) {
+  const double s00 = A(0, 0) + B(0, 0), s10 = A(1, 0) + B(1, 0), s20 = A(2, 0) + B(2, 0);
+  const double s11 = A(1, 1) + B(1, 1), s21 = A(2, 1) + B(2, 1), s22 = A(2, 2) + B(2, 2);
+  const double p0 = s00;
+  if (!(p0 > 0.0)) return std::nullopt;
+  const double l10 = s10 / p0, l20 = s20 / p0;
+  const double p1 = s11 - l10 * s10;
+  if (!(p1 > 0.0)) return std::nullopt;
+  const double l21 = (s21 - l20 * s10) / p1;
+  const double p2 = s22 - l20 * s20 - l21 * l21 * p1;
+  if (!(p2 > 0.0)) return std::nullopt;
+  const double y0 = r(0), y1 = r(1) - l10 * y0, y2 = r(2) - l20 * y0 - l21 * y1;
+  return y0 * y0 / p0 + y1 * y1 / p1 + y2 * y2 / p2;
 }
 
 /// Mean and covariance of the landmarks at `at` (all in one block) of a neighbour's
@@ -430,26 +466,30 @@ struct NeighbourShare {
   double weight = 0.0;
   int used = 0;
   int skipped = 0;
+
+  /// Adds a holder's 3x3 marginal (mean, covariance) with its weight.
+  void add(double holder_weight, const Eigen::Vector3d& mean, const Eigen::Matrix3d& covariance,
+           double max_condition_number) {
+    const auto information = checked_inverse3(covariance, max_condition_number);
+    if (!information) {
+      ++skipped;
+      return;
+    }
+    weight += holder_weight;
+    matrix += holder_weight * *information;
+    vector += holder_weight * (*information * mean);
+    ++used;
+  }
 };
 
-NeighbourShare neighbour_share(std::span<const Member> members, const Holders& holders,
-                               double max_condition_number) {
+/// A landmark accepted for averaging: its holders and their share (in the holders' order).
+struct Accepted {
+  LandmarkId id = 0;
+  std::size_t first = 0;  ///< the holders' position and number in the buffer that holds them
+  std::size_t count = 0;
+  Holders holders;  ///< set once that buffer stops growing
   NeighbourShare share;
-  for (const auto& [j, location] : holders) {
-    const Member& neighbour = members[j];
-    const auto information =
-        checked_inverse3(neighbour.covariance(*location), max_condition_number);
-    if (!information) {
-      ++share.skipped;
-      continue;
-    }
-    share.weight += neighbour.weight;
-    share.matrix += neighbour.weight * *information;
-    share.vector += neighbour.weight * (*information * neighbour.mean(*location));
-    ++share.used;
-  }
-  return share;
-}
+};
 
 /// Records the longest landmark step of an average.
 void note_mean_shift(const Eigen::Ref<const Eigen::VectorXd>& own_mean,
@@ -509,8 +549,7 @@ struct ConsensusWorkspace::Buffers {
   // The landmarks accepted for averaging and their holders.
   std::vector<Holder> holder_buffer;
   std::vector<std::size_t> cursors;  // a neighbour's position in its locations, by id
-  std::vector<std::pair<LandmarkId, std::pair<std::size_t, std::size_t>>> accepted_ranges;
-  std::vector<std::pair<LandmarkId, Holders>> accepted;
+  std::vector<Accepted> accepted;  // holders as offsets into holder_buffer until it is whole
   // Groups.
   std::vector<std::pair<int, int>> key_members;
   std::vector<std::size_t> key_start;
@@ -607,19 +646,22 @@ void Consensus::marginal(const State& state, const std::vector<LandmarkId>& ids,
     Eigen::MatrixXd& covariance = out.blocks.front();
     if (covariance.rows() != 3 * joint || covariance.cols() != 3 * joint)
       covariance.resize(3 * joint, 3 * joint);
-    // A landmark's three coordinates are adjacent in the state: the joint block is gathered
-    // 3x3 block by 3x3 block, each block above the diagonal read once and mirrored (the
-    // state's covariance is kept symmetric).
+    // A landmark's three coordinates are adjacent in the state: each column of the joint
+    // block is gathered three rows at a time, from a column of the state's covariance (kept
+    // symmetric: both triangles are read, nothing is transposed).
     for (Eigen::Index j = 0; j < joint; ++j) {
       const auto [slot, column] = in_state[static_cast<std::size_t>(j)];
       out.mean.segment<3>(3 * j) = state.landmarks[slot].p_world;
-      for (Eigen::Index i = 0; i < j; ++i) {
-        const Eigen::Matrix3d block =
-            state.covariance.block<3, 3>(in_state[static_cast<std::size_t>(i)].second, column);
-        covariance.block<3, 3>(3 * i, 3 * j) = block;
-        covariance.block<3, 3>(3 * j, 3 * i) = block.transpose();
+      for (Eigen::Index c = 0; c < 3; ++c) {
+        const double* source = state.covariance.col(column + c).data();
+        double* target = covariance.col(3 * j + c).data();
+        for (Eigen::Index i = 0; i < joint; ++i, target += 3) {
+          const double* rows = source + in_state[static_cast<std::size_t>(i)].second;
+          target[0] = rows[0];
+          target[1] = rows[1];
+          target[2] = rows[2];
+        }
       }
-      covariance.block<3, 3>(3 * j, 3 * j) = state.covariance.block<3, 3>(column, column);
     }
   }
   std::size_t block = joint > 0 ? 1 : 0;
@@ -714,10 +756,14 @@ const ConsensusReport& Consensus::fuse(State& state,
   //    (a neighbour's mean beyond the chi-square bound under the sum of both covariances is
   //    refused: an outlier, a wrong association or a lie; not averaged in, counted).
   // (id, its holders: neighbour position and where the landmark sits in its marginal), by id.
-  // Every accepted landmark's holders lie in one buffer (no allocation per landmark).
+  // Every accepted landmark's holders lie in one buffer (no allocation per landmark). Each
+  // holder's share of the average (its information, from its 3x3 marginal) is taken while its
+  // marginal is at hand.
   std::vector<Holder>& holder_buffer = w.holder_buffer;
   holder_buffer.clear();
-  w.accepted_ranges.clear();
+  std::vector<Accepted>& accepted = w.accepted;
+  accepted.clear();
+  NeighbourShare share;
   // Every member's locations are sorted by id: one cursor a neighbour walks them alongside the
   // robot's (a merge, not a search a landmark and neighbour).
   w.cursors.assign(neighbour_members.size(), 0);
@@ -725,6 +771,7 @@ const ConsensusReport& Consensus::fuse(State& state,
     const std::size_t first = holder_buffer.size();
     const Eigen::Vector3d own_mean = own->mean(own_at);
     const Eigen::Matrix3d own_covariance = own->covariance(own_at);
+    share = NeighbourShare();
     for (std::size_t j = 0; j < neighbour_members.size(); ++j) {
       const Member& neighbour = neighbour_members[j];
       const Locations& theirs = neighbour.locations;
@@ -733,41 +780,39 @@ const ConsensusReport& Consensus::fuse(State& state,
       if (cursor == theirs.size() || theirs[cursor].first != id) continue;
       const Location* found = &theirs[cursor].second;
       ++report.tested_per_neighbour[neighbour.index];
+      const Eigen::Vector3d their_mean = neighbour.mean(*found);
+      const Eigen::Matrix3d their_covariance = neighbour.covariance(*found);
       if (options.neighbour_chi2_probability > 0.0) {
-        const Eigen::Vector3d difference = neighbour.mean(*found) - own_mean;
-        const Eigen::LLT<Eigen::Matrix3d> sum(own_covariance + neighbour.covariance(*found));
-        if (sum.info() != Eigen::Success ||
-            !(difference.dot(sum.solve(difference)) <= refusal_bound)) {
+        const auto distance =
+            inverse_quadratic3(own_covariance, their_covariance, their_mean - own_mean);
+        if (!distance || !(*distance <= refusal_bound)) {
           ++report.landmarks_refused;
           ++report.refused_per_neighbour[neighbour.index];
           continue;
         }
       }
       holder_buffer.emplace_back(static_cast<int>(j), found);
+      share.add(neighbour.weight, their_mean, their_covariance, options.max_condition_number);
     }
     if (holder_buffer.size() > first) {
-      w.accepted_ranges.push_back({id, {first, holder_buffer.size()}});
+      accepted.push_back({id, first, holder_buffer.size() - first, Holders(), share});
     }
   }
-  std::vector<std::pair<LandmarkId, Holders>>& accepted = w.accepted;
-  accepted.clear();
-  for (const auto& [id, range] : w.accepted_ranges) {
-    accepted.emplace_back(
-        id, Holders(holder_buffer.data() + range.first, range.second - range.first));
+  for (Accepted& entry : accepted) {
+    entry.holders = Holders(holder_buffer.data() + entry.first, entry.count);
   }
 
   // 2b. Event-triggered fusion (consensus.fuse_kl_threshold): a landmark whose average, from
   //     the 3x3 marginals, is within the threshold of the robot's own is left out of the round.
   if (options.fuse_kl_threshold > 0.0) {
-    const auto settled = [&](const std::pair<LandmarkId, Holders>& entry) {
-      const auto& [id, offered] = entry;
+    const auto settled = [&](const Accepted& entry) {
+      const LandmarkId id = entry.id;
       const Location& own_at = *own->find(id);
       ObjectEstimate current{id, own->mean(own_at), own->covariance(own_at)};
       const auto own_information =
           checked_inverse3(current.covariance, options.max_condition_number);
       if (!own_information) return false;  // fused (or refused) as usual below
-      NeighbourShare share =
-          neighbour_share(neighbour_members, offered, options.max_condition_number);
+      NeighbourShare share = entry.share;
       const double own_weight = 1.0 - share.weight;
       share.matrix += own_weight * *own_information;
       share.vector += own_weight * (*own_information * current.p_world);
@@ -802,7 +847,7 @@ const ConsensusReport& Consensus::fuse(State& state,
   w.key_start.assign(accepted.size() + 1, 0);
   w.key_joint.assign(accepted.size(), 0);
   for (std::size_t a = 0; a < accepted.size(); ++a) {
-    const auto& [id, holders] = accepted[a];
+    const auto& [id, first, count, holders, share] = accepted[a];
     w.key_start[a] = key_members.size();
     for (const auto& [j, at] : holders) key_members.emplace_back(j, at->block);
     key_members.emplace_back(-1, own->find(id)->block);
@@ -842,7 +887,7 @@ const ConsensusReport& Consensus::fuse(State& state,
     if (!group.in_joint_state) continue;
     for (int a : group.positions) {
       w.union_position[a] = static_cast<int>(union_slots.size());
-      union_slots.push_back(state.landmark_slot(accepted[a].first));
+      union_slots.push_back(state.landmark_slot(accepted[a].id));
     }
   }
   const auto union_size = 3 * static_cast<Eigen::Index>(union_slots.size());
@@ -869,9 +914,7 @@ const ConsensusReport& Consensus::fuse(State& state,
     if (positions.size() == 1) {
       // Most groups: one landmark. The same average and replacement as below, with fixed-size
       // algebra.
-      const auto& [id, holders] = accepted[positions.front()];
-      const NeighbourShare share =
-          neighbour_share(neighbour_members, holders, options.max_condition_number);
+      const auto& [id, first, count, holders, share] = accepted[positions.front()];
       report.neighbours_skipped += share.skipped;  // their weight stays with the robot
       if (share.used == 0) continue;
       Eigen::Matrix3d matrix = share.matrix;
@@ -885,17 +928,15 @@ const ConsensusReport& Consensus::fuse(State& state,
           in_joint_state
               ? Eigen::Matrix3d(union_covariance.block<3, 3>(c, c).selfadjointView<Eigen::Lower>())
               : archived->covariance;
-      const Eigen::LLT<Eigen::Matrix3d> own_llt(own_covariance);
-      if (own_llt.info() != Eigen::Success) continue;
-      Eigen::Matrix3d own_information = own_llt.solve(Eigen::Matrix3d::Identity());
-      own_information = 0.5 * (own_information + own_information.transpose()).eval();
-      matrix += own_weight * own_information;
-      vector += own_weight * (own_information * own_mean);
-      matrix = 0.5 * (matrix + matrix.transpose()).eval();
-      const Eigen::LLT<Eigen::Matrix3d> average(matrix);
-      if (average.info() != Eigen::Success) continue;
-      Eigen::Matrix3d covariance = average.solve(Eigen::Matrix3d::Identity());
-      covariance = 0.5 * (covariance + covariance.transpose()).eval();
+      // Every information below is exactly symmetric (positive_definite_inverse3), and so are
+      // their weighted sums.
+      const auto own_information = positive_definite_inverse3(own_covariance);
+      if (!own_information) continue;
+      matrix += own_weight * *own_information;
+      vector += own_weight * (*own_information * own_mean);
+      const auto average = positive_definite_inverse3(matrix);
+      if (!average) continue;
+      const Eigen::Matrix3d& covariance = *average;
       const Eigen::Vector3d mean = covariance * vector;
       if (!mean.allFinite() || !covariance.allFinite()) continue;
       note_mean_shift(own_mean, mean, report);
@@ -918,7 +959,7 @@ const ConsensusReport& Consensus::fuse(State& state,
     // Several landmarks, in the joint state (an archived object is a block of its own).
     std::vector<LandmarkId>& ids = w.ids;
     ids.clear();
-    for (int a : positions) ids.push_back(accepted[a].first);
+    for (int a : positions) ids.push_back(accepted[a].id);
     const auto d = 3 * static_cast<Eigen::Index>(ids.size());
     // The members' information: the neighbours that hold the group (in its key), then the robot.
     GroupShares& shares = w.shares;
@@ -1015,7 +1056,6 @@ const ConsensusReport& Consensus::fuse(State& state,
     report.landmarks_fused += union_fused;
     report.groups += union_groups;
   }
-
   return report;
 }
 
