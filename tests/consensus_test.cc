@@ -574,8 +574,9 @@ TEST(ConsensusAverage, CorrelatedAxesGiveTheInformationAverageInAndOutOfTheState
   const auto report = Consensus::fuse(state, neighbours, no_safeguards());
   ASSERT_EQ(report.landmarks_fused, 2);
   for (int which = 0; which < 2; ++which) {
-    const Eigen::Matrix3d own_covariance = which == 0 ? Eigen::Matrix3d(before.covariance.block<3, 3>(6, 6))
-                                                      : before.archived.at(9).covariance;
+    const Eigen::Matrix3d own_covariance =
+        which == 0 ? Eigen::Matrix3d(before.covariance.block<3, 3>(6, 6))
+                   : before.archived.at(9).covariance;
     const Eigen::Vector3d own_mean =
         which == 0 ? before.landmarks[0].p_world : before.archived.at(9).p_world;
     Eigen::Matrix3d information = (1.0 - weights[0] - weights[1]) * own_covariance.inverse();
@@ -590,8 +591,9 @@ TEST(ConsensusAverage, CorrelatedAxesGiveTheInformationAverageInAndOutOfTheState
     const Eigen::Vector3d mean = covariance * vector;
     const Eigen::Vector3d fused_mean =
         which == 0 ? state.landmarks[0].p_world : state.archived.at(9).p_world;
-    const Eigen::Matrix3d fused_covariance = which == 0 ? Eigen::Matrix3d(state.covariance.block<3, 3>(6, 6))
-                                                        : state.archived.at(9).covariance;
+    const Eigen::Matrix3d fused_covariance =
+        which == 0 ? Eigen::Matrix3d(state.covariance.block<3, 3>(6, 6))
+                   : state.archived.at(9).covariance;
     EXPECT_TRUE(fused_mean.isApprox(mean, 1e-12)) << which;
     EXPECT_TRUE(fused_covariance.isApprox(covariance, 1e-12)) << which;
     EXPECT_FALSE(fused_mean.isApprox(own_mean, 1e-3)) << which;  // it moved
@@ -616,7 +618,8 @@ TEST(ConsensusSafeguards, TheChiSquareTestWeighsTheDifferenceByTheFullSumOfCovar
     for (const double scale : {0.999, 1.001}) {
       State trial_state = state;
       const Eigen::Vector3d mean = direction * std::sqrt(scale * bound / distance);
-      const auto report = Consensus::fuse(trial_state, {{0.5, Marginal{{5}, mean, theirs}}}, options);
+      const auto report =
+          Consensus::fuse(trial_state, {{0.5, Marginal{{5}, mean, theirs}}}, options);
       EXPECT_EQ(report.landmarks_refused, scale > 1.0 ? 1 : 0) << trial << " " << scale;
       EXPECT_EQ(report.landmarks_fused, scale > 1.0 ? 0 : 1) << trial << " " << scale;
     }

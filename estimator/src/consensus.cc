@@ -211,8 +211,7 @@ std::optional<Eigen::Matrix3d> checked_inverse3(const Eigen::Matrix3d& covarianc
                                                 double max_condition_number) {
   auto inverse = positive_definite_inverse3(covariance);
   if (!inverse) return std::nullopt;
-  const double condition =
-      norm1(covariance.selfadjointView<Eigen::Lower>()) * norm1(*inverse);
+  const double condition = norm1(covariance.selfadjointView<Eigen::Lower>()) * norm1(*inverse);
   if (!(condition <= max_condition_number)) return std::nullopt;
   return inverse;
 }
@@ -549,7 +548,7 @@ struct ConsensusWorkspace::Buffers {
   // The landmarks accepted for averaging and their holders.
   std::vector<Holder> holder_buffer;
   std::vector<std::size_t> cursors;  // a neighbour's position in its locations, by id
-  std::vector<Accepted> accepted;  // holders as offsets into holder_buffer until it is whole
+  std::vector<Accepted> accepted;    // holders as offsets into holder_buffer until it is whole
   // Groups.
   std::vector<std::pair<int, int>> key_members;
   std::vector<std::size_t> key_start;
