@@ -484,6 +484,7 @@ struct NeighbourShare {
 /// A landmark accepted for averaging: its holders and their share (in the holders' order).
 struct Accepted {
   LandmarkId id = 0;
+  const Location* own = nullptr;  ///< where the robot holds it (block 0: in the joint state)
   std::size_t first = 0;  ///< the holders' position and number in the buffer that holds them
   std::size_t count = 0;
   Holders holders;  ///< set once that buffer stops growing
@@ -552,7 +553,6 @@ struct ConsensusWorkspace::Buffers {
   // Groups.
   std::vector<std::pair<int, int>> key_members;
   std::vector<std::size_t> key_start;
-  std::vector<unsigned char> key_joint;
   std::vector<int> order;
   std::vector<Group> groups;
   // U, the joint marginal of the in-state landmarks fused.
@@ -794,7 +794,7 @@ const ConsensusReport& Consensus::fuse(State& state,
       share.add(neighbour.weight, their_mean, their_covariance, options.max_condition_number);
     }
     if (holder_buffer.size() > first) {
-      accepted.push_back({id, first, holder_buffer.size() - first, Holders(), share});
+      accepted.push_back({id, &own_at, first, holder_buffer.size() - first, Holders(), share});
     }
   }
   for (Accepted& entry : accepted) {
@@ -806,7 +806,7 @@ const ConsensusReport& Consensus::fuse(State& state,
   if (options.fuse_kl_threshold > 0.0) {
     const auto settled = [&](const Accepted& entry) {
       const LandmarkId id = entry.id;
-      const Location& own_at = *own->find(id);
+      const Location& own_at = *entry.own;
       ObjectEstimate current{id, own->mean(own_at), own->covariance(own_at)};
       const auto own_information =
           checked_inverse3(current.covariance, options.max_condition_number);
@@ -837,45 +837,55 @@ const ConsensusReport& Consensus::fuse(State& state,
   //    conditional of the rest given it, so p(rest of the state | U) never changes and the
   //    sequence of replacements equals one replacement of U's marginal at the end
   //    (Proposition 2 once, not per group).
-  //    A landmark's key: (in the joint state?, (member, block) of each holder and of the robot);
-  //    the groups are the runs of equal keys, in the keys' lexicographic order, each run's
-  //    landmarks in the order of `accepted` (flat keys sorted with the position as the last
-  //    criterion: the order of a stable sort, without its buffer).
+  //    A landmark's key: ((member, block) of each holder and of the robot); the groups are
+  //    the runs of equal keys. The robot holds each archived object in a block of its own: an
+  //    archived object is a group alone, and those come first, in the order of `accepted` (they
+  //    are independent of each other and of the state). The in-state landmarks' groups follow
+  //    in their keys' lexicographic order, each run's landmarks in the order of `accepted`
+  //    (flat keys sorted with the position as the last criterion: the order of a stable sort,
+  //    without its buffer).
   std::vector<std::pair<int, int>>& key_members = w.key_members;  // (member, block), flat
   key_members.clear();
   w.key_start.assign(accepted.size() + 1, 0);
-  w.key_joint.assign(accepted.size(), 0);
+  std::vector<int>& order = w.order;
+  order.clear();
   for (std::size_t a = 0; a < accepted.size(); ++a) {
-    const auto& [id, first, count, holders, share] = accepted[a];
     w.key_start[a] = key_members.size();
-    for (const auto& [j, at] : holders) key_members.emplace_back(j, at->block);
-    key_members.emplace_back(-1, own->find(id)->block);
-    w.key_joint[a] = state.landmark_slot(id) >= 0 ? 1 : 0;
+    if (accepted[a].own->block != 0) {
+      order.push_back(static_cast<int>(a));  // archived: no key needed
+      continue;
+    }
+    for (const auto& [j, at] : accepted[a].holders) key_members.emplace_back(j, at->block);
+    key_members.emplace_back(-1, 0);
   }
   w.key_start[accepted.size()] = key_members.size();
+  const std::size_t archived_groups = order.size();
+  for (std::size_t a = 0; a < accepted.size(); ++a) {
+    if (accepted[a].own->block == 0) order.push_back(static_cast<int>(a));
+  }
   const auto key_of = [&](int a) {
     return std::span<const std::pair<int, int>>(key_members.data() + w.key_start[a],
                                                 w.key_start[a + 1] - w.key_start[a]);
   };
   const auto key_less = [&](int a, int b) {
-    if (w.key_joint[a] != w.key_joint[b]) return w.key_joint[a] < w.key_joint[b];
     const auto x = key_of(a), y = key_of(b);
     return std::lexicographical_compare(x.begin(), x.end(), y.begin(), y.end());
   };
-  std::vector<int>& order = w.order;
-  order.resize(accepted.size());
-  std::iota(order.begin(), order.end(), 0);
-  std::sort(order.begin(), order.end(), [&](int a, int b) {
+  const auto in_state = order.begin() + static_cast<std::ptrdiff_t>(archived_groups);
+  std::sort(in_state, order.end(), [&](int a, int b) {
     if (key_less(a, b)) return true;
     if (key_less(b, a)) return false;
     return a < b;
   });
   std::vector<Group>& groups = w.groups;
   groups.clear();
-  for (std::size_t begin = 0; begin < order.size();) {
+  for (std::size_t g = 0; g < archived_groups; ++g) {
+    groups.push_back({false, {}, std::span<const int>(order.data() + g, 1)});
+  }
+  for (std::size_t begin = archived_groups; begin < order.size();) {
     std::size_t end = begin + 1;
     while (end < order.size() && !key_less(order[begin], order[end])) ++end;
-    groups.push_back({w.key_joint[order[begin]] != 0, key_of(order[begin]),
+    groups.push_back({true, key_of(order[begin]),
                       std::span<const int>(order.data() + begin, end - begin)});
     begin = end;
   }
@@ -886,7 +896,7 @@ const ConsensusReport& Consensus::fuse(State& state,
     if (!group.in_joint_state) continue;
     for (int a : group.positions) {
       w.union_position[a] = static_cast<int>(union_slots.size());
-      union_slots.push_back(state.landmark_slot(accepted[a].id));
+      union_slots.push_back(accepted[a].own->position);  // the slot
     }
   }
   const auto union_size = 3 * static_cast<Eigen::Index>(union_slots.size());
@@ -913,7 +923,7 @@ const ConsensusReport& Consensus::fuse(State& state,
     if (positions.size() == 1) {
       // Most groups: one landmark. The same average and replacement as below, with fixed-size
       // algebra.
-      const auto& [id, first, count, holders, share] = accepted[positions.front()];
+      const auto& [id, own_at, first, count, holders, share] = accepted[positions.front()];
       report.neighbours_skipped += share.skipped;  // their weight stays with the robot
       if (share.used == 0) continue;
       Eigen::Matrix3d matrix = share.matrix;
