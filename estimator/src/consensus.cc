@@ -885,8 +885,8 @@ const ConsensusReport& Consensus::fuse(State& state,
   for (std::size_t begin = archived_groups; begin < order.size();) {
     std::size_t end = begin + 1;
     while (end < order.size() && !key_less(order[begin], order[end])) ++end;
-    groups.push_back({true, key_of(order[begin]),
-                      std::span<const int>(order.data() + begin, end - begin)});
+    groups.push_back(
+        {true, key_of(order[begin]), std::span<const int>(order.data() + begin, end - begin)});
     begin = end;
   }
   std::vector<int>& union_slots = w.union_slots;
