@@ -478,6 +478,19 @@ struct NeighbourShare {
     vector += holder_weight * (*information * mean);
     ++used;
   }
+
+  /// The average (eq. 19) of this share and the robot's own marginal (mean, information), the
+  /// robot weighing what the holders leave; nullopt when not positive definite. Every
+  /// information here is exactly symmetric (positive_definite_inverse3), and so are their sums.
+  std::optional<ObjectEstimate> average_with(LandmarkId id, const Eigen::Vector3d& own_mean,
+                                             const Eigen::Matrix3d& own_information) const {
+    const double own_weight = 1.0 - weight;
+    const Eigen::Matrix3d information = matrix + own_weight * own_information;
+    const Eigen::Vector3d information_vector = vector + own_weight * (own_information * own_mean);
+    const auto covariance = positive_definite_inverse3(information);
+    if (!covariance) return std::nullopt;
+    return ObjectEstimate{id, *covariance * information_vector, *covariance};
+  }
 };
 
 /// A landmark accepted for averaging: its holders and their share (in the holders' order).
@@ -810,15 +823,8 @@ const ConsensusReport& Consensus::fuse(State& state,
       const auto own_information =
           checked_inverse3(current.covariance, options.max_condition_number);
       if (!own_information) return false;  // fused (or refused) as usual below
-      NeighbourShare share = entry.share;
-      const double own_weight = 1.0 - share.weight;
-      share.matrix += own_weight * *own_information;
-      share.vector += own_weight * (*own_information * current.p_world);
-      const Eigen::LLT<Eigen::Matrix3d> average(share.matrix);
-      if (average.info() != Eigen::Success) return false;
-      ObjectEstimate step{id, average.solve(share.vector),
-                          average.solve(Eigen::Matrix3d::Identity())};
-      return kl_divergence(step, current) <= options.fuse_kl_threshold;
+      const auto step = entry.share.average_with(id, current.p_world, *own_information);
+      return step && kl_divergence(*step, current) <= options.fuse_kl_threshold;
     };
     const auto kept = std::remove_if(accepted.begin(), accepted.end(), settled);
     report.landmarks_settled = static_cast<int>(accepted.end() - kept);
@@ -925,9 +931,6 @@ const ConsensusReport& Consensus::fuse(State& state,
       const auto& [id, own_at, first, count, holders, share] = accepted[positions.front()];
       report.neighbours_skipped += share.skipped;  // their weight stays with the robot
       if (share.used == 0) continue;
-      Eigen::Matrix3d matrix = share.matrix;
-      Eigen::Vector3d vector = share.vector;
-      const double own_weight = 1.0 - share.weight;
       const Eigen::Index c = in_joint_state ? 3 * w.union_position[positions.front()] : 0;
       ObjectEstimate* archived = in_joint_state ? nullptr : &state.archived.at(id);
       const Eigen::Vector3d own_mean =
@@ -936,16 +939,12 @@ const ConsensusReport& Consensus::fuse(State& state,
           in_joint_state
               ? Eigen::Matrix3d(union_covariance.block<3, 3>(c, c).selfadjointView<Eigen::Lower>())
               : archived->covariance;
-      // Every information below is exactly symmetric (positive_definite_inverse3), and so are
-      // their weighted sums.
       const auto own_information = positive_definite_inverse3(own_covariance);
       if (!own_information) continue;
-      matrix += own_weight * *own_information;
-      vector += own_weight * (*own_information * own_mean);
-      const auto average = positive_definite_inverse3(matrix);
+      const auto average = share.average_with(id, own_mean, *own_information);
       if (!average) continue;
-      const Eigen::Matrix3d& covariance = *average;
-      const Eigen::Vector3d mean = covariance * vector;
+      const Eigen::Matrix3d& covariance = average->covariance;
+      const Eigen::Vector3d& mean = average->p_world;
       if (!mean.allFinite() || !covariance.allFinite()) continue;
       note_mean_shift(own_mean, mean, report);
       if (!in_joint_state) {
