@@ -2,7 +2,8 @@
 # Issue 9's must-show: consistency (NEES) and accuracy of the filter with one config per sensor.
 #  1. concord sim sweeps: 3, 5, 10, 15 robots x seeds 1-5 x with/without point features x
 #     odometry noise x1/x2 (the config's odometry sigmas follow the simulator's setting, as a
-#     sensor's specification would), separate and consensus;
+#     sensor's specification would), separate and consensus, and a reference for each set:
+#     odometry only, an exactly modelled (consistent) filter on the same paths;
 #  2. sim15, separate and consensus;
 #  3. kitti00: consensus and separate, the first 600 frames, object noise halved and doubled;
 #     kitti00-vo77;
@@ -36,6 +37,10 @@ for n in $sizes; do
         run "$name-separate" "$data" --separate "${set_noise[@]}" &
         run "$name-consensus" "$data" "${set_noise[@]}" &
         wait
+        # The reference: odometry only (no objects, no features), the model exactly the
+        # simulator's: what a consistent estimator scores on the same robots and paths.
+        run "$name-reference" "$data" --separate --no-point-features \
+          --set object_min_observations=1000000 "${set_noise[@]}"
       done
     done
   done
