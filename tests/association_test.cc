@@ -20,6 +20,7 @@
 #include "concord/association/relabelling.h"
 #include "concord/association/team_ids.h"
 #include "concord/estimator/lie.h"
+#include "concord/estimator/updater_helper.h"
 
 namespace concord::association {
 namespace {
@@ -464,6 +465,88 @@ TEST(PairwiseAssociationTest, InOneFrameGatingIsMutualAndUnambiguous) {
   b.objects = {object(5, 0.1, 0.05, 0.1), object(6, 10.2, 0.0, 0.1), object(7, 9.8, 0.0, 0.1)};
   const auto matches =
       match_with_transform(a, b, Eigen::Isometry3d::Identity(), false, test_options());
+  ASSERT_EQ(matches.size(), 1u);
+  EXPECT_EQ(matches[0].id_a, 0);
+  EXPECT_EQ(matches[0].id_b, 5);
+}
+
+TEST(PairwiseAssociationTest, MatchingUnderATransformFindsWhatAnExhaustiveSearchFinds) {
+  // Two maps of one scene, b in a frame turned by a yaw of a radian (so that the order of its
+  // objects along x is not a's), with object covariances of many sizes; the matches must be those
+  // of the rule applied to every pair: d^2 under the sum of both covariances (plus the distance
+  // noise) within the gate, mutual best, and a margin over each object's second best.
+  std::mt19937 random(31);
+  const Scene scene = random_scene(400, 80.0, 0.8, 0, random);
+  const Eigen::Isometry3d T_b_world = make_transform(1.0, 0.05, Eigen::Vector3d(3.0, -2.0, 0.5));
+  RobotMap a = observe(scene, 0, 0, Eigen::Isometry3d::Identity(), 0.0, 55.0, 0.1, 5, random);
+  RobotMap b = observe(scene, 1, 1, T_b_world, 25.0, 80.0, 0.1, 5, random);
+  std::uniform_real_distribution<double> scale(0.05, 1.5);
+  for (MapDescription* map : {&a.map, &b.map}) {
+    for (ObjectDescription& object : map->objects) {
+      const Eigen::Vector3d sigmas(scale(random), scale(random), scale(random));
+      const Eigen::Matrix3d turn = make_transform(scale(random) * 5.0, 0.0, Eigen::Vector3d::Zero()).linear();
+      object.covariance = turn * sigmas.cwiseAbs2().asDiagonal() * turn.transpose();
+      object.local_covariance = 0.25 * object.covariance;
+    }
+  }
+  AssociationOptions options;  // with its distance noise
+  const Eigen::Isometry3d T_a_b = T_b_world.inverse();
+  for (const bool local : {false, true}) {
+    const double gate = UpdaterHelper::chi2_quantile(options.match_chi2_probability, 3);
+    const std::size_t na = a.map.objects.size(), nb = b.map.objects.size();
+    std::vector<std::vector<double>> d2(na, std::vector<double>(nb));
+    for (std::size_t i = 0; i < na; ++i) {
+      for (std::size_t j = 0; j < nb; ++j) {
+        const ObjectDescription& x = a.map.objects[i];
+        const ObjectDescription& y = b.map.objects[j];
+        const Eigen::Matrix3d Cx = local ? x.local_covariance : x.covariance;
+        const Eigen::Matrix3d Cy = local ? y.local_covariance : y.covariance;
+        const Eigen::Matrix3d S = Cx + T_a_b.linear() * Cy * T_a_b.linear().transpose() +
+                                  options.distance_noise * options.distance_noise *
+                                      Eigen::Matrix3d::Identity();
+        const Eigen::Vector3d r = x.position - T_a_b * y.position;
+        d2[i][j] = r.dot(S.inverse() * r);
+      }
+    }
+    std::set<std::pair<LandmarkId, LandmarkId>> expected;
+    for (std::size_t i = 0; i < na; ++i) {
+      const auto row = std::min_element(d2[i].begin(), d2[i].end());
+      const std::size_t j = static_cast<std::size_t>(row - d2[i].begin());
+      if (*row > gate) continue;
+      bool unique = true;
+      for (std::size_t k = 0; k < nb; ++k) {
+        if (k != j && d2[i][k] < *row + options.match_margin) unique = false;
+      }
+      for (std::size_t k = 0; k < na; ++k) {
+        if (k != i && d2[k][j] < *row + options.match_margin) unique = false;
+      }
+      if (unique) expected.emplace(a.map.objects[i].id, b.map.objects[j].id);
+    }
+    ASSERT_GT(expected.size(), 10u) << "local " << local;
+    std::set<std::pair<LandmarkId, LandmarkId>> found;
+    for (const Match& match : match_with_transform(a.map, b.map, T_a_b, local, options)) {
+      found.emplace(match.id_a, match.id_b);
+    }
+    EXPECT_EQ(found, expected) << "local " << local;
+  }
+  // Covariances long along x (sums of variance 2 along x): pairs several metres apart in x are
+  // within the gate (16.3) or close to it. Alone, such a pair is a match (4 m apart, d^2 = 8); a
+  // pair 5.6 m apart (d^2 = 15.7) is not when another object lies 7 m away on the other side
+  // (d^2 = 24.5, within the margin of 9), at the edge of what can matter (gate plus margin 25.3,
+  // 7.1 m): that one must be compared too.
+  const auto along_x = [](LandmarkId id, double x, double y) {
+    ObjectDescription o;
+    o.id = id;
+    o.position = Eigen::Vector3d(x, y, 0.0);
+    o.covariance = o.local_covariance = Eigen::Vector3d(1.0, 1e-4, 1e-4).asDiagonal();
+    o.observations = 10;
+    return o;
+  };
+  MapDescription c, d;
+  c.objects = {along_x(0, 0.0, 0.0), along_x(1, 0.0, 10.0)};
+  d.objects = {along_x(5, 4.0, 0.0), along_x(6, 5.6, 10.0), along_x(7, -7.0, 10.0)};
+  const auto matches =
+      match_with_transform(c, d, Eigen::Isometry3d::Identity(), false, test_options());
   ASSERT_EQ(matches.size(), 1u);
   EXPECT_EQ(matches[0].id_a, 0);
   EXPECT_EQ(matches[0].id_b, 5);
