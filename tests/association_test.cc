@@ -484,7 +484,8 @@ TEST(PairwiseAssociationTest, MatchingUnderATransformFindsWhatAnExhaustiveSearch
   for (MapDescription* map : {&a.map, &b.map}) {
     for (ObjectDescription& object : map->objects) {
       const Eigen::Vector3d sigmas(scale(random), scale(random), scale(random));
-      const Eigen::Matrix3d turn = make_transform(scale(random) * 5.0, 0.0, Eigen::Vector3d::Zero()).linear();
+      const Eigen::Matrix3d turn =
+          make_transform(scale(random) * 5.0, 0.0, Eigen::Vector3d::Zero()).linear();
       object.covariance = turn * sigmas.cwiseAbs2().asDiagonal() * turn.transpose();
       object.local_covariance = 0.25 * object.covariance;
     }
@@ -501,9 +502,9 @@ TEST(PairwiseAssociationTest, MatchingUnderATransformFindsWhatAnExhaustiveSearch
         const ObjectDescription& y = b.map.objects[j];
         const Eigen::Matrix3d Cx = local ? x.local_covariance : x.covariance;
         const Eigen::Matrix3d Cy = local ? y.local_covariance : y.covariance;
-        const Eigen::Matrix3d S = Cx + T_a_b.linear() * Cy * T_a_b.linear().transpose() +
-                                  options.distance_noise * options.distance_noise *
-                                      Eigen::Matrix3d::Identity();
+        const Eigen::Matrix3d S =
+            Cx + T_a_b.linear() * Cy * T_a_b.linear().transpose() +
+            options.distance_noise * options.distance_noise * Eigen::Matrix3d::Identity();
         const Eigen::Vector3d r = x.position - T_a_b * y.position;
         d2[i][j] = r.dot(S.inverse() * r);
       }
