@@ -39,8 +39,8 @@ for n in $sizes; do
         wait
         # The reference: odometry only (no objects, no features), the model exactly the
         # simulator's: what a consistent estimator scores on the same robots and paths.
-        run "$name-reference" "$data" --separate --no-point-features \
-          --set object_min_observations=1000000 "${set_noise[@]}"
+        run "$name-reference" "$data" --separate --no-point-features --set use_objects=false \
+          "${set_noise[@]}"
       done
     done
   done

@@ -101,6 +101,16 @@ RobotMap observe(const Scene& scene, int robot, int frame, const Eigen::Isometry
   return out;
 }
 
+/// An object description at (x, y, 0) with one covariance for both kinds.
+ObjectDescription described(LandmarkId id, double x, double y, const Eigen::Matrix3d& covariance) {
+  ObjectDescription o;
+  o.id = id;
+  o.position = Eigen::Vector3d(x, y, 0.0);
+  o.covariance = o.local_covariance = covariance;
+  o.observations = 10;
+  return o;
+}
+
 AssociationOptions test_options() {
   AssociationOptions options;
   options.distance_noise = 0.0;
@@ -453,12 +463,7 @@ TEST(PairwiseAssociationTest, InOneFrameGatingIsMutualAndUnambiguous) {
   a.robot = 0;
   b.robot = 1;
   const auto object = [](LandmarkId id, double x, double y, double sigma) {
-    ObjectDescription o;
-    o.id = id;
-    o.position = Eigen::Vector3d(x, y, 0.0);
-    o.covariance = o.local_covariance = sigma * sigma * Eigen::Matrix3d::Identity();
-    o.observations = 10;
-    return o;
+    return described(id, x, y, sigma * sigma * Eigen::Matrix3d::Identity());
   };
   a.objects = {object(0, 0, 0, 0.1), object(1, 10, 0, 0.1), object(2, 20, 0, 0.1)};
   // b: a clear partner of 0, two partners of 1 that are equally close (ambiguous), none for 2.
@@ -536,12 +541,7 @@ TEST(PairwiseAssociationTest, MatchingUnderATransformFindsWhatAnExhaustiveSearch
   // (d^2 = 24.5, within the margin of 9), at the edge of what can matter (gate plus margin 25.3,
   // 7.1 m): that one must be compared too.
   const auto along_x = [](LandmarkId id, double x, double y) {
-    ObjectDescription o;
-    o.id = id;
-    o.position = Eigen::Vector3d(x, y, 0.0);
-    o.covariance = o.local_covariance = Eigen::Vector3d(1.0, 1e-4, 1e-4).asDiagonal();
-    o.observations = 10;
-    return o;
+    return described(id, x, y, Eigen::Vector3d(1.0, 1e-4, 1e-4).asDiagonal());
   };
   MapDescription c, d;
   c.objects = {along_x(0, 0.0, 0.0), along_x(1, 0.0, 10.0)};
