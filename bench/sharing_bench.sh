@@ -4,7 +4,7 @@
 # NEES each costs, on kitti00, sim15 and a 50-robot `concord sim` team (300 frames, seed 1), and
 # at KL 0.01 in float32 the cap of landmarks a robot sends a round (consensus.share_max_landmarks,
 # split over its links) and the covariance blocks cut into runs of at most 1, 4 or 8 landmarks
-# (consensus.share_block_landmarks).
+# (consensus.share_block_landmarks; blocks of 4 also at KL 0.003 and 0.001).
 # Every run is `concord replay` (consensus, complete graph) with the set's sensor config; only
 # the sharing keys change (--set). Writes docs/results-sharing.md; runs in bench/out/sharing/
 # (kept between runs: delete the folder to start afresh). Two runs at a time.
@@ -46,6 +46,12 @@ for set in kitti00 sim15 sim50; do
     if [ $pending = 2 ]; then wait; pending=0; fi
   done
   wait
+  # Blocks of 4 under smaller thresholds: fresher marginals for a few more bytes.
+  for threshold in 0.003 0.001; do
+    run "$set-kl$threshold-float32-blocks4" "$data" --set consensus.share_kl_threshold="$threshold" \
+      --set consensus.share_float32=true --set consensus.share_block_landmarks=4 &
+  done
+  wait
   pending=0
   for cap in $caps; do
     run "$set-kl0.01-float32-rcap$cap" "$data" --set consensus.share_kl_threshold=0.01 \
@@ -81,6 +87,8 @@ for name, title in (("kitti00", "kitti00 (3 robots)"), ("sim15", "sim15 (15 robo
     rows += [("KL 0.01, double", f"{name}-kl0.01-double")]
     rows += [(f"KL 0.01, float32, blocks of {n}", f"{name}-kl0.01-float32-blocks{n}")
              for n in (1, 4, 8)]
+    rows += [(f"KL {t}, float32, blocks of 4", f"{name}-kl{t}-float32-blocks4")
+             for t in ("0.003", "0.001")]
     rows += [(f"KL 0.01, float32, cap {c}", f"{name}-kl0.01-float32-rcap{c}") for c in caps]
     base = None
     print(f"## {title}\n")
