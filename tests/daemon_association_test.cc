@@ -356,6 +356,7 @@ TEST(DaemonAssociation, ExchangesReproduceTheNegotiatedReplay) {
     for (LandmarkId id : run.team_ids[i]) shared += id >= 0 ? 1 : 0;
     reference_ids.push_back(expected.team_ids);
     EXPECT_EQ(run.counters[i].negotiations_refused, 0u);
+    EXPECT_GT(run.counters[i].negotiation_seconds, 0.0) << "robot " << i;
   }
   expect_same_partition(run.objects, run.team_ids, reference_ids);
   // The run means something: robots moved into the team frame and share objects.
@@ -489,6 +490,10 @@ TEST(DaemonAssociation, DaemonsInLockstepMatchTheNegotiatedReplay) {
     EXPECT_EQ(stats["association"], "negotiated");
     EXPECT_EQ(stats["negotiation"]["negotiations_refused"], 0);
     EXPECT_GT(stats["negotiation"]["bytes_sent"].get<double>(), 0.0);
+    // The negotiation's time is counted, and is a part of the daemon's CPU time.
+    const double negotiation_seconds = stats["negotiation"]["seconds"].get<double>();
+    EXPECT_GT(negotiation_seconds, 0.0);
+    EXPECT_LT(negotiation_seconds, stats["wall_seconds"].get<double>());
   }
   expect_same_partition(objects, team_ids, reference_ids);
   EXPECT_GE(moved, 1);

@@ -272,7 +272,9 @@ void ConsensusExchange::on_message(int robot, const v1::Envelope& envelope) {
       std::optional<association::NegotiationMessage> negotiation;
       if (association_ && message.has_negotiation()) {
         std::string error;
+        const auto decode_start = Clock::now();
         negotiation = from_wire(message.negotiation(), robot, config_.negotiation_limits, error);
+        counters_.negotiation_seconds += seconds_between(decode_start, Clock::now());
         if (!negotiation) {
           // Refused whole; the LandmarkSet still answers the round, so nobody waits for it.
           ++counters_.negotiations_refused;
@@ -485,9 +487,13 @@ void ConsensusExchange::send_landmark_set(int robot, std::uint64_t round,
   message->set_round(round);
   message->mutable_ids()->Assign(ids.begin(), ids.end());
   if (association_) {
+    const auto negotiation_start = Clock::now();
     to_wire(association_->negotiation_for(robot, round), *message->mutable_negotiation());
+    const std::size_t bytes = message->negotiation().ByteSizeLong();
+    const double seconds = seconds_between(negotiation_start, Clock::now());
     std::lock_guard lock(mutex_);
-    counters_.negotiation_bytes += message->negotiation().ByteSizeLong();
+    counters_.negotiation_bytes += bytes;
+    counters_.negotiation_seconds += seconds;
   }
   send_counted(robot, std::move(envelope));
 }
@@ -616,8 +622,10 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
   }
   report.live = static_cast<int>(candidates.size());
   if (association_) {
+    const auto negotiation_start = Clock::now();
     for (int robot : reconnected) association_->missed(robot);
     association_->begin_round(round, estimator);
+    add_negotiation_seconds(seconds_between(negotiation_start, Clock::now()));
   }
   for (int robot : candidates) send_landmark_set(robot, round, ids);
 
@@ -659,7 +667,11 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
   report.neighbours = degree;
   budget_->refill(Clock::now());
   int links_left = degree;
-  if (association_) negotiate(round, estimator, candidates, neighbours);
+  if (association_) {
+    const auto negotiation_start = Clock::now();
+    negotiate(round, estimator, candidates, neighbours);
+    add_negotiation_seconds(seconds_between(negotiation_start, Clock::now()));
+  }
   for (int robot : neighbours) {
     send_marginal(robot, round, estimator, ids, neighbour_ids[robot], degree, links_left--);
   }
@@ -892,6 +904,11 @@ void ConsensusExchange::promote_deferred() {
     }
     peer->deferred.reset();
   }
+}
+
+void ConsensusExchange::add_negotiation_seconds(double seconds) {
+  std::lock_guard lock(mutex_);
+  counters_.negotiation_seconds += seconds;
 }
 
 void ConsensusExchange::negotiate(std::uint64_t round, Estimator& estimator,

@@ -1156,6 +1156,7 @@ json Daemon::Impl::stats_json() const {
                             {"team_id_conflicts", n.team_id_conflicts},
                             {"messages", n.messages},
                             {"bytes_sent", c.negotiation_bytes},
+                            {"seconds", c.negotiation_seconds},
                             {"negotiations_refused", c.negotiations_refused},
                             {"relabellings_refused", c.relabellings_refused},
                             {"frame", live_.alignment.frame}};
@@ -1468,6 +1469,9 @@ void Daemon::Impl::register_routes() {
       text.counter("concord_association_bytes_sent_total",
                    "Bytes of this robot's negotiation messages", robot,
                    static_cast<double>(c.negotiation_bytes));
+      text.counter("concord_association_seconds_total",
+                   "Time in the negotiated association (messages in and out, decisions, moves)",
+                   robot, c.negotiation_seconds);
       suppressed += c.log_lines_suppressed;
     }
     if (ingest_) {

@@ -98,6 +98,11 @@ struct ExchangeCounters {
   std::uint64_t negotiations_refused = 0;
   std::uint64_t relabellings_refused = 0;
   std::uint64_t negotiation_bytes = 0;
+  /// Negotiated association: seconds spent on it, as concord replay's negotiation phase plus the
+  /// wire: describing the map, building and encoding the messages out, decoding and checking the
+  /// messages in (network thread), taking them in, the decisions and the move into the team frame.
+  /// Not the marginals' relabelling, which belongs to consensus as in the replay.
+  double negotiation_seconds = 0.0;
 };
 
 /// Per-peer poisoning-defence counters (for /metrics and /peers).
@@ -226,6 +231,8 @@ class ConsensusExchange {
   /// Negotiated rounds: phase 1's negotiation messages in, the move into the team frame.
   void negotiate(std::uint64_t round, Estimator& estimator, const std::vector<int>& candidates,
                  const std::vector<int>& neighbours);
+  /// Adds to counters_.negotiation_seconds (takes the mutex).
+  void add_negotiation_seconds(double seconds);
 
   /// Whether `robot` takes part this round: restrict_to() and the radio's links allow it.
   bool takes_part(int robot, const std::optional<std::set<int>>& in_range) const;
