@@ -1470,7 +1470,7 @@ void Daemon::Impl::register_routes() {
                    "Bytes of this robot's negotiation messages", robot,
                    static_cast<double>(c.negotiation_bytes));
       text.counter("concord_association_seconds_total",
-                   "Time in the negotiated association (messages in and out, decisions, moves)",
+                   "CPU time in the negotiated association (messages in and out, decisions, moves)",
                    robot, c.negotiation_seconds);
       suppressed += c.log_lines_suppressed;
     }

@@ -98,7 +98,8 @@ struct ExchangeCounters {
   std::uint64_t negotiations_refused = 0;
   std::uint64_t relabellings_refused = 0;
   std::uint64_t negotiation_bytes = 0;
-  /// Negotiated association: seconds spent on it, as concord replay's negotiation phase plus the
+  /// Negotiated association: CPU seconds of the threads doing it (not wall-clock: on a busy
+  /// machine that counts other processes' turns), as concord replay's negotiation phase plus the
   /// wire: describing the map, building and encoding the messages out, decoding and checking the
   /// messages in (network thread), taking them in, the decisions and the move into the team frame.
   /// Not the marginals' relabelling, which belongs to consensus as in the replay.
