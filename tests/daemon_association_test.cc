@@ -493,8 +493,8 @@ TEST(DaemonAssociation, DaemonsInLockstepMatchTheNegotiatedReplay) {
     // The negotiation's CPU time is counted, and is a part of the daemon's.
     const double negotiation_seconds = stats["negotiation"]["seconds"].get<double>();
     EXPECT_GT(negotiation_seconds, 0.0);
-    EXPECT_LT(negotiation_seconds, stats["cpu_user_seconds"].get<double>() +
-                                       stats["cpu_system_seconds"].get<double>());
+    EXPECT_LT(negotiation_seconds,
+              stats["cpu_user_seconds"].get<double>() + stats["cpu_system_seconds"].get<double>());
   }
   expect_same_partition(objects, team_ids, reference_ids);
   EXPECT_GE(moved, 1);
