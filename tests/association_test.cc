@@ -117,6 +117,56 @@ AssociationOptions test_options() {
   return options;
 }
 
+// ---- Map descriptions ----
+
+TEST(MapDescriptionTest, ArchivedObjectsAreDescribedRelativeToThePoseOfTheirArchiving) {
+  // One pose and one object in the joint state; three archived objects: one with the covariance
+  // the robot recorded relative to itself when it archived it, one without (a state from before
+  // it was recorded), one whose marginal consensus has since made smaller than that record.
+  State state;
+  state.poses.push_back({10, Eigen::Isometry3d::Identity()});
+  state.landmarks.push_back({5, Eigen::Vector3d(2, 0, 1), 10, Eigen::Vector3d(2, 0, 1)});
+  state.rebuild_landmark_index();
+  std::mt19937 random(3);
+  std::normal_distribution<double> normal;
+  Eigen::MatrixXd A(9, 9);
+  for (Eigen::Index k = 0; k < A.size(); ++k) A.data()[k] = normal(random);
+  state.covariance = 0.1 * A * A.transpose() + 0.01 * Eigen::MatrixXd::Identity(9, 9);
+  state.archived[7] = {7, Eigen::Vector3d(4, 1, 0), 0.5 * Eigen::Matrix3d::Identity()};
+  state.archived_local_covariance[7] = 0.05 * Eigen::Matrix3d::Identity();
+  state.archived[8] = {8, Eigen::Vector3d(6, 1, 0), 0.4 * Eigen::Matrix3d::Identity()};
+  state.archived[9] = {9, Eigen::Vector3d(8, 1, 0), 0.02 * Eigen::Matrix3d::Identity()};
+  state.archived_local_covariance[9] = 0.05 * Eigen::Matrix3d::Identity();
+  ObservationTally tally;
+  tally.add({{5}, {7}, {8}, {9}}, {});
+  const MapDescription map = describe_map(state, 0, 0, tally, 1, true);
+  ASSERT_EQ(map.objects.size(), 4u);
+  const ObjectDescription& active = map.objects[0];
+  EXPECT_EQ(active.id, 5);
+  EXPECT_FALSE(active.archived);
+  const Eigen::MatrixXd& P = state.covariance;
+  const Eigen::Matrix3d conditioned =
+      P.block<3, 3>(6, 6) - P.block<3, 6>(6, 0) * P.block<6, 6>(0, 0).inverse() * P.block<6, 3>(0, 6);
+  EXPECT_TRUE(active.local_covariance.isApprox(conditioned, 1e-9));
+  EXPECT_EQ(&active.transform_covariance(), &active.local_covariance);
+  const ObjectDescription& recorded = map.objects[1];
+  EXPECT_TRUE(recorded.archived);
+  EXPECT_EQ(recorded.local_covariance, state.archived_local_covariance.at(7));
+  // A transform to another frame aligns where the robot is now: the marginal stands for the
+  // drift since the archiving.
+  EXPECT_EQ(recorded.transform_covariance(), state.archived.at(7).covariance);
+  EXPECT_TRUE(map.objects[2].archived);
+  EXPECT_EQ(map.objects[2].local_covariance, state.archived.at(8).covariance);
+  EXPECT_EQ(map.objects[3].local_covariance, state.archived.at(9).covariance);
+  // Without association.archived_local_covariance every archived object carries its marginal.
+  const MapDescription marginal = describe_map(state, 0, 0, tally, 1, false);
+  EXPECT_TRUE(marginal.objects[0].local_covariance.isApprox(conditioned, 1e-9));
+  for (int k = 1; k < 4; ++k) {
+    EXPECT_TRUE(marginal.objects[k].archived);
+    EXPECT_EQ(marginal.objects[k].local_covariance, marginal.objects[k].covariance);
+  }
+}
+
 // ---- Maximum clique ----
 
 /// A graph on n vertices with each edge present with the given probability.

@@ -20,6 +20,7 @@
 #include "concord/estimator/consensus.h"
 #include "concord/estimator/estimator.h"
 #include "concord/estimator/lie.h"
+#include "concord/estimator/object_updater.h"
 #include "concord/estimator/state_helper.h"
 #include "concord/estimator/updater_helper.h"
 #include "evaluation/metrics.h"
@@ -807,6 +808,101 @@ TEST(Archiving, ConsiderStatesRejoinWithTheirCorrelationsAndKeepThePosesHonest) 
   EXPECT_LT(consider, boost::math::quantile(boost::math::chi_squared(6), 0.95));
   std::cout << "last-quarter pose NEES, mean of " << seeds.size() << " seeds: marginal "
             << marginal << ", consider " << consider << "\n";
+}
+
+TEST(Archiving, AnArchivedObjectKeepsItsCovarianceRelativeToThePoseOfThatMoment) {
+  // Marginal archiving: the object leaves the joint state as its marginal, and with it the
+  // covariance conditioned on the newest pose, P_oo - P_op P_pp^-1 P_po (what the robot knew of
+  // it relative to itself). The other object stays.
+  std::mt19937 random(31);
+  State state = testing::random_state(3, 2, random);
+  for (int i = 0; i < 3; ++i) state.poses[i].frame = 40 + i;
+  state.landmarks[1].last_observed_frame = 42;
+  const State before = state;
+  EstimatorOptions options = config::load_estimator_options(kSimConfig);
+  ASSERT_EQ(options.object_archive_mode, "marginal");
+  ASSERT_LT(options.object_archive_after_frames, 42);
+  ObjectUpdater updater(options, one_robot(2).camera);
+  const ObjectUpdateStats stats = updater.process(state, {});
+  EXPECT_EQ(stats.archived, 1);
+  ASSERT_EQ(state.archived.count(100), 1u);
+  ASSERT_EQ(state.num_landmarks(), 1);
+  const int pose = before.pose_index(2), object = before.landmark_index(0);
+  const Eigen::MatrixXd& P = before.covariance;
+  const Eigen::Matrix3d marginal = P.block<3, 3>(object, object);
+  const Eigen::Matrix3d expected =
+      marginal - P.block<3, 6>(object, pose) *
+                     P.block<6, 6>(pose, pose).inverse() * P.block<6, 3>(pose, object);
+  EXPECT_TRUE(state.archived.at(100).covariance.isApprox(marginal, 1e-12));
+  ASSERT_EQ(state.archived_local_covariance.count(100), 1u);
+  EXPECT_TRUE(state.archived_local_covariance.at(100).isApprox(expected, 1e-10));
+  EXPECT_EQ(state.archived_local_covariance.count(101), 0u);
+
+  // A move into another frame turns it with the frame and adds nothing of the transform's
+  // uncertainty (which the marginal takes).
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = Eigen::AngleAxisd(0.8, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  T.translation() = Eigen::Vector3d(3, -1, 0.5);
+  State moved = state;
+  StateHelper::reanchor(moved, T, 0.01 * lie::Matrix6d::Identity());
+  EXPECT_TRUE(moved.archived_local_covariance.at(100).isApprox(
+      T.linear() * expected * T.linear().transpose(), 1e-10));
+  EXPECT_GT(moved.archived.at(100).covariance.trace(), marginal.trace() + 0.01);
+}
+
+TEST(Archiving, ObjectsArchivedTogetherKnowTheirRelativeGeometryBetterThanTheirMarginalsSay) {
+  // A separate run with marginal archiving. For two objects archived at the same frame, the
+  // error of their difference is free of the drift both share; the recorded covariances
+  // (relative to the pose of that moment) are smaller than the marginals by that drift and
+  // still cover it. An object that rejoined the state keeps no stale entry.
+  sim::SimulationOptions simulation;
+  simulation.robots = 1;
+  simulation.frames = 300;
+  simulation.seed = 47;  // not used while developing
+  simulation.points_per_frame = 0;
+  const dataset::Dataset data = sim::simulate(simulation);
+  const dataset::RobotData& robot = data.robots.front();
+  const EstimatorOptions options = config::load_estimator_options(kSimConfig);
+  Estimator estimator(options, data.camera, robot.groundtruth.front());
+  for (int frame = 0; frame < simulation.frames; ++frame)
+    (void)estimator.process(robot.frame_input(frame));
+  const State& state = estimator.state();
+  ASSERT_GT(state.archived.size(), 10u);
+  double local_trace = 0.0, marginal_trace = 0.0;
+  for (const auto& [id, local] : state.archived_local_covariance) {
+    ASSERT_EQ(state.archived.count(id), 1u) << id;
+    EXPECT_LT(state.landmark_slot(id), 0) << id;
+    const Eigen::Matrix3d& marginal = state.archived.at(id).covariance;
+    EXPECT_TRUE(Eigen::LDLT<Eigen::Matrix3d>(marginal - local).isPositive()) << id;
+    local_trace += local.trace();
+    marginal_trace += marginal.trace();
+  }
+  EXPECT_GE(state.archived_local_covariance.size(), state.archived.size() * 9 / 10);
+  EXPECT_LT(local_trace, 0.5 * marginal_trace);
+  // The pairs' normalized errors: consistent under the local covariances, far below 3 under the
+  // marginals (which count the shared drift twice).
+  double local_nees = 0.0, marginal_nees = 0.0;
+  int pairs = 0;
+  for (const auto& [a, local_a] : state.archived_local_covariance) {
+    for (const auto& [b, local_b] : state.archived_local_covariance) {
+      if (b <= a || state.archived_last_observed.at(a) != state.archived_last_observed.at(b))
+        continue;
+      const Eigen::Vector3d error =
+          (state.archived.at(a).p_world - state.archived.at(b).p_world) -
+          (data.objects_groundtruth.at(a) - data.objects_groundtruth.at(b));
+      local_nees += error.dot((local_a + local_b).ldlt().solve(error));
+      marginal_nees += error.dot(
+          (state.archived.at(a).covariance + state.archived.at(b).covariance).ldlt().solve(error));
+      ++pairs;
+    }
+  }
+  ASSERT_GT(pairs, 5);
+  local_nees /= pairs;
+  marginal_nees /= pairs;
+  std::cout << pairs << " pairs archived together: mean NEES of their difference " << local_nees
+            << " under the recorded covariances, " << marginal_nees << " under the marginals\n";
+  EXPECT_LT(local_nees, boost::math::quantile(boost::math::chi_squared(3), 0.95));
+  EXPECT_LT(marginal_nees, local_nees);
 }
 
 TEST(Resume, AStateWhoseShapesDisagreeIsRefused) {

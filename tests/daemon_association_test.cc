@@ -73,6 +73,7 @@ association::NegotiationMessage sample_message() {
     object.position = Eigen::Vector3d(0.1 * n, 1.0 / 3.0, -2.0 + n);
     object.covariance << 0.3, 0.01, 0.0, 0.01, 0.2, 0.02, 0.0, 0.02, 0.1;
     object.local_covariance = 0.5 * object.covariance;
+    object.archived = n == 1;
     map.objects.push_back(object);
   }
   message.map = std::make_shared<const association::MapDescription>(map);
@@ -124,7 +125,9 @@ TEST(NegotiationWire, RoundTripIsExact) {
     EXPECT_EQ(a.position, b.position);  // bit for bit
     EXPECT_EQ(a.covariance, b.covariance);
     EXPECT_EQ(a.local_covariance, b.local_covariance);
+    EXPECT_EQ(a.archived, b.archived);
   }
+  EXPECT_TRUE(decoded->map->objects[1].archived);
   ASSERT_EQ(decoded->records.size(), 1u);
   const auto& record = *decoded->records[0];
   EXPECT_EQ(record.owner, 0);

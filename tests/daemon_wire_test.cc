@@ -389,6 +389,13 @@ TEST(DaemonCheckpoint, RoundTripsTheFilterStateAndPendingObjectsAndRefusesDamage
                            {41, Eigen::Vector4d(0.11, 0.2, 0.06, 0.2)}};
   checkpoint.state.landmarks[1].used_observations = {{39, Eigen::Vector4d(0.3, -0.1, 0.25, -0.1)},
                                                      {41, Eigen::Vector4d(0.31, -0.1, 0.26, -0.1)}};
+  // Two archived objects (object_archive_mode marginal), one with what the robot knew of it
+  // relative to itself when it archived it, one without.
+  checkpoint.state.archived[700] = {700, Eigen::Vector3d(4, -2, 1), concord::testing::random_spd(3, random, 0.5, 2)};
+  checkpoint.state.archived_last_observed[700] = 30;
+  const Eigen::Matrix3d local = concord::testing::random_spd(3, random, 0.01, 0.1);
+  checkpoint.state.archived_local_covariance[700] = 0.5 * (local + local.transpose());
+  checkpoint.state.archived[701] = {701, Eigen::Vector3d(1, 5, 0), concord::testing::random_spd(3, random, 0.5, 2)};
   const std::string bytes = serialize_checkpoint(checkpoint);
   std::string error;
   const auto back = parse_checkpoint(bytes, error);
@@ -415,6 +422,19 @@ TEST(DaemonCheckpoint, RoundTripsTheFilterStateAndPendingObjectsAndRefusesDamage
   ASSERT_EQ(back->pending.at(9).size(), 2u);
   EXPECT_EQ(back->pending.at(9)[1].frame, 41);
   EXPECT_EQ(back->pending.at(9)[1].xy, checkpoint.pending[9][1].xy);
+  ASSERT_EQ(back->state.archived.size(), 2u);
+  EXPECT_EQ(back->state.archived.at(700).covariance, checkpoint.state.archived.at(700).covariance);
+  EXPECT_EQ(back->state.archived_last_observed.at(700), 30);
+  ASSERT_EQ(back->state.archived_local_covariance.size(), 1u);
+  EXPECT_EQ(back->state.archived_local_covariance.at(700),
+            checkpoint.state.archived_local_covariance.at(700));
+  {
+    // A local covariance that is no covariance is refused, checksum or not.
+    Checkpoint bad = checkpoint;
+    bad.state.archived_local_covariance[700](0, 0) = -1.0;
+    EXPECT_FALSE(parse_checkpoint(serialize_checkpoint(bad), error));
+    EXPECT_NE(error.find("local covariance"), std::string::npos) << error;
+  }
   // Every truncation and any flipped byte is refused with a reason, never read.
   for (std::size_t size = 0; size < bytes.size(); size += 7) {
     EXPECT_FALSE(parse_checkpoint(bytes.substr(0, size), error)) << size;

@@ -22,7 +22,7 @@ LandmarkId id_of(ObjectKey key) { return key & kIdMask; }
 
 std::size_t MapDescription::wire_size() const {
   constexpr std::size_t kHeader = 12;
-  constexpr std::size_t kPerObject = 8 + 2 + 2 + 15 * 4;
+  constexpr std::size_t kPerObject = 8 + 2 + 2 + 1 + 15 * 4;
   return kHeader + kPerObject * objects.size();
 }
 
@@ -54,7 +54,7 @@ int ObservationTally::object_class(LandmarkId id) const {
 }
 
 MapDescription describe_map(const State& state, int robot, int frame, const ObservationTally& tally,
-                            int min_observations) {
+                            int min_observations, bool archived_local) {
   MapDescription description;
   description.robot = robot;
   description.frame = frame;
@@ -77,6 +77,17 @@ MapDescription describe_map(const State& state, int robot, int frame, const Obse
     entry.local_covariance = entry.covariance;
     entry.observations = observations;
     const int slot = state.landmark_slot(object.id);
+    entry.archived = slot < 0;
+    if (slot < 0 && archived_local) {
+      // Archived: what the robot knew of it relative to itself when it archived it, unless
+      // consensus has since made the marginal itself the smaller (a relative uncertainty cannot
+      // exceed the marginal).
+      const auto local = state.archived_local_covariance.find(object.id);
+      if (local != state.archived_local_covariance.end() &&
+          Eigen::LDLT<Eigen::Matrix3d>(entry.covariance - local->second).isPositive()) {
+        entry.local_covariance = local->second;
+      }
+    }
     if (slot >= 0 && condition) {
       const int index = state.landmark_index(slot);
       const Eigen::Matrix<double, 3, 6> cross = state.covariance.block<3, 6>(index, pose);

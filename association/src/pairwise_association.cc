@@ -189,8 +189,8 @@ ConsistencyGraph consistency_graph(const std::vector<Candidate>& candidates,
 PointPair pair_of(const ObjectDescription& a, const ObjectDescription& b, bool local,
                   double distance_noise) {
   const Eigen::Matrix3d floor = distance_noise * distance_noise * Eigen::Matrix3d::Identity();
-  return {a.position, b.position, (local ? a.local_covariance : a.covariance) + floor,
-          local ? b.local_covariance : b.covariance};
+  return {a.position, b.position, (local ? a.transform_covariance() : a.covariance) + floor,
+          local ? b.transform_covariance() : b.covariance};
 }
 
 /// Standard deviation of points along their second principal direction.
@@ -336,7 +336,7 @@ std::vector<Match> match_with_transform(const MapDescription& a, const MapDescri
   std::vector<double> trace_b(nb);
   for (std::size_t j = 0; j < nb; ++j) {
     transformed[j] = T_a_b * b.objects[j].position;
-    trace_b[j] = (local ? b.objects[j].local_covariance : b.objects[j].covariance).trace();
+    trace_b[j] = (local ? b.objects[j].transform_covariance() : b.objects[j].covariance).trace();
   }
   struct Scored {
     int i, j;
@@ -359,7 +359,7 @@ std::vector<Match> match_with_transform(const MapDescription& a, const MapDescri
   const double relevant = gate + options.match_margin;
   for (std::size_t i = 0; i < na; ++i) {
     const ObjectDescription& x = a.objects[i];
-    const Eigen::Matrix3d& covariance_x = local ? x.local_covariance : x.covariance;
+    const Eigen::Matrix3d& covariance_x = local ? x.transform_covariance() : x.covariance;
     const double trace_x = covariance_x.trace() + 3.0 * noise;
     for (std::size_t j = 0; j < nb; ++j) {
       const ObjectDescription& y = b.objects[j];
@@ -367,7 +367,7 @@ std::vector<Match> match_with_transform(const MapDescription& a, const MapDescri
       const Eigen::Vector3d residual = x.position - transformed[j];
       if (residual.squaredNorm() > relevant * (trace_x + trace_b[j])) continue;
       const Eigen::Matrix3d covariance =
-          covariance_x + R * (local ? y.local_covariance : y.covariance) * R.transpose() +
+          covariance_x + R * (local ? y.transform_covariance() : y.covariance) * R.transpose() +
           noise * Eigen::Matrix3d::Identity();
       const Eigen::LLT<Eigen::Matrix3d> llt(covariance);
       if (llt.info() != Eigen::Success) continue;

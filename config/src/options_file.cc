@@ -28,6 +28,7 @@ void for_each_association_field(Negotiation& options, Visitor&& visit) {
   auto& association = options.association;
   visit("min_observations", association.min_observations);
   visit("search_max_sigma", association.search_max_sigma);
+  visit("archived_local_covariance", association.archived_local_covariance);
   visit("descriptor_neighbours", association.descriptor_neighbours);
   visit("descriptor_chi2_probability", association.descriptor_chi2_probability);
   visit("candidates_per_object", association.candidates_per_object);

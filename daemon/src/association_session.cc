@@ -23,7 +23,8 @@ void AssociationSession::begin_round(std::uint64_t round, const Estimator& estim
   if (!negotiator_.describes(k)) return;
   negotiator_.set_own_map(
       association::describe_map(estimator.state(), negotiator_.robot(), negotiator_.frame(), tally_,
-                                negotiator_.options().association.min_observations),
+                                negotiator_.options().association.min_observations,
+                                negotiator_.options().association.archived_local_covariance),
       k);
 }
 

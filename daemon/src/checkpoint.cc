@@ -1,5 +1,6 @@
 #include "checkpoint.h"
 
+#include <Eigen/Cholesky>
 #include <cmath>
 #include <cstring>
 #include <limits>
@@ -8,7 +9,7 @@ namespace concord::daemon {
 
 namespace {
 
-constexpr char kMagic[] = "CONCORD-CHECKPOINT-8\n";
+constexpr char kMagic[] = "CONCORD-CHECKPOINT-9\n";
 constexpr std::size_t kMagicBytes = sizeof(kMagic) - 1;
 
 std::uint64_t fnv1a(const char* data, std::size_t size) {
@@ -110,6 +111,12 @@ std::string serialize_checkpoint(const Checkpoint& checkpoint) {
     for (int i = 0; i < 9; ++i) w.put<double>(object.covariance.data()[i]);
     const auto last = state.archived_last_observed.find(id);
     w.put<std::int32_t>(last == state.archived_last_observed.end() ? -1 : last->second);
+    const auto local = state.archived_local_covariance.find(id);
+    w.put<std::uint8_t>(local == state.archived_local_covariance.end() ? 0 : 1);
+    if (local != state.archived_local_covariance.end()) {
+      for (int r = 0; r < 3; ++r)
+        for (int c = r; c < 3; ++c) w.put<double>(local->second(r, c));
+    }
   }
   w.put<std::uint32_t>(static_cast<std::uint32_t>(checkpoint.pending.size()));
   for (const auto& [id, track] : checkpoint.pending) {
@@ -198,14 +205,28 @@ std::optional<Checkpoint> parse_checkpoint(const std::string& bytes, std::string
     }
     state.landmarks.push_back(landmark);
   }
-  if (!r.count(n, 8 + 96 + 4)) return fail("bad archived object count");
+  if (!r.count(n, 8 + 96 + 4 + 1)) return fail("bad archived object count");
   for (std::uint32_t i = 0; i < n; ++i) {
     ObjectEstimate object;
     std::int32_t last = 0;
+    std::uint8_t has_local = 0;
     bool ok = r.get(object.id);
     for (int j = 0; ok && j < 3; ++j) ok = r.get(object.p_world[j]);
     for (int j = 0; ok && j < 9; ++j) ok = r.get(object.covariance.data()[j]);
-    if (!ok || !r.get(last)) return fail("bad archived object " + std::to_string(i));
+    if (!ok || !r.get(last) || !r.get(has_local) || has_local > 1)
+      return fail("bad archived object " + std::to_string(i));
+    if (has_local == 1) {
+      Eigen::Matrix3d local;
+      for (int row = 0; ok && row < 3; ++row) {
+        for (int col = row; ok && col < 3; ++col) {
+          ok = r.get(local(row, col));
+          local(col, row) = local(row, col);
+        }
+      }
+      if (!ok || Eigen::LLT<Eigen::Matrix3d>(local).info() != Eigen::Success)
+        return fail("bad local covariance of archived object " + std::to_string(i));
+      state.archived_local_covariance[object.id] = local;
+    }
     if (last >= 0) state.archived_last_observed[object.id] = last;
     state.archived[object.id] = object;
   }

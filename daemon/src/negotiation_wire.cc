@@ -84,6 +84,7 @@ bool read_map(const v1::MapDescription& message, int sender, const NegotiationLi
       error = what + ": covariance not 6 finite values of a positive definite matrix";
       return false;
     }
+    entry.archived = object.archived();
     map.objects.push_back(std::move(entry));
   }
   return true;
@@ -166,6 +167,7 @@ void to_wire(const association::NegotiationMessage& message, v1::Negotiation& ou
       entry->mutable_position()->Add(object.position.data(), object.position.data() + 3);
       add_upper<3>(object.covariance, *entry->mutable_covariance());
       add_upper<3>(object.local_covariance, *entry->mutable_local_covariance());
+      entry->set_archived(object.archived);
     }
   }
   for (const auto& shared : message.records) {

@@ -421,6 +421,7 @@ ObjectUpdater::InitResult ObjectUpdater::try_initialize(State& state, LandmarkId
     }
     state.archived.erase(archived);
     state.archived_last_observed.erase(id);
+    state.archived_local_covariance.erase(id);
   }
   return InitResult::kInitialized;
 }
@@ -446,12 +447,23 @@ void ObjectUpdater::archive_stale(State& state, int frame, ObjectUpdateStats& st
     StateHelper::remove_landmarks(state, stale_offsets);
     return;
   }
+  const int pose = state.pose_index(state.num_poses() - 1);
+  const Eigen::LLT<Eigen::Matrix<double, 6, 6>> pose_llt(state.covariance.block<6, 6>(pose, pose));
   for (int slot : stale) {
     const auto& landmark = state.landmarks[slot];
     const int index = state.landmark_index(slot);
-    state.archived[landmark.id] = {landmark.id, landmark.p_world,
-                                   state.covariance.block<3, 3>(index, index)};
+    const Eigen::Matrix3d marginal = state.covariance.block<3, 3>(index, index);
+    state.archived[landmark.id] = {landmark.id, landmark.p_world, marginal};
     state.archived_last_observed[landmark.id] = landmark.last_observed_frame;
+    state.archived_local_covariance.erase(landmark.id);
+    if (pose_llt.info() == Eigen::Success) {
+      const Eigen::Matrix<double, 3, 6> cross = state.covariance.block<3, 6>(index, pose);
+      Eigen::Matrix3d local = marginal - cross * pose_llt.solve(cross.transpose());
+      local = 0.5 * (local + local.transpose()).eval();
+      if (Eigen::LLT<Eigen::Matrix3d>(local).info() == Eigen::Success) {
+        state.archived_local_covariance[landmark.id] = local;
+      }
+    }
   }
   stats.archived += static_cast<int>(stale.size());
   stale.insert(stale.end(), stale_offsets.begin(), stale_offsets.end());

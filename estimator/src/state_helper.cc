@@ -243,6 +243,8 @@ void StateHelper::reanchor(State& state, const Eigen::Isometry3d& T_new_old,
         R * estimate.covariance * R.transpose() + J_object * covariance * J_object.transpose();
     estimate.covariance = 0.5 * (estimate.covariance + estimate.covariance.transpose()).eval();
   }
+  // What was known of them relative to the robot only turns with the frame.
+  for (auto& [id, local] : state.archived_local_covariance) local = R * local * R.transpose();
 }
 
 void StateHelper::symmetrize(State& state) {

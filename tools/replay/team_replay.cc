@@ -262,7 +262,8 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
             negotiators[i].set_own_map(
                 association::describe_map(estimators[i].state(), i, negotiators[i].frame(),
                                           tallies[i],
-                                          options.negotiation.association.min_observations),
+                                          options.negotiation.association.min_observations,
+                                          options.negotiation.association.archived_local_covariance),
                 step);
           }
         }

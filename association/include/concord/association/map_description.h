@@ -38,11 +38,24 @@ struct ObjectDescription {
   /// Marginal covariance of the position in the description's frame: for comparing positions of
   /// two maps in one frame.
   Eigen::Matrix3d covariance = Eigen::Matrix3d::Identity();
-  /// Covariance conditioned on the robot's current pose: what the robot knows of the object
-  /// relative to where it is, without the drift its whole map shares (for the geometry of its map
-  /// against another frame's, where a transform absorbs that drift). Archived objects, whose
-  /// correlation with the poses is gone, carry their marginal.
+  /// What the robot knows of the object relative to itself, without the drift its whole map
+  /// shares: for the geometry of its map (distances between its objects, which a transform to
+  /// another frame leaves as they are). In the state: the covariance conditioned on the robot's
+  /// current pose. Archived: the marginal or, with association.archived_local_covariance,
+  /// conditioned on the pose the robot had when it archived it (State::archived_local_covariance),
+  /// since the objects a robot mapped at about the same time share the drift it had then,
+  /// however far it has drifted since.
   Eigen::Matrix3d local_covariance = Eigen::Matrix3d::Identity();
+  /// Whether the object has left the robot's joint state (archived), so that local_covariance
+  /// is relative to an earlier pose than the current one.
+  bool archived = false;
+  /// The covariance a transform between this map and another frame's must account for: relative
+  /// to the robot's current pose, as one transform aligns the maps where both robots are now. An
+  /// archived object's error relative to that pose includes the drift since it was archived,
+  /// which the description does not carry: its marginal stands for it.
+  const Eigen::Matrix3d& transform_covariance() const {
+    return archived ? covariance : local_covariance;
+  }
   /// Frames in which the robot observed it.
   int observations = 0;
 };
@@ -56,8 +69,8 @@ struct MapDescription {
   std::vector<ObjectDescription> objects;
 
   /// Bytes on the wire in a fixed-width encoding: 12 bytes of header, then per object an 8-byte
-  /// id, a 2-byte class, a 2-byte observation count and 15 floats (position, upper triangles of
-  /// both covariances).
+  /// id, a 2-byte class, a 2-byte observation count, a 1-byte archived flag and 15 floats
+  /// (position, upper triangles of both covariances).
   std::size_t wire_size() const;
 };
 
@@ -80,8 +93,10 @@ class ObservationTally {
 };
 
 /// The description of a robot's map: every object it holds with at least min_observations frames
-/// of detections, in the frame the state is in.
+/// of detections, in the frame the state is in. archived_local: an archived object's
+/// local_covariance is the one the state recorded when it archived it (when there is one, and
+/// the marginal is not the smaller); otherwise its marginal.
 MapDescription describe_map(const State& state, int robot, int frame, const ObservationTally& tally,
-                            int min_observations);
+                            int min_observations, bool archived_local);
 
 }  // namespace concord::association

@@ -19,6 +19,14 @@ struct AssociationOptions {
   /// others can still be matched once it is known. A loosely placed object makes almost any
   /// distance consistent.
   double search_max_sigma = 0.5;
+  /// archived_local_covariance: describe an archived object by its covariance relative to the
+  /// pose the robot had when it archived it (State::archived_local_covariance) instead of its
+  /// marginal, in the search filter, the descriptors and the consistency graph (the map's
+  /// geometry); the transform's fit keeps the marginal. Off: it lets old parts of a map take part
+  /// in the search (kitti00 aligns), but a robot that aligns early with a drifted map moves its
+  /// archived objects into the team frame with a transform that fits its current map
+  /// (docs/association.md, "Limits").
+  bool archived_local_covariance = false;
   /// descriptor_neighbours: an object's surroundings are its distances to this many nearest
   /// objects of its map.
   int descriptor_neighbours = 8;

@@ -103,6 +103,12 @@ class State {
   std::map<LandmarkId, ObjectEstimate> archived;
   /// Last frame each archived object was observed (for bookkeeping and output).
   std::map<LandmarkId, int> archived_last_observed;
+  /// What the robot knew of each archived object relative to itself when it archived it: the
+  /// object's covariance conditioned on the newest pose of that moment (P_oo - P_op P_pp^-1
+  /// P_po). Unlike the marginal it leaves out the drift the robot had accumulated by then, which
+  /// the objects it mapped at about the same time share: it bounds how well their relative
+  /// geometry is known (association's map descriptions). Kept in the state's frame.
+  std::map<LandmarkId, Eigen::Matrix3d> archived_local_covariance;
 
   /// The disparity offset is a state (one calibration entry, the first).
   bool has_disparity_offset = false;
