@@ -145,8 +145,9 @@ TEST(MapDescriptionTest, ArchivedObjectsAreDescribedRelativeToThePoseOfTheirArch
   EXPECT_EQ(active.id, 5);
   EXPECT_FALSE(active.archived);
   const Eigen::MatrixXd& P = state.covariance;
-  const Eigen::Matrix3d conditioned =
-      P.block<3, 3>(6, 6) - P.block<3, 6>(6, 0) * P.block<6, 6>(0, 0).inverse() * P.block<6, 3>(0, 6);
+  const Eigen::Matrix3d conditioned = P.block<3, 3>(6, 6) - P.block<3, 6>(6, 0) *
+                                                                P.block<6, 6>(0, 0).inverse() *
+                                                                P.block<6, 3>(0, 6);
   EXPECT_TRUE(active.local_covariance.isApprox(conditioned, 1e-9));
   EXPECT_EQ(&active.transform_covariance(), &active.local_covariance);
   const ObjectDescription& recorded = map.objects[1];

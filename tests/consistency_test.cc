@@ -830,9 +830,9 @@ TEST(Archiving, AnArchivedObjectKeepsItsCovarianceRelativeToThePoseOfThatMoment)
   const int pose = before.pose_index(2), object = before.landmark_index(0);
   const Eigen::MatrixXd& P = before.covariance;
   const Eigen::Matrix3d marginal = P.block<3, 3>(object, object);
-  const Eigen::Matrix3d expected =
-      marginal - P.block<3, 6>(object, pose) *
-                     P.block<6, 6>(pose, pose).inverse() * P.block<6, 3>(pose, object);
+  const Eigen::Matrix3d expected = marginal - P.block<3, 6>(object, pose) *
+                                                  P.block<6, 6>(pose, pose).inverse() *
+                                                  P.block<6, 3>(pose, object);
   EXPECT_TRUE(state.archived.at(100).covariance.isApprox(marginal, 1e-12));
   ASSERT_EQ(state.archived_local_covariance.count(100), 1u);
   EXPECT_TRUE(state.archived_local_covariance.at(100).isApprox(expected, 1e-10));

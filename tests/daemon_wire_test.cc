@@ -391,11 +391,13 @@ TEST(DaemonCheckpoint, RoundTripsTheFilterStateAndPendingObjectsAndRefusesDamage
                                                      {41, Eigen::Vector4d(0.31, -0.1, 0.26, -0.1)}};
   // Two archived objects (object_archive_mode marginal), one with what the robot knew of it
   // relative to itself when it archived it, one without.
-  checkpoint.state.archived[700] = {700, Eigen::Vector3d(4, -2, 1), concord::testing::random_spd(3, random, 0.5, 2)};
+  checkpoint.state.archived[700] = {700, Eigen::Vector3d(4, -2, 1),
+                                    concord::testing::random_spd(3, random, 0.5, 2)};
   checkpoint.state.archived_last_observed[700] = 30;
   const Eigen::Matrix3d local = concord::testing::random_spd(3, random, 0.01, 0.1);
   checkpoint.state.archived_local_covariance[700] = 0.5 * (local + local.transpose());
-  checkpoint.state.archived[701] = {701, Eigen::Vector3d(1, 5, 0), concord::testing::random_spd(3, random, 0.5, 2)};
+  checkpoint.state.archived[701] = {701, Eigen::Vector3d(1, 5, 0),
+                                    concord::testing::random_spd(3, random, 0.5, 2)};
   const std::string bytes = serialize_checkpoint(checkpoint);
   std::string error;
   const auto back = parse_checkpoint(bytes, error);

@@ -260,10 +260,10 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
           tallies[i].add(dataset.robots[i].objects[step], dataset.robots[i].object_classes[step]);
           if (negotiators[i].describes(step)) {
             negotiators[i].set_own_map(
-                association::describe_map(estimators[i].state(), i, negotiators[i].frame(),
-                                          tallies[i],
-                                          options.negotiation.association.min_observations,
-                                          options.negotiation.association.archived_local_covariance),
+                association::describe_map(
+                    estimators[i].state(), i, negotiators[i].frame(), tallies[i],
+                    options.negotiation.association.min_observations,
+                    options.negotiation.association.archived_local_covariance),
                 step);
           }
         }
