@@ -4,6 +4,8 @@
 #include <algorithm>
 #include <cassert>
 
+#include "concord/estimator/pose_conditioning.h"
+
 namespace concord::association {
 
 namespace {
@@ -58,11 +60,9 @@ MapDescription describe_map(const State& state, int robot, int frame, const Obse
   MapDescription description;
   description.robot = robot;
   description.frame = frame;
-  // Conditioning on the newest pose: P_oo - P_ot P_tt^-1 P_to (the object relative to the robot's
-  // current pose, without the uncertainty of that pose in the robot's frame).
-  const int pose = state.pose_index(state.num_poses() - 1);
-  const Eigen::LLT<Eigen::Matrix<double, 6, 6>> pose_llt(state.covariance.block<6, 6>(pose, pose));
-  const bool condition = pose_llt.info() == Eigen::Success;
+  // The object relative to the robot's current pose (kept as the marginal when round-off made the
+  // conditional indefinite).
+  const NewestPoseConditioning conditioning(state);
   for (const ObjectEstimate& object : state.objects()) {
     const int observations = tally.observations(object.id);
     if (observations < min_observations) continue;
@@ -88,15 +88,9 @@ MapDescription describe_map(const State& state, int robot, int frame, const Obse
         entry.local_covariance = local->second;
       }
     }
-    if (slot >= 0 && condition) {
-      const int index = state.landmark_index(slot);
-      const Eigen::Matrix<double, 3, 6> cross = state.covariance.block<3, 6>(index, pose);
-      const Eigen::Matrix3d conditioned =
-          entry.covariance - cross * pose_llt.solve(cross.transpose());
-      // Keep the marginal if round-off made the conditional indefinite.
-      if (Eigen::LLT<Eigen::Matrix3d>(conditioned).info() == Eigen::Success) {
-        entry.local_covariance = 0.5 * (conditioned + conditioned.transpose());
-      }
+    if (slot >= 0) {
+      const auto local = conditioning.of(state.landmark_index(slot), entry.covariance);
+      if (local) entry.local_covariance = *local;
     }
     description.objects.push_back(entry);
   }

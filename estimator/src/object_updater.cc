@@ -7,6 +7,7 @@
 #include <limits>
 
 #include "concord/estimator/consensus.h"
+#include "concord/estimator/pose_conditioning.h"
 #include "concord/estimator/state_helper.h"
 
 namespace concord {
@@ -447,8 +448,7 @@ void ObjectUpdater::archive_stale(State& state, int frame, ObjectUpdateStats& st
     StateHelper::remove_landmarks(state, stale_offsets);
     return;
   }
-  const int pose = state.pose_index(state.num_poses() - 1);
-  const Eigen::LLT<Eigen::Matrix<double, 6, 6>> pose_llt(state.covariance.block<6, 6>(pose, pose));
+  const NewestPoseConditioning conditioning(state);
   for (int slot : stale) {
     const auto& landmark = state.landmarks[slot];
     const int index = state.landmark_index(slot);
@@ -456,13 +456,8 @@ void ObjectUpdater::archive_stale(State& state, int frame, ObjectUpdateStats& st
     state.archived[landmark.id] = {landmark.id, landmark.p_world, marginal};
     state.archived_last_observed[landmark.id] = landmark.last_observed_frame;
     state.archived_local_covariance.erase(landmark.id);
-    if (pose_llt.info() == Eigen::Success) {
-      const Eigen::Matrix<double, 3, 6> cross = state.covariance.block<3, 6>(index, pose);
-      Eigen::Matrix3d local = marginal - cross * pose_llt.solve(cross.transpose());
-      local = 0.5 * (local + local.transpose()).eval();
-      if (Eigen::LLT<Eigen::Matrix3d>(local).info() == Eigen::Success) {
-        state.archived_local_covariance[landmark.id] = local;
-      }
+    if (const auto local = conditioning.of(index, 0.5 * (marginal + marginal.transpose()))) {
+      state.archived_local_covariance[landmark.id] = *local;
     }
   }
   stats.archived += static_cast<int>(stale.size());

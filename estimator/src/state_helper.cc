@@ -3,6 +3,7 @@
 #include <Eigen/Cholesky>
 
 #include "concord/estimator/lie.h"
+#include "concord/estimator/pose_conditioning.h"
 
 namespace concord {
 
@@ -249,6 +250,20 @@ void StateHelper::reanchor(State& state, const Eigen::Isometry3d& T_new_old,
 
 void StateHelper::symmetrize(State& state) {
   state.covariance = 0.5 * (state.covariance + state.covariance.transpose()).eval();
+}
+
+NewestPoseConditioning::NewestPoseConditioning(const State& state)
+    : state_(state),
+      pose_(state.pose_index(state.num_poses() - 1)),
+      pose_llt_(state.covariance.block<6, 6>(pose_, pose_)) {}
+
+std::optional<Eigen::Matrix3d> NewestPoseConditioning::of(int index,
+                                                          const Eigen::Matrix3d& marginal) const {
+  if (pose_llt_.info() != Eigen::Success) return std::nullopt;
+  const Eigen::Matrix<double, 3, 6> cross = state_.covariance.block<3, 6>(index, pose_);
+  const Eigen::Matrix3d conditioned = marginal - cross * pose_llt_.solve(cross.transpose());
+  if (Eigen::LLT<Eigen::Matrix3d>(conditioned).info() != Eigen::Success) return std::nullopt;
+  return 0.5 * (conditioned + conditioned.transpose());
 }
 
 }  // namespace concord
