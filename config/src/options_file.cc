@@ -105,6 +105,7 @@ void for_each_field(Options& options, Visitor&& visit) {
   visit("object_max_relative_sigma", options.object_max_relative_sigma);
   visit("object_init_max_reprojection_error", options.object_init_max_reprojection_error);
   visit("object_chi2_probability", options.object_chi2_probability);
+  visit("object_first_estimate_noise", options.object_first_estimate_noise);
   visit("object_archive_after_frames", options.object_archive_after_frames);
   visit("object_archive_mode", options.object_archive_mode);
   visit("use_point_features", options.use_point_features);

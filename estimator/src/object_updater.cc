@@ -122,8 +122,22 @@ Eigen::MatrixXd ObjectUpdater::track_noise(const std::vector<TrackObservation>& 
   return covariance;
 }
 
+Eigen::Matrix4d ObjectUpdater::first_estimate_noise(
+    const State& state, int slot, const Eigen::Matrix<double, 4, 3>& jacobian_point) const {
+  const double scale = options_.object_first_estimate_noise;
+  const ObjectLandmark& landmark = state.landmarks[slot];
+  if (scale == 0.0 || landmark.p_linearization == landmark.p_world) {
+    return Eigen::Matrix4d::Zero();
+  }
+  const int rotation = state.pose_index(state.num_poses() - 1) + 3;
+  return scale * UpdaterHelper::first_estimate_noise(
+                     jacobian_point, landmark.p_linearization, landmark.p_world,
+                     state.covariance.block<3, 3>(rotation, rotation));
+}
+
 bool ObjectUpdater::condition_on_earlier(const std::vector<TrackObservation>& track,
-                                         LinearizedTrack& linearized) const {
+                                         LinearizedTrack& linearized,
+                                         const Eigen::Matrix4d& added_noise) const {
   // e_new given e_earlier: mean G e_earlier, covariance S_nn - G S_en, G = S_ne S_ee^-1; the
   // rows r_new - G r_earlier (and the same of the Jacobians) carry what the newest observation
   // adds, with that covariance. G and the whitening depend only on the frames' pattern.
@@ -148,14 +162,20 @@ bool ObjectUpdater::condition_on_earlier(const std::vector<TrackObservation>& tr
     if (conditionals_.size() >= 4096) conditionals_.clear();  // bounded; patterns repeat
     cached = conditionals_
                  .emplace(std::move(pattern),
-                          Conditional{gain_transposed.transpose(),
+                          Conditional{gain_transposed.transpose(), conditional,
                                       UpdaterHelper::whitening(conditional)})
                  .first;
   }
   const Conditional& c = cached->second;
   const Eigen::Index earlier = c.gain.cols();
+  Eigen::Matrix4d whitening = c.whitening;
+  if (!added_noise.isZero(0.0)) {
+    const Eigen::Matrix4d covariance = c.covariance + added_noise;
+    if (Eigen::LLT<Eigen::Matrix4d>(covariance).info() != Eigen::Success) return false;
+    whitening = UpdaterHelper::whitening(covariance);
+  }
   const auto condition = [&](const Eigen::MatrixXd& rows) -> Eigen::MatrixXd {
-    return c.whitening * (rows.bottomRows(4) - c.gain * rows.topRows(earlier));
+    return whitening * (rows.bottomRows(4) - c.gain * rows.topRows(earlier));
   };
   // Only the track's pose, calibration and landmark columns are not zero.
   const std::vector<int> columns = StateHelper::nonzero_columns(linearized.H_state);
@@ -221,9 +241,17 @@ ObjectUpdateStats ObjectUpdater::process(State& state,
     }
     const int offset_slot = state.offset_slot(observation.id);
     if (offset_slot >= 0) apply_offset(state, offset_slot, *linearized);
+    // The newest observation's rows are the track's last four.
+    const Eigen::Matrix4d added_noise =
+        first_estimate_noise(state, slot, linearized->H_point.bottomRows<4>());
     if (track.size() == 1) {
-      UpdaterHelper::whiten_inplace(*linearized, whitening_);
-    } else if (!condition_on_earlier(track, *linearized)) {
+      UpdaterHelper::whiten_inplace(
+          *linearized, added_noise.isZero(0.0)
+                           ? whitening_
+                           : UpdaterHelper::whitening(independent_covariance_ +
+                                                      constant_covariance_ +
+                                                      persistent_covariance_ + added_noise));
+    } else if (!condition_on_earlier(track, *linearized, added_noise)) {
       ++stats.rejected;
       continue;
     }

@@ -198,6 +198,7 @@ std::vector<std::string> EstimatorOptions::validate() const {
                  "finite and >= 0 (0 disables)");
   }
   problems.check_probability("object_chi2_probability", object_chi2_probability);
+  problems.check_optional_bound("object_first_estimate_noise", object_first_estimate_noise);
   problems.check_at_least("object_archive_after_frames", object_archive_after_frames, 0);
   if (object_archive_mode != "consider" && object_archive_mode != "marginal") {
     problems.add("object_archive_mode", object_archive_mode, "consider or marginal");

@@ -228,6 +228,14 @@ Eigen::Matrix4d UpdaterHelper::observation_covariance(const StereoNoise& noise,
   return covariance;
 }
 
+Eigen::Matrix4d UpdaterHelper::first_estimate_noise(
+    const Eigen::Matrix<double, 4, 3>& jacobian_point, const Eigen::Vector3d& p_linearization,
+    const Eigen::Vector3d& p_world, const Eigen::Matrix3d& rotation_covariance) {
+  const Eigen::Matrix<double, 4, 3> A = jacobian_point * lie::skew(p_linearization - p_world);
+  const Eigen::Matrix4d noise = A * rotation_covariance * A.transpose();
+  return 0.5 * (noise + noise.transpose());
+}
+
 Eigen::Matrix4d UpdaterHelper::whitening(const Eigen::Matrix4d& covariance) {
   const Eigen::LLT<Eigen::Matrix4d> llt(covariance);
   assert(llt.info() == Eigen::Success);

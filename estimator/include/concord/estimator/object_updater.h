@@ -77,8 +77,15 @@ class ObjectUpdater {
   /// With a persistent error: replaces a linearized track (its earlier observations, then the
   /// newest) by the whitened conditional of its newest observation given the earlier ones (four
   /// rows of unit noise). False when their joint covariance is not positive definite.
+  /// added_noise (normalized units, the newest observation's) is added to the conditional's
+  /// covariance before whitening.
   bool condition_on_earlier(const std::vector<TrackObservation>& track,
-                            LinearizedTrack& linearized) const;
+                            LinearizedTrack& linearized, const Eigen::Matrix4d& added_noise) const;
+  /// object_first_estimate_noise's term for an observation at the newest pose of the in-state
+  /// object in `slot`, whose point Jacobian (normalized units) is jacobian_point:
+  /// scale J [p_lin - p_hat]x P_phi [p_lin - p_hat]x^T J^T.
+  Eigen::Matrix4d first_estimate_noise(const State& state, int slot,
+                                       const Eigen::Matrix<double, 4, 3>& jacobian_point) const;
 
   EstimatorOptions options_;
   StereoCamera camera_;
@@ -103,6 +110,7 @@ class ObjectUpdater {
   /// frame relative to the newest): a continuous track repeats the same pattern frame after frame.
   struct Conditional {
     Eigen::MatrixXd gain;  ///< S_ne S_ee^-1, 4 x 4 (observations - 1)
+    Eigen::Matrix4d covariance;  ///< S_nn - G S_en
     Eigen::Matrix4d whitening;
   };
   mutable std::map<std::vector<int>, Conditional> conditionals_;

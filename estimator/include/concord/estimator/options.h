@@ -195,6 +195,15 @@ struct EstimatorOptions {
   /// observation under its full innovation covariance, and of the rows of a new object's
   /// initialization that do not involve the object (0 disables).
   double object_chi2_probability = 0.95;
+  /// object_first_estimate_noise: an in-state object's pose Jacobians are taken at its first
+  /// estimate (ObjectLandmark::p_linearization), which keeps the robot's frame unobservable, but
+  /// they then differ from the Jacobians at the current estimate by J [p_lin - p_hat]x on the
+  /// newest pose's rotation error. That difference, times the rotation's covariance, is what the
+  /// first estimate leaves out of the prediction's uncertainty; each observation's noise gains
+  /// this many times it (J [d]x P_phi [d]x^T J^T, d = p_lin - p_hat). 1 is the first-order size
+  /// of the mismatch; 0 leaves it out (the filter before 2026-11-28). docs/estimator.md, "The
+  /// first estimate's mismatch".
+  double object_first_estimate_noise = 1.0;
   /// object_archive_after_frames: an object not observed for this many frames leaves the joint
   /// state and is kept as an independent marginal (exact marginalization). Seen again, it is
   /// initialized afresh from its new observations (with its true correlations to the poses) and

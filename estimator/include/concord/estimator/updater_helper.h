@@ -82,6 +82,15 @@ class UpdaterHelper {
   static void linearize_level(const State& state, const Eigen::Vector3d& level_axis,
                               Eigen::MatrixXd& H, Eigen::VectorXd& residual);
 
+  /// The covariance of what a first-estimate pose Jacobian leaves out of an observation's
+  /// prediction: the Jacobians at p_linearization and at the estimate p_world differ by
+  /// jacobian_point [p_linearization - p_world]x on the pose's rotation error (left
+  /// perturbation), whose covariance is rotation_covariance. Normalized units, 4 x 4.
+  static Eigen::Matrix4d first_estimate_noise(const Eigen::Matrix<double, 4, 3>& jacobian_point,
+                                              const Eigen::Vector3d& p_linearization,
+                                              const Eigen::Vector3d& p_world,
+                                              const Eigen::Matrix3d& rotation_covariance);
+
   /// An observation with the state's estimated disparity offset taken out of its right x (for
   /// triangulation, which treats the calibration as exact); unchanged without that state.
   static Eigen::Vector4d without_disparity_offset(const State& state, const StereoCamera& camera,
