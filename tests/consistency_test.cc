@@ -121,8 +121,7 @@ TEST(FirstEstimateNoise, IsWhatTheFirstEstimateJacobianLeavesOutOfThePrediction)
     // An object 4-12 m ahead of the left camera, and a first estimate about a metre off it.
     std::uniform_real_distribution<double> across(-1.0, 1.0), depth(4.0, 12.0);
     const Eigen::Vector3d in_camera(across(random), 0.5 * across(random), depth(random));
-    const Eigen::Vector3d p_world =
-        T_world_body * (camera.T_cam0_body.inverse() * in_camera);
+    const Eigen::Vector3d p_world = T_world_body * (camera.T_cam0_body.inverse() * in_camera);
     const Eigen::Vector3d p_linearization = p_world + testing::random_vector(3, random, 1.0);
     const auto at_estimate = UpdaterHelper::project(camera, T_world_body, p_world);
     ASSERT_TRUE(at_estimate.has_value());
@@ -130,11 +129,10 @@ TEST(FirstEstimateNoise, IsWhatTheFirstEstimateJacobianLeavesOutOfThePrediction)
         at_estimate->jacobian_pose -
         UpdaterHelper::pose_jacobian(at_estimate->jacobian_point, p_linearization);
     const Eigen::MatrixXd pose_covariance = testing::random_spd(6, random, 1e-4, 1e-2);
-    const Eigen::Matrix4d expected =
-        difference * pose_covariance * difference.transpose();
-    const Eigen::Matrix4d noise = UpdaterHelper::first_estimate_noise(
-        at_estimate->jacobian_point, p_linearization, p_world,
-        pose_covariance.bottomRightCorner<3, 3>());
+    const Eigen::Matrix4d expected = difference * pose_covariance * difference.transpose();
+    const Eigen::Matrix4d noise =
+        UpdaterHelper::first_estimate_noise(at_estimate->jacobian_point, p_linearization, p_world,
+                                            pose_covariance.bottomRightCorner<3, 3>());
     EXPECT_TRUE(noise.isApprox(expected, 1e-9)) << noise << "\n\n" << expected;
     EXPECT_GT(noise.trace(), 0.0);
     // At the estimate itself nothing is left out.

@@ -161,9 +161,8 @@ bool ObjectUpdater::condition_on_earlier(const std::vector<TrackObservation>& tr
     if (conditional_factor.info() != Eigen::Success) return false;
     if (conditionals_.size() >= 4096) conditionals_.clear();  // bounded; patterns repeat
     cached = conditionals_
-                 .emplace(std::move(pattern),
-                          Conditional{gain_transposed.transpose(), conditional,
-                                      UpdaterHelper::whitening(conditional)})
+                 .emplace(std::move(pattern), Conditional{gain_transposed.transpose(), conditional,
+                                                          UpdaterHelper::whitening(conditional)})
                  .first;
   }
   const Conditional& c = cached->second;
@@ -246,11 +245,11 @@ ObjectUpdateStats ObjectUpdater::process(State& state,
         first_estimate_noise(state, slot, linearized->H_point.bottomRows<4>());
     if (track.size() == 1) {
       UpdaterHelper::whiten_inplace(
-          *linearized, added_noise.isZero(0.0)
-                           ? whitening_
-                           : UpdaterHelper::whitening(independent_covariance_ +
-                                                      constant_covariance_ +
-                                                      persistent_covariance_ + added_noise));
+          *linearized,
+          added_noise.isZero(0.0)
+              ? whitening_
+              : UpdaterHelper::whitening(independent_covariance_ + constant_covariance_ +
+                                         persistent_covariance_ + added_noise));
     } else if (!condition_on_earlier(track, *linearized, added_noise)) {
       ++stats.rejected;
       continue;

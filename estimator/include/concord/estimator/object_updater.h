@@ -79,8 +79,8 @@ class ObjectUpdater {
   /// rows of unit noise). False when their joint covariance is not positive definite.
   /// added_noise (normalized units, the newest observation's) is added to the conditional's
   /// covariance before whitening.
-  bool condition_on_earlier(const std::vector<TrackObservation>& track,
-                            LinearizedTrack& linearized, const Eigen::Matrix4d& added_noise) const;
+  bool condition_on_earlier(const std::vector<TrackObservation>& track, LinearizedTrack& linearized,
+                            const Eigen::Matrix4d& added_noise) const;
   /// object_first_estimate_noise's term for an observation at the newest pose of the in-state
   /// object in `slot`, whose point Jacobian (normalized units) is jacobian_point:
   /// scale J [p_lin - p_hat]x P_phi [p_lin - p_hat]x^T J^T.
