@@ -47,6 +47,21 @@ struct MonteCarlo {
   std::vector<double> object;  ///< NEES of robot 0's final objects of each seed, all pooled
 };
 
+/// One simulated team without point features, replayed with `options`.
+struct SimulatedRun {
+  dataset::Dataset data;
+  replay::ReplayResult result;
+};
+SimulatedRun simulate_and_replay(sim::SimulationOptions simulation,
+                                 const EstimatorOptions& options, bool consensus) {
+  simulation.points_per_frame = 0;
+  SimulatedRun run{sim::simulate(simulation), {}};
+  replay::ReplayOptions replay_options;
+  replay_options.consensus = consensus;
+  run.result = replay::run_team(run.data, options, replay_options);
+  return run;
+}
+
 /// Short runs of a simulated team, one per seed, with the checked-in sensor config. Only robot 0
 /// of each run enters, so that the samples are independent (robots of one team are not, once
 /// they exchange marginals).
@@ -58,12 +73,9 @@ MonteCarlo monte_carlo(bool consensus, int seeds, int robots, int frames) {
     simulation.robots = robots;
     simulation.frames = frames;
     simulation.seed = static_cast<std::uint64_t>(seed);
-    simulation.points_per_frame = 0;
-    const dataset::Dataset data = sim::simulate(simulation);
-    replay::ReplayOptions replay_options;
-    replay_options.consensus = consensus;
-    const replay::ReplayResult result = replay::run_team(data, options, replay_options);
-    const replay::RobotOutput& robot = result.robots.front();
+    const SimulatedRun run = simulate_and_replay(simulation, options, consensus);
+    const dataset::Dataset& data = run.data;
+    const replay::RobotOutput& robot = run.result.robots.front();
     const auto& truth = data.robots.front().groundtruth;
     out.pose.push_back(
         evaluation::pose_nees(robot.trajectory.back(), robot.pose_covariances.back(), truth.back())
@@ -159,15 +171,11 @@ PooledRun separate_runs_with_doubled_odometry(const EstimatorOptions& base, int 
     simulation.robots = 1;
     simulation.frames = frames;
     simulation.seed = static_cast<std::uint64_t>(100 + seed);
-    simulation.points_per_frame = 0;
     simulation.odometry_translation_noise *= 2.0;
     simulation.odometry_rotation_noise *= 2.0;
-    const dataset::Dataset data = sim::simulate(simulation);
-    replay::ReplayOptions replay_options;
-    replay_options.consensus = false;
-    const replay::ReplayResult result = replay::run_team(data, options, replay_options);
-    const replay::RobotOutput& robot = result.robots.front();
-    const auto& truth = data.robots.front().groundtruth;
+    const SimulatedRun run = simulate_and_replay(simulation, options, false);
+    const replay::RobotOutput& robot = run.result.robots.front();
+    const auto& truth = run.data.robots.front().groundtruth;
     for (std::size_t k = 0; k < robot.trajectory.size(); ++k) {
       nees += evaluation::pose_nees(robot.trajectory[k], robot.pose_covariances[k], truth[k]).pose;
       squared += (robot.trajectory[k].translation() - truth[k].translation()).squaredNorm();
