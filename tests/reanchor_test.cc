@@ -7,6 +7,7 @@
 
 #include "concord/estimator/lie.h"
 #include "concord/estimator/state_helper.h"
+#include "concord/estimator/updater_helper.h"
 #include "test_support.h"
 
 namespace concord {
@@ -95,6 +96,49 @@ TEST(ReanchorTest, CovarianceMatchesMonteCarlo) {
   EXPECT_LT((archived_sample - moved.archived.at(9).covariance).norm() /
                 moved.archived.at(9).covariance.norm(),
             0.05);
+}
+
+TEST(ReanchorTest, AnObservationAfterTheMoveCannotSeeTheTransformsError) {
+  // Objects whose estimates have moved from their first estimates (the points their pose
+  // Jacobians are taken at). The transform's error is a rigid move of the whole state, which an
+  // object observation (relative to the robot) cannot see: the covariance the move adds must lie
+  // in the null space of every first-estimate observation Jacobian, or each later observation
+  // would claim to tell the robot the team frame's rotation.
+  std::mt19937 random(5);
+  State state = testing::random_state(3, 3, random);
+  for (ObjectLandmark& landmark : state.landmarks) {
+    landmark.p_world = 5.0 * testing::random_vector(3, random);
+    landmark.p_linearization = landmark.p_world + testing::random_vector(3, random, 0.5);
+  }
+  const Eigen::Isometry3d T = transform(0.9, Eigen::Vector3d(3, -4, 0.5));
+  lie::Matrix6d sigma = lie::Matrix6d::Zero();
+  sigma.diagonal() << 0.04, 0.02, 0.01, 3e-3, 1e-3, 2e-3;
+  State certain = state;
+  StateHelper::reanchor(certain, T, lie::Matrix6d::Zero());
+  State uncertain = state;
+  StateHelper::reanchor(uncertain, T, sigma);
+  const Eigen::MatrixXd added = uncertain.covariance - certain.covariance;
+  ASSERT_GT(added.norm(), 1e-3);
+  for (int i = 0; i < state.num_poses(); ++i) {
+    for (int j = 0; j < state.num_landmarks(); ++j) {
+      const Eigen::Matrix<double, 4, 3> jacobian_point =
+          testing::random_spd(4, random).topLeftCorner<4, 3>();
+      Eigen::MatrixXd H = Eigen::MatrixXd::Zero(4, state.dimension());
+      H.block<4, 6>(0, state.pose_index(i)) =
+          UpdaterHelper::pose_jacobian(jacobian_point, uncertain.landmarks[j].p_linearization);
+      H.block<4, 3>(0, state.landmark_index(j)) = jacobian_point;
+      const Eigen::Matrix4d seen = H * added * H.transpose();
+      EXPECT_LT(seen.norm(), 1e-12 * (H * H.transpose()).norm() * added.norm())
+          << "pose " << i << ", object " << j;
+    }
+  }
+  // Each object's marginal still takes the transform's rotation about the new origin (at its
+  // first estimate): its position uncertainty grows by at least the translation's.
+  for (int j = 0; j < state.num_landmarks(); ++j) {
+    const int index = state.landmark_index(j);
+    const double grown = added.block(index, index, 3, 3).trace();
+    EXPECT_GT(grown, sigma.topLeftCorner(3, 3).trace());
+  }
 }
 
 TEST(ReanchorTest, TheWorldUpAxisTurnsWithTheFrameAndTakesTheTransformsTilt) {

@@ -229,8 +229,17 @@ void StateHelper::reanchor(State& state, const Eigen::Isometry3d& T_new_old,
       J.block<3, 3>(index, 3) = -lie::skew(landmark.p_world);
       continue;
     }
+    // The transform's rotation error turns the object about the new frame's origin. Its
+    // component is taken at the object's first estimate, the point its pose Jacobians are
+    // taken at (`ObjectLandmark::p_linearization`): the error the move adds to the state is
+    // then a turn of the whole state that those Jacobians cannot see, as the true measurements
+    // cannot. At the current estimate instead, every later observation of an object that has
+    // moved from its first estimate would claim to tell the robot the team frame's rotation
+    // (by J [p_linearization - p_world]x on it): information that is not there. What the two
+    // points' difference leaves out is counted by object_first_estimate_noise
+    // (docs/estimator.md, "The first estimate's mismatch").
     J.block<3, 3>(index, 0).setIdentity();
-    J.block<3, 3>(index, 3) = -lie::skew(state.landmarks[slot].p_world);
+    J.block<3, 3>(index, 3) = -lie::skew(state.landmarks[slot].p_linearization);
   }
   P += J * covariance * J.transpose();
   symmetrize(state);
