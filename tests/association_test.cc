@@ -870,15 +870,20 @@ class SyntheticTeam {
     for (int r = 0; r < n; ++r) {
       for (const auto& message : inbox[r]) negotiators_[r].receive(message, round_);
       if (const auto move = negotiators_[r].finish_round(round_)) {
-        // Move the robot's map into the new frame (the estimator does this to its state).
+        // Move the robot's map into the new frame (the estimator does this to its state); a move
+        // into frame 0 from another frame is made wrong by wrong_into_zero (a wrong edge into the
+        // team frame, as every robot that comes through it would see it).
+        const Eigen::Isometry3d T_new_old =
+            move->to_frame == 0 && move->from_frame != 0 ? wrong_into_zero * move->T_new_old
+                                                         : move->T_new_old;
         for (ObjectDescription& object : maps_[r].map.objects) {
-          object.position = move->T_new_old * object.position;
+          object.position = T_new_old * object.position;
           object.covariance =
-              move->T_new_old.linear() * object.covariance * move->T_new_old.linear().transpose();
+              T_new_old.linear() * object.covariance * T_new_old.linear().transpose();
           object.local_covariance = object.covariance;
         }
         maps_[r].map.frame = move->to_frame;
-        T_frame_world_[r] = move->T_new_old * T_frame_world_[r];
+        T_frame_world_[r] = T_new_old * T_frame_world_[r];
         moves_.push_back({r, round_});
       }
     }
@@ -886,6 +891,7 @@ class SyntheticTeam {
   }
 
   int reveal_per_round = 0;
+  Eigen::Isometry3d wrong_into_zero = Eigen::Isometry3d::Identity();
   std::vector<Negotiator> negotiators_;
   std::vector<RobotMap> maps_;
   std::vector<Eigen::Isometry3d> T_frame_world_;
@@ -999,6 +1005,84 @@ TEST(NegotiationTest, ATransformIsConfirmedOnlyWhileItKeepsMatchingNewObjects) {
       lie::se3_log(growing.T_frame_world_[1] * confirmation.T_own_world[0].inverse());
   EXPECT_LT(error.head<3>().norm(), 0.2);
   EXPECT_LT(error.tail<3>().norm(), 0.01);
+}
+
+/// Three robots in a row (0 and 2 see nothing in common): robot 1 joins robot 0's frame by the
+/// edge 0-1, robot 2 through robot 1. The revisit tests.
+struct RevisitCase {
+  Scene scene;
+  NegotiationOptions options;
+  std::vector<Eigen::Isometry3d> T_own_world{
+      Eigen::Isometry3d::Identity(), make_transform(1.0, 0.0, Eigen::Vector3d(5, 5, 0)),
+      make_transform(-2.0, 0.02, Eigen::Vector3d(30, -10, 0.5))};
+
+  RevisitCase() {
+    std::mt19937 random(43);
+    scene = random_scene(90, 60.0, 2.5, 0, random);
+    options.association = test_options();
+    options.description_interval = 1;
+    options.confirmations = 2;
+    options.confirmation_new_matches = 0;  // fixed maps: the count of descriptions alone
+  }
+  SyntheticTeam team() const {
+    return SyntheticTeam(scene, T_own_world, {{0, 25}, {10, 45}, {32, 60}}, 5, options);
+  }
+  /// Rotation and translation error of robot r's map against robot 0's frame.
+  static std::pair<double, double> error(const SyntheticTeam& team, const RevisitCase& c, int r) {
+    const lie::Vector6d e = lie::se3_log(team.T_frame_world_[r] * c.T_own_world[0].inverse());
+    return {e.tail<3>().norm(), e.head<3>().norm()};
+  }
+};
+
+TEST(NegotiationTest, ARightEdgeIsRevisitedAndLeftAsItIs) {
+  const RevisitCase revisit;
+  SyntheticTeam team = revisit.team();
+  team.run(20);
+  for (int r = 1; r < 3; ++r) {
+    EXPECT_EQ(team.negotiators_[r].frame(), 0) << "robot " << r;
+    EXPECT_LT(RevisitCase::error(team, revisit, r).first, 0.01) << "robot " << r;
+  }
+  long long revisits = 0, corrections = 0;
+  for (const Negotiator& n : team.negotiators_) {
+    revisits += n.counters().revisits;
+    corrections += n.counters().frame_corrections;
+  }
+  EXPECT_GE(revisits, 10);  // searched again and again in one frame
+  EXPECT_EQ(corrections, 0);
+}
+
+TEST(NegotiationTest, AWrongEdgeIsCorrectedAndEveryRobotBehindItMoves) {
+  // The same team, but whoever moves into frame 0 lands 10 degrees and 1.1 m off, as through a
+  // wrong edge 0-1: robot 0's revisits of the pair find the maps misaligned in two agreeing
+  // descriptions and correct the edge; robots 1 and 2 (robot 2's start frame lies behind the edge
+  // too) move back onto robot 0's frame, and stay in it.
+  const RevisitCase revisit;
+  const Eigen::Isometry3d wrong = make_transform(0.17, 0.0, Eigen::Vector3d(1.0, 0.5, 0.0));
+  SyntheticTeam team = revisit.team();
+  team.wrong_into_zero = wrong;
+  team.run(20);
+  EXPECT_EQ(team.negotiators_[0].counters().frame_corrections, 1);
+  for (int r = 1; r < 3; ++r) {
+    EXPECT_EQ(team.negotiators_[r].frame(), 0) << "robot " << r;
+    const auto [rotation, translation] = RevisitCase::error(team, revisit, r);
+    EXPECT_LT(rotation, 0.01) << "robot " << r;
+    EXPECT_LT(translation, 0.3) << "robot " << r;  // the fit's turn about a point 30 m away
+    const int moves = static_cast<int>(std::count_if(
+        team.moves_.begin(), team.moves_.end(), [r](const auto& m) { return m.first == r; }));
+    EXPECT_GE(moves, 2) << "robot " << r;  // into the frame, then the correction
+  }
+  // Robot 0 never moves.
+  EXPECT_EQ(team.negotiators_[0].frame(), 0);
+  EXPECT_LT(lie::se3_log(team.T_frame_world_[0]).norm(), 1e-12);
+
+  // Without revisits the error stays.
+  RevisitCase off = revisit;
+  off.options.revisit_descriptions = 0;
+  SyntheticTeam unrevisited = off.team();
+  unrevisited.wrong_into_zero = wrong;
+  unrevisited.run(20);
+  EXPECT_GT(RevisitCase::error(unrevisited, off, 1).first, 0.15);
+  EXPECT_GT(RevisitCase::error(unrevisited, off, 2).first, 0.15);
 }
 
 TEST(NegotiationTest, AWrongMergeIsSplitAndCounted) {

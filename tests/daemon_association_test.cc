@@ -91,6 +91,15 @@ association::NegotiationMessage sample_message() {
   edge.covariance(0, 5) = edge.covariance(5, 0) = 0.001;
   edge.round = 15;
   edge.owner = 0;
+  association::FrameCorrection correction;
+  correction.frame = 0;
+  correction.moves_b_side = false;
+  correction.T = Eigen::Translation3d(-0.5, 0.25, 0.0) *
+                 Eigen::AngleAxisd(0.2, Eigen::Vector3d(0, 0, 1));
+  correction.covariance = 0.02 * lie::Matrix6d::Identity();
+  correction.covariance(1, 4) = correction.covariance(4, 1) = 0.003;
+  correction.round = 40;
+  edge.corrections.push_back(correction);
   record.frame_edges.push_back(edge);
   message.records.push_back(std::make_shared<const association::OwnerRecord>(record));
   return message;
@@ -140,6 +149,14 @@ TEST(NegotiationWire, RoundTripIsExact) {
   EXPECT_EQ(record.frame_edges[0].T_a_b.matrix(), message.records[0]->frame_edges[0].T_a_b.matrix());
   EXPECT_EQ(record.frame_edges[0].covariance, message.records[0]->frame_edges[0].covariance);
   EXPECT_EQ(record.frame_edges[0].round, 15);
+  ASSERT_EQ(record.frame_edges[0].corrections.size(), 1u);
+  const auto& sent = message.records[0]->frame_edges[0].corrections[0];
+  const auto& got = record.frame_edges[0].corrections[0];
+  EXPECT_EQ(got.frame, 0);
+  EXPECT_FALSE(got.moves_b_side);
+  EXPECT_EQ(got.T.matrix(), sent.T.matrix());
+  EXPECT_EQ(got.covariance, sent.covariance);
+  EXPECT_EQ(got.round, 40);
 }
 
 TEST(NegotiationWire, MalformedDescriptionsAreRefusedNamingTheProblem) {
@@ -205,6 +222,29 @@ TEST(NegotiationWire, MalformedDescriptionsAreRefusedNamingTheProblem) {
        "covariance"},
       {"edge of another owner",
        [&](v1::Negotiation& m) { m.mutable_records(0)->mutable_frame_edges(0)->set_owner(5); },
+       "malformed frame edge"},
+      {"correction not a rotation",
+       [&](v1::Negotiation& m) {
+         m.mutable_records(0)->mutable_frame_edges(0)->mutable_corrections(0)->set_t(5, 3.0);
+       },
+       "malformed frame edge correction"},
+      {"correction covariance",
+       [&](v1::Negotiation& m) {
+         m.mutable_records(0)->mutable_frame_edges(0)->mutable_corrections(0)->set_covariance(0,
+                                                                                           -1.0);
+       },
+       "malformed frame edge correction"},
+      {"correction frame out of range",
+       [&](v1::Negotiation& m) {
+         m.mutable_records(0)->mutable_frame_edges(0)->mutable_corrections(0)->set_frame(-9);
+       },
+       "malformed frame edge correction"},
+      {"too many corrections",
+       [&](v1::Negotiation& m) {
+         auto* edge = m.mutable_records(0)->mutable_frame_edges(0);
+         const v1::FrameCorrection one = edge->corrections(0);
+         for (int k = 0; k < 16; ++k) *edge->add_corrections() = one;
+       },
        "malformed frame edge"},
       {"frame out of range", [&](v1::Negotiation& m) { m.set_frame(-5); }, "out of range"},
   };
@@ -327,13 +367,14 @@ void expect_same_partition(const std::vector<std::vector<ObjectEstimate>>& objec
   }
 }
 
-TEST(DaemonAssociation, ExchangesReproduceTheNegotiatedReplay) {
+/// The exchanges on the negotiated team against `concord replay`'s negotiated run: the same
+/// frames, trajectories, objects and team ids.
+void expect_exchanges_reproduce_the_replay(const association::NegotiationOptions& negotiation,
+                                           long long& frame_corrections) {
   const dataset::Dataset data = negotiated_team(kNegotiatedFrames);
   const dataset::TeamInputs inputs = dataset::sensor_inputs(data);
   const EstimatorOptions options =
       config::load_estimator_options(kSource / "configs/sensors/sim.yaml");
-  const association::NegotiationOptions negotiation =
-      config::load_negotiation_options(kSource / "configs/sensors/sim.yaml");
   replay::ReplayOptions replay_options;
   replay_options.negotiation = negotiation;
   const auto reference = replay::run_team(inputs, options, replay_options);
@@ -366,6 +407,28 @@ TEST(DaemonAssociation, ExchangesReproduceTheNegotiatedReplay) {
   EXPECT_GE(moved, 1);
   EXPECT_GT(shared, 10);
   EXPECT_GT(run.counters[0].marginals_fused, 20u);
+  frame_corrections = reference.statistics.frame_corrections;
+}
+
+TEST(DaemonAssociation, ExchangesReproduceTheNegotiatedReplay) {
+  long long corrections = -1;
+  expect_exchanges_reproduce_the_replay(
+      config::load_negotiation_options(kSource / "configs/sensors/sim.yaml"), corrections);
+  EXPECT_EQ(corrections, 0);  // right edges: revisited, never corrected
+}
+
+TEST(DaemonAssociation, ExchangesReproduceTheNegotiatedReplayWithFrameCorrections) {
+  // A revisit gate of almost zero calls any offset of two maps in one frame a misalignment: the
+  // edges are corrected (by what the revisits find) and the robots behind them move within the
+  // team frame. The corrections travel in the owners' records, and every daemon moves in the
+  // round the replay's robot does.
+  association::NegotiationOptions negotiation =
+      config::load_negotiation_options(kSource / "configs/sensors/sim.yaml");
+  negotiation.revisit_chi2_probability = 1e-9;
+  negotiation.revisit_interval = 1;
+  long long corrections = 0;
+  expect_exchanges_reproduce_the_replay(negotiation, corrections);
+  EXPECT_GE(corrections, 1);
 }
 
 TEST(DaemonAssociation, MalformedDescriptionsAreCountedAndNeverStallTheRound) {

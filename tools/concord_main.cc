@@ -355,6 +355,8 @@ int run_replay(const fs::path& dataset_dir, const fs::path& out, bool separate,
       {"ambiguous", s.ambiguous},
       {"tilted", s.tilted},
       {"frame_edges", s.frame_edges},
+      {"revisits", s.revisits},
+      {"frame_corrections", s.frame_corrections},
       {"reanchorings", s.reanchorings},
       {"links_accepted", s.links_accepted},
       {"links_split", s.links_split},
@@ -377,8 +379,9 @@ int run_replay(const fs::path& dataset_dir, const fs::path& out, bool separate,
             << " s, negotiation " << s.negotiation_seconds << " s)\n";
   if (result.association == replay::AssociationMode::kNegotiated) {
     std::cerr << "concord replay: negotiation: " << s.searches << " searches (" << s.ambiguous
-              << " ambiguous; " << s.tilted << " tilted), " << s.frame_edges << " frame edges, "
-              << s.reanchorings << " moves into a team frame, " << s.links_accepted << " links accepted, "
+              << " ambiguous; " << s.tilted << " tilted), " << s.frame_edges << " frame edges ("
+              << s.revisits << " revisits, " << s.frame_corrections << " corrected), "
+              << s.reanchorings << " moves, " << s.links_accepted << " links accepted, "
               << s.links_split << " split, " << s.link_conflicts << " refused as conflicts, "
               << s.team_id_conflicts << " left out by the team ids; " << s.negotiation_bytes
               << " bytes in " << s.negotiation_messages << " messages\n";

@@ -61,11 +61,19 @@ std::vector<std::string> NegotiationOptions::validate() const {
   require(split_chi2_probability > 0.0 && split_chi2_probability < 1.0, "split_chi2_probability",
           split_chi2_probability, "in (0, 1)");
   require(split_after >= 1, "split_after", split_after, ">= 1");
+  require(revisit_descriptions >= 0, "revisit_descriptions", revisit_descriptions, ">= 0");
+  require(revisit_interval >= 1, "revisit_interval", revisit_interval, ">= 1");
+  require(revisit_confirmations >= 1, "revisit_confirmations", revisit_confirmations, ">= 1");
+  require(revisit_chi2_probability > 0.0 && revisit_chi2_probability < 1.0,
+          "revisit_chi2_probability", revisit_chi2_probability, "in (0, 1)");
+  require(max_corrections >= 0, "max_corrections", max_corrections, ">= 0");
   return problems;
 }
 
 std::size_t OwnerRecord::wire_size() const {
-  return 12 + 20 * links.size() + 144 * frame_edges.size();
+  std::size_t size = 12 + 20 * links.size() + 144 * frame_edges.size();
+  for (const FrameEdge& edge : frame_edges) size += 144 * edge.corrections.size();
+  return size;
 }
 
 std::size_t NegotiationMessage::wire_size() const {
@@ -77,9 +85,13 @@ std::size_t NegotiationMessage::wire_size() const {
 
 Negotiator::Negotiator(int robot, int start_frame, NegotiationOptions options)
     : robot_(robot),
+      start_frame_(start_frame),
       frame_(start_frame),
       options_(validated(options)),
       split_bound_(UpdaterHelper::chi2_quantile(options_.split_chi2_probability, 3)),
+      revisit_bound_(UpdaterHelper::chi2_quantile(options_.revisit_chi2_probability, 6)),
+      agreement_bound_(
+          UpdaterHelper::chi2_quantile(options_.transform_agreement_chi2_probability, 6)),
       team_ids_(robot) {
   records_[robot_] = std::make_shared<const OwnerRecord>(OwnerRecord{robot_, 0, {}, {}});
 }
@@ -155,14 +167,52 @@ std::optional<Reanchoring> Negotiator::finish_round(int round) {
     for (auto& [neighbour, pairs] : shared_) std::sort(pairs.begin(), pairs.end());
   }
 
-  // 3. The team frame.
+  // 3. Corrections of the edges the robot's state came through, then the team frame.
+  const std::optional<Reanchoring> correction = take_corrections();
   const FrameTarget target = team_frame_of(frame_);
-  if (target.frame == frame_) return std::nullopt;
+  if (target.frame == frame_) return correction;
   Reanchoring move{frame_, target.frame, target.T_target_frame, target.covariance};
+  if (correction) {
+    move.T_new_old = target.T_target_frame * correction->T_new_old;
+    move.covariance =
+        compose_covariance(target.T_target_frame, target.covariance, correction->covariance);
+  }
   covariance_frame_start_ =
       compose_covariance(target.T_target_frame, target.covariance, covariance_frame_start_);
   T_frame_start_ = target.T_target_frame * T_frame_start_;
   frame_ = target.frame;
+  ++counters_.reanchorings;
+  return move;
+}
+
+std::optional<Reanchoring> Negotiator::take_corrections() {
+  std::optional<Reanchoring> move;
+  for (const auto& [owner, record] : records_) {
+    for (const FrameEdge& edge : record->frame_edges) {
+      for (std::size_t k = 0; k < edge.corrections.size(); ++k) {
+        if (!corrections_seen_.emplace(edge.owner, edge.round, edge.frame_a, edge.frame_b, k)
+                 .second) {
+          continue;
+        }
+        // A robot in another frame joins through the corrected edge later, if at all.
+        const FrameCorrection& correction = edge.corrections[k];
+        if (correction.frame != frame_) continue;
+        const int moving = correction.moves_b_side ? edge.frame_b : edge.frame_a;
+        const int staying = correction.moves_b_side ? edge.frame_a : edge.frame_b;
+        const std::set<int> side = component_of(moving, &edge);
+        if (!side.contains(start_frame_) || side.contains(staying)) continue;
+        if (!move) {
+          move = Reanchoring{frame_, frame_, Eigen::Isometry3d::Identity(), lie::Matrix6d::Zero()};
+        }
+        move->covariance = compose_covariance(correction.T, correction.covariance, move->covariance);
+        move->T_new_old = correction.T * move->T_new_old;
+      }
+    }
+  }
+  if (!move) return std::nullopt;
+  covariance_frame_start_ =
+      compose_covariance(move->T_new_old, move->covariance, covariance_frame_start_);
+  T_frame_start_ = move->T_new_old * T_frame_start_;
   ++counters_.reanchorings;
   return move;
 }
@@ -240,17 +290,129 @@ bool Negotiator::process_pair(int neighbour, const MapDescription& theirs, int r
   }
   pair.streak = 0;
   pair.last.reset();
+  if (pair.edge >= 0 && ++pair.since_edge <= options_.revisit_descriptions &&
+      pair.since_edge % options_.revisit_interval == 0 && revisit_edge(pair, theirs, round)) {
+    return true;
+  }
   return match_in_frame(pair, theirs);
+}
+
+bool Negotiator::revisit_edge(PairState& pair, const MapDescription& theirs, int round) {
+  const MapDescription& own = *own_map_;
+  ++counters_.revisits;
+  const PairAlignment found = align_maps(own, theirs, options_.association);
+  const auto aligned_as_accepted = [&pair] {
+    pair.revisit_streak = 0;
+    pair.revisit_last.reset();
+    return false;
+  };
+  if (found.status != AlignmentStatus::kAligned) return aligned_as_accepted();
+  // 1. The maps are in one frame: a right edge leaves them aligned up to what the two robots know
+  //    of their maps there. The same correspondences fitted on the marginal covariances (each
+  //    object in the common frame, the moves' and the drift's uncertainty included) say how far
+  //    from the identity that is; the local ones (the search's fit) would call a map's drift a
+  //    misalignment.
+  std::vector<PointPair> pairs;
+  pairs.reserve(found.matches.size());
+  for (const Match& match : found.matches) {
+    const ObjectDescription* mine = find_object(own, match.id_a);
+    const ObjectDescription* other = find_object(theirs, match.id_b);
+    if (mine == nullptr || other == nullptr) continue;
+    pairs.push_back({mine->position, other->position, mine->covariance, other->covariance});
+  }
+  const std::optional<RigidAlignment> in_frame = align_points(pairs);
+  if (!in_frame) return aligned_as_accepted();
+  const lie::Vector6d offset = lie::se3_log(in_frame->T_target_source);
+  const Eigen::LLT<lie::Matrix6d> llt(in_frame->covariance);
+  const double distance = llt.info() == Eigen::Success ? offset.dot(llt.solve(offset)) : 0.0;
+  if (std::getenv("CONCORD_DEBUG_ASSOCIATION")) {
+    const lie::Vector6d local = lie::se3_log(found.T_a_b);
+    std::fprintf(stderr,
+                 "round %d pair %d-%d: revisit: clique %d, %.2f deg %.2f m off (marginal fit "
+                 "%.2f deg), chi2 %.1f\n",
+                 round, robot_, theirs.robot, found.clique_size, local.tail<3>().norm() * 57.29578,
+                 local.head<3>().norm(), offset.tail<3>().norm() * 57.29578, distance);
+  }
+  if (distance <= revisit_bound_) return aligned_as_accepted();
+  const bool agrees =
+      pair.revisit_last && transforms_agree(*pair.revisit_last, found, agreement_bound_);
+  pair.revisit_streak = agrees ? pair.revisit_streak + 1 : 1;
+  pair.revisit_last = found;
+  if (pair.revisit_streak < options_.revisit_confirmations) return false;
+  pair.revisit_streak = 0;
+  pair.revisit_last.reset();
+  FrameEdge& edge = own_frame_edges_[static_cast<std::size_t>(pair.edge)];
+  if (static_cast<int>(edge.corrections.size()) >= options_.max_corrections) return false;
+
+  // 2. The side of the edge away from the team frame moves; an edge that closes a cycle of edges
+  //    has no such side (the others hold its frames together) and is left as it is.
+  const std::set<int> staying = component_of(own.frame, &edge);
+  const bool a_stays = staying.contains(edge.frame_a);
+  if (a_stays == staying.contains(edge.frame_b)) return false;
+  const FrameTarget to_a = team_frame_of(edge.frame_a);
+  const FrameTarget to_b = team_frame_of(edge.frame_b);
+  if (to_a.frame != own.frame || to_b.frame != own.frame) return false;
+  FrameCorrection correction;
+  correction.frame = own.frame;
+  correction.moves_b_side = a_stays;
+  correction.round = round;
+  // found.T_a_b maps the neighbour's map onto this robot's: the neighbour's side moves by it, or
+  // this robot's side by its inverse.
+  if (staying.contains(start_frame_)) {
+    correction.T = found.T_a_b;
+    correction.covariance = found.covariance;
+  } else {
+    correction.T = found.T_a_b.inverse();
+    correction.covariance = inverse_covariance(found.T_a_b, found.covariance);
+  }
+  // 3. The edge as it should have been: T_team_a^-1 C T_team_b with C on the moving side's path.
+  //    Its covariance is the correction's, taken into frame_a (what the found transform knows of
+  //    the two maps' relative pose; the accepted one was wrong).
+  const Eigen::Isometry3d T_team_a =
+      a_stays ? to_a.T_target_frame : correction.T * to_a.T_target_frame;
+  const Eigen::Isometry3d T_team_b =
+      a_stays ? correction.T * to_b.T_target_frame : to_b.T_target_frame;
+  const lie::Matrix6d adjoint = lie::adjoint(T_team_a.inverse());
+  edge.T_a_b = T_team_a.inverse() * T_team_b;
+  edge.covariance = adjoint * correction.covariance * adjoint.transpose();
+  edge.corrections.push_back(correction);
+  ++counters_.frame_corrections;
+  pair.since_edge = 0;
+
+  // 4. The pair's correspondences become the found ones (the accepted ones came from the wrong
+  //    transform, or from in-frame matching under it).
+  std::set<std::pair<LandmarkId, LandmarkId>> kept;
+  for (const Match& match : found.matches) kept.emplace(match.id_a, match.id_b);
+  for (auto it = pair.accepted.begin(); it != pair.accepted.end();) {
+    if (kept.contains(it->first)) {
+      ++it;
+      continue;
+    }
+    pair.disagreement.erase(it->first);
+    it = pair.accepted.erase(it);
+    ++counters_.links_split;
+  }
+  adopt_matches(pair, found.matches, false);
+  pair.candidate_streak.clear();
+  return true;
 }
 
 bool Negotiator::accept_frames(PairState& pair, const MapDescription& theirs,
                                const PairAlignment& found, int round) {
   own_frame_edges_.push_back(
-      FrameEdge{own_map_->frame, theirs.frame, found.T_a_b, found.covariance, round, robot_});
+      FrameEdge{own_map_->frame, theirs.frame, found.T_a_b, found.covariance, round, robot_, {}});
+  pair.edge = static_cast<int>(own_frame_edges_.size()) - 1;
+  pair.since_edge = 0;
   ++counters_.frame_edges;
   // Correspondences found in both of the last two transforms (confirmations >= 2), or in this one.
+  adopt_matches(pair, found.matches, options_.confirmations >= 2);
+  return true;
+}
+
+void Negotiator::adopt_matches(PairState& pair, const std::vector<Match>& matches,
+                               bool also_in_last) {
   std::set<std::pair<LandmarkId, LandmarkId>> previous;
-  if (pair.last && options_.confirmations >= 2) {
+  if (also_in_last && pair.last) {
     for (const Match& match : pair.last->matches) previous.emplace(match.id_a, match.id_b);
   }
   std::set<LandmarkId> own_linked, their_linked;
@@ -258,9 +420,9 @@ bool Negotiator::accept_frames(PairState& pair, const MapDescription& theirs,
     own_linked.insert(ids.first);
     their_linked.insert(ids.second);
   }
-  for (const Match& match : found.matches) {
+  for (const Match& match : matches) {
     const std::pair<LandmarkId, LandmarkId> ids{match.id_a, match.id_b};
-    if (options_.confirmations >= 2 && !previous.contains(ids)) continue;
+    if (also_in_last && !previous.contains(ids)) continue;
     if (pair.accepted.contains(ids)) continue;
     if (own_linked.contains(ids.first) || their_linked.contains(ids.second)) {
       ++counters_.link_conflicts;
@@ -271,7 +433,6 @@ bool Negotiator::accept_frames(PairState& pair, const MapDescription& theirs,
     their_linked.insert(ids.second);
     ++counters_.links_accepted;
   }
-  return true;
 }
 
 bool Negotiator::match_in_frame(PairState& pair, const MapDescription& theirs) {
@@ -426,13 +587,16 @@ Negotiator::FrameTarget Negotiator::team_frame_of(int frame) const {
   return target;
 }
 
-bool Negotiator::frames_connected(int a, int b) const {
-  if (a == b) return true;
-  std::set<int> component{a};
+std::set<int> Negotiator::component_of(int frame, const FrameEdge* skip) const {
+  std::set<int> component{frame};
   for (bool grown = true; grown;) {
     grown = false;
     for (const auto& [owner, record] : records_) {
       for (const FrameEdge& edge : record->frame_edges) {
+        if (skip != nullptr && edge.owner == skip->owner && edge.round == skip->round &&
+            edge.frame_a == skip->frame_a && edge.frame_b == skip->frame_b) {
+          continue;
+        }
         const bool has_a = component.contains(edge.frame_a);
         const bool has_b = component.contains(edge.frame_b);
         if (has_a != has_b) {
@@ -442,7 +606,11 @@ bool Negotiator::frames_connected(int a, int b) const {
       }
     }
   }
-  return component.contains(b);
+  return component;
+}
+
+bool Negotiator::frames_connected(int a, int b) const {
+  return a == b || component_of(a).contains(b);
 }
 
 std::vector<std::pair<LandmarkId, LandmarkId>> Negotiator::shared_objects(int neighbour) const {

@@ -52,6 +52,11 @@ void for_each_association_field(Negotiation& options, Visitor&& visit) {
   visit("transform_agreement_chi2_probability", options.transform_agreement_chi2_probability);
   visit("split_chi2_probability", options.split_chi2_probability);
   visit("split_after", options.split_after);
+  visit("revisit_descriptions", options.revisit_descriptions);
+  visit("revisit_interval", options.revisit_interval);
+  visit("revisit_confirmations", options.revisit_confirmations);
+  visit("revisit_chi2_probability", options.revisit_chi2_probability);
+  visit("max_corrections", options.max_corrections);
 }
 
 /// Calls visit(key, field) for every field of ConsensusOptions (const or not): the one list of

@@ -45,7 +45,10 @@ std::optional<association::Reanchoring> AssociationSession::finish_round(std::ui
   auto move = negotiator_.finish_round(static_cast<int>(round));
   if (move) {
     estimator.reanchor(move->T_new_old, move->covariance);
-    alignment_.aligned_at_round = static_cast<std::int64_t>(round);
+    // The first round in the final frame: a correction (a move within it) keeps it.
+    if (move->from_frame != move->to_frame) {
+      alignment_.aligned_at_round = static_cast<std::int64_t>(round);
+    }
     alignment_.moved = true;
   }
   alignment_.frame = negotiator_.frame();

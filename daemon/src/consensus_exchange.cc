@@ -932,8 +932,13 @@ void ConsensusExchange::negotiate(std::uint64_t round, Estimator& estimator,
       association_->missed(robot);
   }
   if (const auto move = association_->finish_round(round, estimator)) {
-    spdlog::info("association: round {}: moved from frame {} into the team frame {}", round,
-                 move->from_frame, move->to_frame);
+    if (move->from_frame == move->to_frame) {
+      spdlog::warn("association: round {}: a frame edge was corrected; moved within frame {}",
+                   round, move->to_frame);
+    } else {
+      spdlog::info("association: round {}: moved from frame {} into the team frame {}", round,
+                   move->from_frame, move->to_frame);
+    }
   }
 }
 

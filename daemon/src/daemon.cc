@@ -1149,6 +1149,8 @@ json Daemon::Impl::stats_json() const {
                             {"ambiguous", n.ambiguous},
                             {"tilted", n.tilted},
                             {"frame_edges", n.frame_edges},
+                            {"revisits", n.revisits},
+                            {"frame_corrections", n.frame_corrections},
                             {"reanchorings", n.reanchorings},
                             {"links_accepted", n.links_accepted},
                             {"links_split", n.links_split},
@@ -1410,8 +1412,11 @@ void Daemon::Impl::register_routes() {
                    "Accepted correspondences undone (a wrong merge split)", robot,
                    static_cast<double>(live_.negotiation.links_split));
       text.counter("concord_association_reanchorings_total",
-                   "Moves of the state into a team frame", robot,
+                   "Moves of the state into a team frame, or within it by a correction", robot,
                    static_cast<double>(live_.negotiation.reanchorings));
+      text.counter("concord_association_frame_corrections_total",
+                   "Accepted frame edges corrected as the owner of a pair", robot,
+                   static_cast<double>(live_.negotiation.frame_corrections));
       text.gauge("concord_frame_latency_p50_seconds", "Median frame latency (update + round)",
                  robot, 1e-3 * percentile(live_.latencies_ms, 50));
       text.gauge("concord_frame_latency_p99_seconds", "99th percentile frame latency", robot,

@@ -34,6 +34,35 @@ bool read_upper(const google::protobuf::RepeatedField<double>& values,
 
 bool valid_frame(int frame) { return frame >= association::kWorldFrame && frame <= kMaxRobot; }
 
+/// Corrections of one frame edge a peer may send (an owner makes at most
+/// association.max_corrections of them).
+constexpr int kMaxCorrectionsPerEdge = 16;
+
+/// A rigid motion from 12 values ([R | t] row by row); false unless finite and rigid.
+bool read_rigid(const google::protobuf::RepeatedField<double>& values, Eigen::Isometry3d& out) {
+  if (values.size() != 12) return false;
+  Eigen::Matrix<double, 3, 4> matrix;
+  for (int row = 0; row < 3; ++row)
+    for (int column = 0; column < 4; ++column) matrix(row, column) = values.Get(4 * row + column);
+  const Eigen::Matrix3d R = matrix.leftCols<3>();
+  if (!matrix.allFinite() ||
+      (R.transpose() * R - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff() > 1e-6 ||
+      R.determinant() < 0.0) {
+    return false;
+  }
+  out = Eigen::Isometry3d::Identity();
+  out.linear() = R;
+  out.translation() = matrix.col(3);
+  return true;
+}
+
+void add_rigid(const Eigen::Isometry3d& T, google::protobuf::RepeatedField<double>& out) {
+  for (int row = 0; row < 3; ++row) {
+    for (int column = 0; column < 3; ++column) out.Add(T.linear()(row, column));
+    out.Add(T.translation()(row));
+  }
+}
+
 bool valid_key(association::ObjectKey key) {
   return key >= 0 && association::robot_of(key) <= kMaxRobot;
 }
@@ -125,27 +154,33 @@ bool read_record(const v1::OwnerRecord& message, const NegotiationLimits& limits
     out.frame_b = edge.frame_b();
     if (!valid_frame(out.frame_a) || !valid_frame(out.frame_b) || out.frame_a == out.frame_b ||
         edge.owner() != message.owner() || edge.round() < 0 ||
-        edge.round() > std::numeric_limits<int>::max() || edge.t_a_b_size() != 12) {
+        edge.round() > std::numeric_limits<int>::max() || edge.t_a_b_size() != 12 ||
+        edge.corrections_size() > kMaxCorrectionsPerEdge) {
       error = what + ": malformed frame edge";
       return false;
     }
     out.owner = record.owner;
     out.round = static_cast<int>(edge.round());
-    Eigen::Matrix<double, 3, 4> matrix;
-    for (int row = 0; row < 3; ++row)
-      for (int column = 0; column < 4; ++column) matrix(row, column) = edge.t_a_b(4 * row + column);
-    const Eigen::Matrix3d R = matrix.leftCols<3>();
-    if (!matrix.allFinite() ||
-        (R.transpose() * R - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff() > 1e-6 ||
-        R.determinant() < 0.0) {
+    if (!read_rigid(edge.t_a_b(), out.T_a_b)) {
       error = what + ": frame edge transform is not a finite rigid motion";
       return false;
     }
-    out.T_a_b.linear() = R;
-    out.T_a_b.translation() = matrix.col(3);
     if (!read_upper<6>(edge.covariance(), out.covariance)) {
       error = what + ": frame edge covariance not 21 finite values of a positive definite matrix";
       return false;
+    }
+    for (const v1::FrameCorrection& correction : edge.corrections()) {
+      association::FrameCorrection in;
+      in.frame = correction.frame();
+      in.moves_b_side = correction.moves_b_side();
+      if (!valid_frame(in.frame) || correction.round() < 0 ||
+          correction.round() > std::numeric_limits<int>::max() ||
+          !read_rigid(correction.t(), in.T) || !read_upper<6>(correction.covariance(), in.covariance)) {
+        error = what + ": malformed frame edge correction";
+        return false;
+      }
+      in.round = static_cast<int>(correction.round());
+      out.corrections.push_back(in);
     }
     record.frame_edges.push_back(out);
   }
@@ -186,13 +221,18 @@ void to_wire(const association::NegotiationMessage& message, v1::Negotiation& ou
       v1::FrameEdge* e = entry->add_frame_edges();
       e->set_frame_a(edge.frame_a);
       e->set_frame_b(edge.frame_b);
-      for (int row = 0; row < 3; ++row) {
-        for (int column = 0; column < 3; ++column) e->add_t_a_b(edge.T_a_b.linear()(row, column));
-        e->add_t_a_b(edge.T_a_b.translation()(row));
-      }
+      add_rigid(edge.T_a_b, *e->mutable_t_a_b());
       add_upper<6>(edge.covariance, *e->mutable_covariance());
       e->set_round(edge.round);
       e->set_owner(static_cast<std::uint32_t>(edge.owner));
+      for (const association::FrameCorrection& correction : edge.corrections) {
+        v1::FrameCorrection* c = e->add_corrections();
+        c->set_frame(correction.frame);
+        c->set_moves_b_side(correction.moves_b_side);
+        add_rigid(correction.T, *c->mutable_t());
+        add_upper<6>(correction.covariance, *c->mutable_covariance());
+        c->set_round(correction.round);
+      }
     }
   }
 }

@@ -278,7 +278,8 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
           for (const auto& message : messages[i]) negotiators[i].receive(message, step);
           if (const auto move = negotiators[i].finish_round(step)) {
             estimators[i].reanchor(move->T_new_old, move->covariance);
-            result.robots[i].aligned_at_frame = step;
+            // The first frame in the final frame: a correction (a move within it) keeps it.
+            if (move->from_frame != move->to_frame) result.robots[i].aligned_at_frame = step;
             result.robots[i].moved = true;
           }
           frame_of[i] = negotiators[i].frame();
@@ -394,6 +395,8 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
       statistics.ambiguous += counters.ambiguous;
       statistics.tilted += counters.tilted;
       statistics.frame_edges += counters.frame_edges;
+      statistics.revisits += counters.revisits;
+      statistics.frame_corrections += counters.frame_corrections;
       statistics.reanchorings += counters.reanchorings;
       statistics.links_accepted += counters.links_accepted;
       statistics.links_split += counters.links_split;

@@ -137,6 +137,8 @@ struct ReplayStatistics {
   long long ambiguous = 0;
   long long tilted = 0;
   long long frame_edges = 0;
+  long long revisits = 0;
+  long long frame_corrections = 0;
   long long reanchorings = 0;
   long long links_accepted = 0;
   long long links_split = 0;

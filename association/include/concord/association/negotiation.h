@@ -21,6 +21,12 @@
 ///          has a partner of that robot: a conflict, counted); an accepted one whose objects then
 ///          disagree beyond the split gate in `split_after` consecutive descriptions is undone
 ///          (a split, counted), and consensus keeps their marginals apart again.
+///        - maps in one frame joined by the pair's own edge (on some of the descriptions that
+///          follow its acceptance, NegotiationOptions::revisit_descriptions): align_maps again;
+///          maps clearly misaligned in the common frame in revisit_confirmations agreeing
+///          revisits correct the edge (a FrameCorrection in the owner's record).
+///      Corrections of edges the robot's start frame lies behind move its state within its frame
+///      (a Reanchoring from a frame to itself).
 ///      Then the team ids (a TeamIdIndex over every owner's links it knows, brought up to date
 ///      with the records that came in), and the frame: the smallest frame id connected to its
 ///      current frame by frame edges is the team frame (the start frame of the lowest robot of the
@@ -40,6 +46,7 @@
 #include <optional>
 #include <set>
 #include <string>
+#include <tuple>
 #include <utility>
 #include <vector>
 
@@ -51,6 +58,23 @@
 
 namespace concord::association {
 
+/// A later correction of an accepted frame edge: its owner, revisiting the pair once both robots
+/// were in one frame, found their maps still turned and shifted against each other there
+/// (NegotiationOptions::revisit_descriptions). The robots whose start frames lie on the moving
+/// side of the edge (the side away from the team frame) move by T within `frame`.
+struct FrameCorrection {
+  /// The team frame the correction is expressed in (robots in another frame ignore it: they go
+  /// through the corrected edge when they join).
+  int frame = kWorldFrame;
+  /// Whether frame_b's side of the edge moves (else frame_a's).
+  bool moves_b_side = true;
+  /// p_corrected = T p, in `frame`.
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  /// Left perturbation in `frame`.
+  lie::Matrix6d covariance = lie::Matrix6d::Identity();
+  int round = 0;
+};
+
 /// A transform between two frames, accepted by the owner of the pair whose maps gave it.
 struct FrameEdge {
   int frame_a = 0;
@@ -61,6 +85,9 @@ struct FrameEdge {
   lie::Matrix6d covariance = lie::Matrix6d::Identity();
   int round = 0;
   int owner = 0;
+  /// Corrections since it was accepted, oldest first (T_a_b and covariance are the corrected ones:
+  /// a robot that joins through the edge later needs none of them).
+  std::vector<FrameCorrection> corrections;
 };
 
 /// An owner's decisions: its current links and frame edges, versioned (newer replaces older).
@@ -71,7 +98,8 @@ struct OwnerRecord {
   std::vector<FrameEdge> frame_edges;
 
   /// Bytes in a fixed-width encoding: 12 bytes of header, 20 per link (two keys, a float), 144
-  /// per frame edge (frames, round, owner, 12 + 21 floats).
+  /// per frame edge (frames, round, owner, 12 + 21 floats) and per correction (frame, side,
+  /// round, 12 + 21 floats).
   std::size_t wire_size() const;
 };
 
@@ -107,6 +135,8 @@ struct NegotiationCounters {
   long long ambiguous = 0;          ///< of which were ambiguous
   long long tilted = 0;             ///< of which tilted the start frames (start_up_axis)
   long long frame_edges = 0;        ///< transforms accepted (as owner)
+  long long revisits = 0;           ///< align_maps calls on pairs already in one frame
+  long long frame_corrections = 0;  ///< accepted transforms corrected (as owner)
   long long reanchorings = 0;       ///< moves of its own state into another frame
   long long links_accepted = 0;     ///< correspondences accepted (as owner)
   long long links_split = 0;        ///< accepted correspondences undone (as owner)
@@ -176,6 +206,13 @@ class Negotiator {
     int last_frame_a = kWorldFrame, last_frame_b = kWorldFrame;
     /// In one frame: consecutive sightings of each candidate correspondence (own id, their id).
     std::map<std::pair<LandmarkId, LandmarkId>, int> candidate_streak;
+      /// The frame edge this pair's owner accepted (index in own_frame_edges_), -1 before.
+    int edge = -1;
+    /// Descriptions of the pair since its edge was accepted or corrected (revisit_descriptions).
+    int since_edge = 0;
+    /// Consecutive revisits that found the maps misaligned, and the last of them.
+    int revisit_streak = 0;
+    std::optional<PairAlignment> revisit_last;
     /// Accepted correspondences with their squared Mahalanobis distance when accepted.
     std::map<std::pair<LandmarkId, LandmarkId>, double> accepted;
     /// Consecutive disagreements of accepted correspondences.
@@ -187,6 +224,16 @@ class Negotiator {
   bool accept_frames(PairState& pair, const MapDescription& theirs, const PairAlignment& found,
                      int round);
   bool match_in_frame(PairState& pair, const MapDescription& theirs);
+  /// Accepts the matches (only those also in pair.last when also_in_last) that conflict with no
+  /// accepted correspondence.
+  void adopt_matches(PairState& pair, const std::vector<Match>& matches, bool also_in_last);
+  /// Maps in one frame joined by the pair's own edge: a search as across frames; a transform away
+  /// from the identity in `confirmations` agreeing descriptions corrects the edge. True when it did.
+  bool revisit_edge(PairState& pair, const MapDescription& theirs, int round);
+  /// The frames connected to `frame` by the known edges, leaving out the edge `skip` if given.
+  std::set<int> component_of(int frame, const FrameEdge* skip = nullptr) const;
+  /// The move (within the robot's frame) of the corrections not yet seen, if any apply to it.
+  std::optional<Reanchoring> take_corrections();
   void rebuild_own_record();
   /// Frames connected to `frame` by the known frame edges: the smallest and the transform from
   /// `frame` into it with its covariance.
@@ -199,10 +246,14 @@ class Negotiator {
   bool frames_connected(int a, int b) const;
 
   int robot_;
+  int start_frame_;
   int frame_;
   NegotiationOptions options_;
   /// The split gate: the chi-square quantile of split_chi2_probability, 3 degrees of freedom.
   double split_bound_;
+  /// The revisit's gate (revisit_chi2_probability, 6 dof) and the transform agreement bound.
+  double revisit_bound_;
+  double agreement_bound_;
   std::shared_ptr<const MapDescription> own_map_;
   int own_map_round_ = -1;
   std::map<int, NeighbourMap> neighbour_maps_;
@@ -213,6 +264,8 @@ class Negotiator {
   /// Per neighbour: version of each owner's record last sent to it.
   std::map<int, std::map<int, int>> sent_versions_;
   std::vector<FrameEdge> own_frame_edges_;
+  /// Corrections already seen: (owner, edge round, frame_a, frame_b, index).
+  std::set<std::tuple<int, int, int, int, std::size_t>> corrections_seen_;
   /// Team ids over the links of every record in records_, of the parts of the link graph that
   /// hold this robot's objects (TeamIdIndex(robot)).
   TeamIdIndex team_ids_;

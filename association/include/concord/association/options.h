@@ -107,6 +107,20 @@ struct NegotiationOptions {
   double split_chi2_probability = 0.9999;
   /// split_after: consecutive descriptions of disagreement that undo a correspondence.
   int split_after = 2;
+  /// revisit_descriptions, revisit_interval: after accepting a transform, the owner of the pair
+  /// searches the two maps (now in one frame) as if their frames still differed, on every
+  /// revisit_interval-th of its next revisit_descriptions descriptions (0: never). A transform
+  /// away from the identity (revisit_chi2_probability) in revisit_confirmations such revisits in
+  /// a row that agree shows the accepted one wrong: the edge is corrected, the robots on its far
+  /// side move, and the window starts again. A search costs as much as one across frames.
+  int revisit_descriptions = 18;
+  int revisit_interval = 3;
+  int revisit_confirmations = 2;
+  /// revisit_chi2_probability: the maps are misaligned when the 6-D transform a revisit finds is
+  /// beyond this chi-square quantile from the identity under its covariance.
+  double revisit_chi2_probability = 0.9999;
+  /// max_corrections: corrections of one frame edge at most.
+  int max_corrections = 2;
 
   /// Every problem with the values (and with association's), naming the key; empty when valid.
   std::vector<std::string> validate() const;

@@ -37,7 +37,8 @@ struct AlignmentState {
   /// Maps the robot's start frame into `frame`, with its covariance (left perturbation).
   Eigen::Isometry3d T_frame_start = Eigen::Isometry3d::Identity();
   Eigen::Matrix<double, 6, 6> covariance = Eigen::Matrix<double, 6, 6>::Zero();
-  /// The round of the last move (0 if it never moved).
+  /// The round of the last move into another frame (0 if it never moved; a correction, a move
+  /// within the frame, keeps it).
   std::int64_t aligned_at_round = 0;
   bool moved = false;
 };
