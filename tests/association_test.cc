@@ -873,9 +873,9 @@ class SyntheticTeam {
         // Move the robot's map into the new frame (the estimator does this to its state); a move
         // into frame 0 from another frame is made wrong by wrong_into_zero (a wrong edge into the
         // team frame, as every robot that comes through it would see it).
-        const Eigen::Isometry3d T_new_old =
-            move->to_frame == 0 && move->from_frame != 0 ? wrong_into_zero * move->T_new_old
-                                                         : move->T_new_old;
+        const Eigen::Isometry3d T_new_old = move->to_frame == 0 && move->from_frame != 0
+                                                ? wrong_into_zero * move->T_new_old
+                                                : move->T_new_old;
         for (ObjectDescription& object : maps_[r].map.objects) {
           object.position = T_new_old * object.position;
           object.covariance =
@@ -1067,8 +1067,8 @@ TEST(NegotiationTest, AWrongEdgeIsCorrectedAndEveryRobotBehindItMoves) {
     const auto [rotation, translation] = RevisitCase::error(team, revisit, r);
     EXPECT_LT(rotation, 0.01) << "robot " << r;
     EXPECT_LT(translation, 0.3) << "robot " << r;  // the fit's turn about a point 30 m away
-    const int moves = static_cast<int>(std::count_if(
-        team.moves_.begin(), team.moves_.end(), [r](const auto& m) { return m.first == r; }));
+    const int moves = static_cast<int>(std::count_if(team.moves_.begin(), team.moves_.end(),
+                                                     [r](const auto& m) { return m.first == r; }));
     EXPECT_GE(moves, 2) << "robot " << r;  // into the frame, then the correction
   }
   // Robot 0 never moves.

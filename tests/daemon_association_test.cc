@@ -94,8 +94,8 @@ association::NegotiationMessage sample_message() {
   association::FrameCorrection correction;
   correction.frame = 0;
   correction.moves_b_side = false;
-  correction.T = Eigen::Translation3d(-0.5, 0.25, 0.0) *
-                 Eigen::AngleAxisd(0.2, Eigen::Vector3d(0, 0, 1));
+  correction.T =
+      Eigen::Translation3d(-0.5, 0.25, 0.0) * Eigen::AngleAxisd(0.2, Eigen::Vector3d(0, 0, 1));
   correction.covariance = 0.02 * lie::Matrix6d::Identity();
   correction.covariance(1, 4) = correction.covariance(4, 1) = 0.003;
   correction.round = 40;
@@ -231,7 +231,7 @@ TEST(NegotiationWire, MalformedDescriptionsAreRefusedNamingTheProblem) {
       {"correction covariance",
        [&](v1::Negotiation& m) {
          m.mutable_records(0)->mutable_frame_edges(0)->mutable_corrections(0)->set_covariance(0,
-                                                                                           -1.0);
+                                                                                              -1.0);
        },
        "malformed frame edge correction"},
       {"correction frame out of range",

@@ -204,7 +204,8 @@ std::optional<Reanchoring> Negotiator::take_corrections() {
         if (!move) {
           move = Reanchoring{frame_, frame_, Eigen::Isometry3d::Identity(), lie::Matrix6d::Zero()};
         }
-        move->covariance = compose_covariance(correction.T, correction.covariance, move->covariance);
+        move->covariance =
+            compose_covariance(correction.T, correction.covariance, move->covariance);
         move->T_new_old = correction.T * move->T_new_old;
       }
     }

@@ -175,7 +175,8 @@ bool read_record(const v1::OwnerRecord& message, const NegotiationLimits& limits
       in.moves_b_side = correction.moves_b_side();
       if (!valid_frame(in.frame) || correction.round() < 0 ||
           correction.round() > std::numeric_limits<int>::max() ||
-          !read_rigid(correction.t(), in.T) || !read_upper<6>(correction.covariance(), in.covariance)) {
+          !read_rigid(correction.t(), in.T) ||
+          !read_upper<6>(correction.covariance(), in.covariance)) {
         error = what + ": malformed frame edge correction";
         return false;
       }

@@ -206,7 +206,7 @@ class Negotiator {
     int last_frame_a = kWorldFrame, last_frame_b = kWorldFrame;
     /// In one frame: consecutive sightings of each candidate correspondence (own id, their id).
     std::map<std::pair<LandmarkId, LandmarkId>, int> candidate_streak;
-      /// The frame edge this pair's owner accepted (index in own_frame_edges_), -1 before.
+    /// The frame edge this pair's owner accepted (index in own_frame_edges_), -1 before.
     int edge = -1;
     /// Descriptions of the pair since its edge was accepted or corrected (revisit_descriptions).
     int since_edge = 0;
@@ -228,7 +228,8 @@ class Negotiator {
   /// accepted correspondence.
   void adopt_matches(PairState& pair, const std::vector<Match>& matches, bool also_in_last);
   /// Maps in one frame joined by the pair's own edge: a search as across frames; a transform away
-  /// from the identity in `confirmations` agreeing descriptions corrects the edge. True when it did.
+  /// from the identity in `confirmations` agreeing descriptions corrects the edge. True when it
+  /// did.
   bool revisit_edge(PairState& pair, const MapDescription& theirs, int round);
   /// The frames connected to `frame` by the known edges, leaving out the edge `skip` if given.
   std::set<int> component_of(int frame, const FrameEdge* skip = nullptr) const;
