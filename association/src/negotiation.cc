@@ -260,11 +260,9 @@ bool Negotiator::process_pair(int neighbour, const MapDescription& theirs, int r
       return false;
     }
     ++counters_.aligned;
-    const double bound =
-        UpdaterHelper::chi2_quantile(options_.transform_agreement_chi2_probability, 6);
     const bool agrees = pair.last && pair.last_frame_a == own.frame &&
                         pair.last_frame_b == theirs.frame &&
-                        transforms_agree(*pair.last, found, bound);
+                        transforms_agree(*pair.last, found, agreement_bound_);
     pair.streak = agrees ? pair.streak + 1 : 1;
     if (pair.streak == 1) {
       pair.streak_first_matches.clear();
@@ -532,21 +530,8 @@ Negotiator::FrameTarget Negotiator::team_frame_of(int frame) const {
     if (x->frame_a != y->frame_a) return x->frame_a < y->frame_a;
     return x->frame_b < y->frame_b;
   });
-  // Component of `frame`.
-  std::set<int> component{frame};
-  for (bool grown = true; grown;) {
-    grown = false;
-    for (const FrameEdge* edge : edges) {
-      const bool has_a = component.contains(edge->frame_a);
-      const bool has_b = component.contains(edge->frame_b);
-      if (has_a != has_b) {
-        component.insert(has_a ? edge->frame_b : edge->frame_a);
-        grown = true;
-      }
-    }
-  }
   FrameTarget target;
-  target.frame = *component.begin();
+  target.frame = *component_of(frame).begin();
   if (target.frame == frame) return target;
   // Breadth-first from the team frame, neighbours in ascending frame id, the first edge between
   // two frames in the canonical order: T_target_x and its covariance for every reached frame.
