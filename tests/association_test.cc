@@ -899,6 +899,9 @@ class SyntheticTeam {
   int round_ = 0;
 };
 
+/// The robot that decides for the pair a-b (owns_pair).
+int pair_owner(int a, int b) { return owns_pair(a, b) ? a : b; }
+
 TEST(NegotiationTest, ThreeRobotsJoinRobotZerosFrameWithConsistentTeamIds) {
   std::mt19937 random(31);
   const Scene scene = random_scene(90, 60.0, 2.5, 0, random);
@@ -954,6 +957,44 @@ TEST(NegotiationTest, ThreeRobotsJoinRobotZerosFrameWithConsistentTeamIds) {
   }
 }
 
+TEST(NegotiationTest, EveryPairHasOneOwnerAndTheTeamSharesThePairsEvenly) {
+  for (int n = 2; n <= 17; ++n) {
+    std::vector<int> owned(static_cast<std::size_t>(n), 0);
+    for (int a = 0; a < n; ++a) {
+      for (int b = a + 1; b < n; ++b) {
+        ASSERT_NE(owns_pair(a, b), owns_pair(b, a)) << "pair " << a << "-" << b;
+        ++owned[static_cast<std::size_t>(owns_pair(a, b) ? a : b)];
+      }
+    }
+    // n (n - 1) / 2 pairs over n robots: (n - 1) / 2 each, or n / 2 - 1 and n / 2 for even n.
+    const auto [fewest, most] = std::minmax_element(owned.begin(), owned.end());
+    EXPECT_GE(*fewest, n / 2 - (n % 2 == 0 ? 1 : 0)) << n << " robots";
+    EXPECT_LE(*most, n / 2) << n << " robots";
+  }
+}
+
+TEST(NegotiationTest, EveryRobotSearchesThePairsItOwns) {
+  // Three robots in a row of overlapping maps: each owns one pair (0-2, 1-0 and 2-1), so each
+  // searches; before the pairs were shared out, robot 2 owned none and never searched.
+  std::mt19937 random(31);
+  const Scene scene = random_scene(90, 60.0, 2.5, 0, random);
+  NegotiationOptions options;
+  options.association = test_options();
+  options.description_interval = 2;
+  options.confirmations = 2;
+  options.confirmation_new_matches = 0;
+  SyntheticTeam team(scene,
+                     {make_transform(0.2, 0.0, Eigen::Vector3d(1, 2, 0)),
+                      make_transform(2.0, 0.0, Eigen::Vector3d(-30, 4, 0)),
+                      make_transform(-1.2, 0.03, Eigen::Vector3d(10, 50, 1))},
+                     {{0, 35}, {15, 50}, {25, 60}}, 7, options);
+  team.run(12);
+  for (int r = 0; r < 3; ++r) {
+    EXPECT_GT(team.negotiators_[r].counters().searches, 0) << "robot " << r;
+    EXPECT_EQ(team.negotiators_[r].frame(), 0) << "robot " << r;
+  }
+}
+
 /// Two robots of a 60-object scene, robot 1's frame turned by 1 rad and shifted, describing every
 /// round and confirming over 3 descriptions (the confirmation tests).
 struct ConfirmationCase {
@@ -980,8 +1021,8 @@ TEST(NegotiationTest, ATransformIsActedOnOnlyAfterConfirmation) {
   EXPECT_EQ(team.negotiators_[1].frame(), 1);  // found twice, not yet confirmed
   team.run(2);
   EXPECT_EQ(team.negotiators_[1].frame(), 0);
-  EXPECT_EQ(team.negotiators_[0].counters().frame_edges, 1);
-  EXPECT_GT(team.negotiators_[0].counters().links_accepted, 10);
+  EXPECT_EQ(team.negotiators_[pair_owner(0, 1)].counters().frame_edges, 1);
+  EXPECT_GT(team.negotiators_[pair_owner(0, 1)].counters().links_accepted, 10);
 }
 
 TEST(NegotiationTest, ATransformIsConfirmedOnlyWhileItKeepsMatchingNewObjects) {
@@ -994,13 +1035,13 @@ TEST(NegotiationTest, ATransformIsConfirmedOnlyWhileItKeepsMatchingNewObjects) {
   SyntheticTeam fixed = confirmation.team();
   fixed.run(12);
   EXPECT_EQ(fixed.negotiators_[1].frame(), 1);
-  EXPECT_EQ(fixed.negotiators_[0].counters().frame_edges, 0);
-  EXPECT_GE(fixed.negotiators_[0].counters().aligned, 6);  // found again and again, never acted on
+  EXPECT_EQ(fixed.negotiators_[pair_owner(0, 1)].counters().frame_edges, 0);
+  EXPECT_GE(fixed.negotiators_[pair_owner(0, 1)].counters().aligned, 6);  // found again and again, never acted on
   SyntheticTeam growing = confirmation.team();
   growing.reveal_per_round = 8;
   growing.run(12);
   EXPECT_EQ(growing.negotiators_[1].frame(), 0);
-  EXPECT_EQ(growing.negotiators_[0].counters().frame_edges, 1);
+  EXPECT_EQ(growing.negotiators_[pair_owner(0, 1)].counters().frame_edges, 1);
   const lie::Vector6d error =
       lie::se3_log(growing.T_frame_world_[1] * confirmation.T_own_world[0].inverse());
   EXPECT_LT(error.head<3>().norm(), 0.2);
@@ -1061,7 +1102,7 @@ TEST(NegotiationTest, AWrongEdgeIsCorrectedAndEveryRobotBehindItMoves) {
   SyntheticTeam team = revisit.team();
   team.wrong_into_zero = wrong;
   team.run(20);
-  EXPECT_EQ(team.negotiators_[0].counters().frame_corrections, 1);
+  EXPECT_EQ(team.negotiators_[pair_owner(0, 1)].counters().frame_corrections, 1);
   for (int r = 1; r < 3; ++r) {
     EXPECT_EQ(team.negotiators_[r].frame(), 0) << "robot " << r;
     const auto [rotation, translation] = RevisitCase::error(team, revisit, r);
@@ -1086,15 +1127,17 @@ TEST(NegotiationTest, AWrongEdgeIsCorrectedAndEveryRobotBehindItMoves) {
 }
 
 TEST(NegotiationTest, AWrongMergeIsSplitAndCounted) {
-  // Two robots in one frame (known starts). Robot 1's object 0 sits on robot 0's object 0 long
-  // enough to be linked, then its estimate moves 3 m away (new observations of a different
-  // object): the link is undone after split_after descriptions, and counted.
+  // Two robots in one frame (known starts), 0 and 2 (robot 0 owns their pair). Robot 2's object 0
+  // sits on robot 0's object 0 long enough to be linked, then its estimate moves 3 m away (new
+  // observations of a different object): the link is undone after split_after descriptions, and
+  // counted.
+  ASSERT_TRUE(owns_pair(0, 2));
   NegotiationOptions options;
   options.description_interval = 1;
   options.confirmations = 2;
   options.split_after = 2;
   options.association.distance_noise = 0.0;
-  Negotiator zero(0, kWorldFrame, options), one(1, kWorldFrame, options);
+  Negotiator zero(0, kWorldFrame, options), two(2, kWorldFrame, options);
   const auto map_of = [](int robot, const std::vector<Eigen::Vector3d>& positions) {
     MapDescription map;
     map.robot = robot;
@@ -1110,38 +1153,38 @@ TEST(NegotiationTest, AWrongMergeIsSplitAndCounted) {
     return map;
   };
   const std::vector<Eigen::Vector3d> zeros{{0, 0, 0}, {10, 0, 0}};
-  std::vector<Eigen::Vector3d> ones{{0.05, 0, 0}, {10, 0.05, 0}};
+  std::vector<Eigen::Vector3d> twos{{0.05, 0, 0}, {10, 0.05, 0}};
   int round = 0;
   const auto step = [&] {
     zero.set_own_map(map_of(0, zeros), round);
-    one.set_own_map(map_of(1, ones), round);
-    const auto to_one = zero.message_for(1, round);
-    const auto to_zero = one.message_for(0, round);
-    one.receive(to_one, round);
+    two.set_own_map(map_of(2, twos), round);
+    const auto to_two = zero.message_for(2, round);
+    const auto to_zero = two.message_for(0, round);
+    two.receive(to_two, round);
     zero.receive(to_zero, round);
     zero.finish_round(round);
-    one.finish_round(round);
+    two.finish_round(round);
     ++round;
   };
   for (int k = 0; k < 3; ++k) step();
-  ASSERT_EQ(zero.shared_objects(1).size(), 2u);
-  step();  // robot 1 learns robot 0's record
-  ASSERT_EQ(one.shared_objects(0).size(), 2u);
-  EXPECT_EQ(one.team_id(0), zero.team_id(0));
-  ones[0] = Eigen::Vector3d(3.0, 0.0, 0.0);
+  ASSERT_EQ(zero.shared_objects(2).size(), 2u);
+  step();  // robot 2 learns robot 0's record
+  ASSERT_EQ(two.shared_objects(0).size(), 2u);
+  EXPECT_EQ(two.team_id(0), zero.team_id(0));
+  twos[0] = Eigen::Vector3d(3.0, 0.0, 0.0);
   step();
-  EXPECT_EQ(zero.shared_objects(1).size(), 2u);  // one disagreement is not enough
+  EXPECT_EQ(zero.shared_objects(2).size(), 2u);  // one disagreement is not enough
   step();
   EXPECT_EQ(zero.counters().links_split, 1);
-  ASSERT_EQ(zero.shared_objects(1).size(), 1u);
-  EXPECT_EQ(zero.shared_objects(1)[0], (std::pair<LandmarkId, LandmarkId>{1, 1}));
+  ASSERT_EQ(zero.shared_objects(2).size(), 1u);
+  EXPECT_EQ(zero.shared_objects(2)[0], (std::pair<LandmarkId, LandmarkId>{1, 1}));
   EXPECT_EQ(zero.team_id(0), -1);
   step();
-  EXPECT_EQ(one.shared_objects(0).size(), 1u);
-  EXPECT_EQ(one.team_id(0), -1);
+  EXPECT_EQ(two.shared_objects(0).size(), 1u);
+  EXPECT_EQ(two.team_id(0), -1);
   // It stays split while they disagree.
   for (int k = 0; k < 4; ++k) step();
-  EXPECT_EQ(zero.shared_objects(1).size(), 1u);
+  EXPECT_EQ(zero.shared_objects(2).size(), 1u);
 }
 
 TEST(NegotiationTest, OptionsAreValidatedNamingTheKey) {

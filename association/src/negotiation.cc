@@ -144,7 +144,7 @@ std::optional<Reanchoring> Negotiator::finish_round(int round) {
   bool own_changed = false;
   if (own_map_ && own_map_round_ == round) {
     for (const auto& [neighbour, received] : neighbour_maps_) {
-      if (neighbour <= robot_ || received.round != round) continue;
+      if (!owns_pair(robot_, neighbour) || received.round != round) continue;
       own_changed = process_pair(neighbour, *received.map, round) || own_changed;
     }
   }

@@ -11,7 +11,7 @@
 ///   2. It sends each neighbour of the round message_for(neighbour): its description on describing
 ///      rounds, the frame it is in, and the owner records the neighbour has not had yet (gossip).
 ///   3. It receive()s its neighbours' messages.
-///   4. finish_round(): for each neighbour with a higher index (the robot owns that pair) whose
+///   4. finish_round(): for each neighbour whose pair the robot owns (owns_pair) and whose
 ///      description arrived with its own:
 ///        - maps in different frames: align_maps; a transform found in `confirmations`
 ///          consecutive descriptions that agree (chi-square on the 6-D difference) is accepted:
@@ -33,8 +33,10 @@
 ///      team, or the world); if that is not its current frame, the robot must move its state by
 ///      the returned Reanchoring (the composed transform and covariance along the edges).
 ///
-/// Owners: the robot with the lower index decides for a pair and publishes its decisions (links
-/// and frame edges) in its OwnerRecord, versioned; every robot keeps the newest record of every
+/// Owners: one robot of a pair decides for it (owns_pair: the lower index when the two indices
+/// add up to an even number, the higher one otherwise, so that every robot of a complete graph
+/// owns as many pairs as the next, give or take one) and publishes its decisions (links and
+/// frame edges) in its OwnerRecord, versioned; every robot keeps the newest record of every
 /// owner it has heard of and relays records its neighbours have not had. Two robots that know the
 /// same records compute the same team ids and team frames.
 
@@ -147,6 +149,14 @@ struct NegotiationCounters {
   long long bytes_sent = 0;         ///< their wire sizes
   long long description_bytes = 0;  ///< of which map descriptions
 };
+
+/// Whether `robot` decides for its pair with `other` (robot != other): the lower index when
+/// robot + other is even, the higher one when it is odd. Exactly one of the two owns a pair, and on
+/// the complete graph of n robots each owns (n - 1) / 2 pairs (n odd) or n / 2 - 1 or n / 2
+/// (n even): the searches, which cost most of the negotiation, fall evenly on the team.
+constexpr bool owns_pair(int robot, int other) {
+  return ((robot + other) % 2 == 0) == (robot < other);
+}
 
 class Negotiator {
  public:
