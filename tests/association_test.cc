@@ -1036,8 +1036,8 @@ TEST(NegotiationTest, ATransformIsConfirmedOnlyWhileItKeepsMatchingNewObjects) {
   fixed.run(12);
   EXPECT_EQ(fixed.negotiators_[1].frame(), 1);
   EXPECT_EQ(fixed.negotiators_[pair_owner(0, 1)].counters().frame_edges, 0);
-  EXPECT_GE(fixed.negotiators_[pair_owner(0, 1)].counters().aligned,
-            6);  // found again and again, never acted on
+  // Found again and again, never acted on.
+  EXPECT_GE(fixed.negotiators_[pair_owner(0, 1)].counters().aligned, 6);
   SyntheticTeam growing = confirmation.team();
   growing.reveal_per_round = 8;
   growing.run(12);
