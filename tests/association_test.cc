@@ -1093,9 +1093,48 @@ TEST(NegotiationTest, ARightEdgeIsRevisitedAndLeftAsItIs) {
   EXPECT_EQ(corrections, 0);
 }
 
+TEST(NegotiationTest, ARevisitThatTheAcceptedAlignmentMatchesAsWellCorrectsNothing) {
+  // The revisit team, right edges. Once robot 1 is in robot 0's frame, three in five of its
+  // objects are turned 6 degrees about a point of its map (as if that part of its map had gone
+  // wrong on its own): its revisits find the turn with the most correspondences, beyond the gate,
+  // but the maps as they stand still match the other two in five. Those revisits are ambiguous
+  // and nothing moves. With the accepted alignment no longer taken for a rival (a ratio above
+  // what it matches) the edges are "corrected", every robot behind them turned with the part.
+  // (The search's own rival test is set to need a rival as large as the best, so that what is
+  // tested is the revisit's.)
+  RevisitCase revisit;
+  revisit.options.association.ambiguity_ratio = 1.0;
+  const auto run = [&](double ratio, long long& ambiguous, long long& corrections) {
+    revisit.options.revisit_ambiguity_ratio = ratio;
+    SyntheticTeam team = revisit.team();
+    team.run(6);
+    EXPECT_EQ(team.negotiators_[1].frame(), 0);
+    const Eigen::Isometry3d turn = Eigen::Translation3d(20.0, 0.0, 0.0) *
+                                   make_transform(0.1, 0.0, Eigen::Vector3d::Zero()) *
+                                   Eigen::Translation3d(-20.0, 0.0, 0.0);
+    auto& objects = team.maps_[1].map.objects;
+    for (std::size_t n = 0; n < objects.size(); ++n) {
+      if (n % 5 < 3) objects[n].position = turn * objects[n].position;
+    }
+    team.run(14);
+    ambiguous = corrections = 0;
+    for (const Negotiator& n : team.negotiators_) {
+      ambiguous += n.counters().revisits_ambiguous;
+      corrections += n.counters().frame_corrections;
+    }
+  };
+  long long ambiguous = 0, corrections = 0;
+  run(0.5, ambiguous, corrections);
+  EXPECT_GE(ambiguous, 2);
+  EXPECT_EQ(corrections, 0);
+  run(10.0, ambiguous, corrections);
+  EXPECT_EQ(ambiguous, 0);
+  EXPECT_GE(corrections, 1);
+}
+
 TEST(NegotiationTest, AWrongEdgeIsCorrectedAndEveryRobotBehindItMoves) {
   // The same team, but whoever moves into frame 0 lands 10 degrees and 1.1 m off, as through a
-  // wrong edge 0-1: robot 0's revisits of the pair find the maps misaligned in two agreeing
+  // wrong edge 0-1: the owner's revisits of the pair find the maps misaligned in two agreeing
   // descriptions and correct the edge; robots 1 and 2 (robot 2's start frame lies behind the edge
   // too) move back onto robot 0's frame, and stay in it.
   const RevisitCase revisit;

@@ -418,14 +418,16 @@ TEST(DaemonAssociation, ExchangesReproduceTheNegotiatedReplay) {
 }
 
 TEST(DaemonAssociation, ExchangesReproduceTheNegotiatedReplayWithFrameCorrections) {
-  // A revisit gate of almost zero calls any offset of two maps in one frame a misalignment: the
-  // edges are corrected (by what the revisits find) and the robots behind them move within the
-  // team frame. The corrections travel in the owners' records, and every daemon moves in the
-  // round the replay's robot does.
+  // A revisit gate of almost zero calls any offset of two maps in one frame a misalignment, and
+  // an ambiguity ratio of 2 takes the accepted alignment for a rival only when it matches twice
+  // what the revisit's transform does: the edges are corrected (by what the revisits find) and
+  // the robots behind them move within the team frame. The corrections travel in the owners'
+  // records, and every daemon moves in the round the replay's robot does.
   association::NegotiationOptions negotiation =
       config::load_negotiation_options(kSource / "configs/sensors/sim.yaml");
   negotiation.revisit_chi2_probability = 1e-9;
   negotiation.revisit_interval = 1;
+  negotiation.revisit_ambiguity_ratio = 2.0;
   long long corrections = 0;
   expect_exchanges_reproduce_the_replay(negotiation, corrections);
   EXPECT_GE(corrections, 1);

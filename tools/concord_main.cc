@@ -356,6 +356,7 @@ int run_replay(const fs::path& dataset_dir, const fs::path& out, bool separate,
       {"tilted", s.tilted},
       {"frame_edges", s.frame_edges},
       {"revisits", s.revisits},
+      {"revisits_ambiguous", s.revisits_ambiguous},
       {"frame_corrections", s.frame_corrections},
       {"reanchorings", s.reanchorings},
       {"links_accepted", s.links_accepted},
@@ -380,7 +381,8 @@ int run_replay(const fs::path& dataset_dir, const fs::path& out, bool separate,
   if (result.association == replay::AssociationMode::kNegotiated) {
     std::cerr << "concord replay: negotiation: " << s.searches << " searches (" << s.ambiguous
               << " ambiguous; " << s.tilted << " tilted), " << s.frame_edges << " frame edges ("
-              << s.revisits << " revisits, " << s.frame_corrections << " corrected), "
+              << s.revisits << " revisits, " << s.revisits_ambiguous << " ambiguous, "
+              << s.frame_corrections << " corrected), "
               << s.reanchorings << " moves, " << s.links_accepted << " links accepted, "
               << s.links_split << " split, " << s.link_conflicts << " refused as conflicts, "
               << s.team_id_conflicts << " left out by the team ids; " << s.negotiation_bytes

@@ -66,6 +66,7 @@ std::vector<std::string> NegotiationOptions::validate() const {
   require(revisit_confirmations >= 1, "revisit_confirmations", revisit_confirmations, ">= 1");
   require(revisit_chi2_probability > 0.0 && revisit_chi2_probability < 1.0,
           "revisit_chi2_probability", revisit_chi2_probability, "in (0, 1)");
+  require(revisit_ambiguity_ratio > 0.0, "revisit_ambiguity_ratio", revisit_ambiguity_ratio, "> 0");
   require(max_corrections >= 0, "max_corrections", max_corrections, ">= 0");
   return problems;
 }
@@ -324,15 +325,29 @@ bool Negotiator::revisit_edge(PairState& pair, const MapDescription& theirs, int
   const lie::Vector6d offset = lie::se3_log(in_frame->T_target_source);
   const Eigen::LLT<lie::Matrix6d> llt(in_frame->covariance);
   const double distance = llt.info() == Eigen::Success ? offset.dot(llt.solve(offset)) : 0.0;
+  // 2. The accepted alignment is a hypothesis too: the correspondences it supports as it stands
+  //    (the identity, matched as the search matches its own transform's). One with at least
+  //    revisit_ambiguity_ratio of the found transform's makes the revisit ambiguous, as a rival
+  //    clique makes a search: maps that fit two ways are no evidence that the accepted way is
+  //    wrong, and one robot's map gone wrong on its own is no reason to move every robot behind
+  //    the edge.
+  const std::size_t supported =
+      match_with_transform(own, theirs, Eigen::Isometry3d::Identity(), true, options_.association)
+          .size();
+  const bool rivalled =
+      static_cast<double>(supported) >=
+      options_.revisit_ambiguity_ratio * static_cast<double>(found.matches.size());
+  if (rivalled && distance > revisit_bound_) ++counters_.revisits_ambiguous;
   if (std::getenv("CONCORD_DEBUG_ASSOCIATION")) {
     const lie::Vector6d local = lie::se3_log(found.T_a_b);
     std::fprintf(stderr,
                  "round %d pair %d-%d: revisit: clique %d, %.2f deg %.2f m off (marginal fit "
-                 "%.2f deg), chi2 %.1f\n",
+                 "%.2f deg), chi2 %.1f; %zu matches, %zu as accepted\n",
                  round, robot_, theirs.robot, found.clique_size, local.tail<3>().norm() * 57.29578,
-                 local.head<3>().norm(), offset.tail<3>().norm() * 57.29578, distance);
+                 local.head<3>().norm(), offset.tail<3>().norm() * 57.29578, distance,
+                 found.matches.size(), supported);
   }
-  if (distance <= revisit_bound_) return aligned_as_accepted();
+  if (distance <= revisit_bound_ || rivalled) return aligned_as_accepted();
   const bool agrees =
       pair.revisit_last && transforms_agree(*pair.revisit_last, found, agreement_bound_);
   pair.revisit_streak = agrees ? pair.revisit_streak + 1 : 1;
@@ -343,7 +358,7 @@ bool Negotiator::revisit_edge(PairState& pair, const MapDescription& theirs, int
   FrameEdge& edge = own_frame_edges_[static_cast<std::size_t>(pair.edge)];
   if (static_cast<int>(edge.corrections.size()) >= options_.max_corrections) return false;
 
-  // 2. The side of the edge away from the team frame moves; an edge that closes a cycle of edges
+  // 3. The side of the edge away from the team frame moves; an edge that closes a cycle of edges
   //    has no such side (the others hold its frames together) and is left as it is.
   const std::set<int> staying = component_of(own.frame, &edge);
   const bool a_stays = staying.contains(edge.frame_a);
@@ -364,7 +379,7 @@ bool Negotiator::revisit_edge(PairState& pair, const MapDescription& theirs, int
     correction.T = found.T_a_b.inverse();
     correction.covariance = inverse_covariance(found.T_a_b, found.covariance);
   }
-  // 3. The edge as it should have been: T_team_a^-1 C T_team_b with C on the moving side's path.
+  // 4. The edge as it should have been: T_team_a^-1 C T_team_b with C on the moving side's path.
   //    Its covariance is the correction's, taken into frame_a (what the found transform knows of
   //    the two maps' relative pose; the accepted one was wrong).
   const Eigen::Isometry3d T_team_a =
@@ -378,7 +393,7 @@ bool Negotiator::revisit_edge(PairState& pair, const MapDescription& theirs, int
   ++counters_.frame_corrections;
   pair.since_edge = 0;
 
-  // 4. The pair's correspondences become the found ones (the accepted ones came from the wrong
+  // 5. The pair's correspondences become the found ones (the accepted ones came from the wrong
   //    transform, or from in-frame matching under it).
   std::set<std::pair<LandmarkId, LandmarkId>> kept;
   for (const Match& match : found.matches) kept.emplace(match.id_a, match.id_b);

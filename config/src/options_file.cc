@@ -56,6 +56,7 @@ void for_each_association_field(Negotiation& options, Visitor&& visit) {
   visit("revisit_interval", options.revisit_interval);
   visit("revisit_confirmations", options.revisit_confirmations);
   visit("revisit_chi2_probability", options.revisit_chi2_probability);
+  visit("revisit_ambiguity_ratio", options.revisit_ambiguity_ratio);
   visit("max_corrections", options.max_corrections);
 }
 

@@ -1150,6 +1150,7 @@ json Daemon::Impl::stats_json() const {
                             {"tilted", n.tilted},
                             {"frame_edges", n.frame_edges},
                             {"revisits", n.revisits},
+                            {"revisits_ambiguous", n.revisits_ambiguous},
                             {"frame_corrections", n.frame_corrections},
                             {"reanchorings", n.reanchorings},
                             {"links_accepted", n.links_accepted},

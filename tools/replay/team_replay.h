@@ -138,6 +138,7 @@ struct ReplayStatistics {
   long long tilted = 0;
   long long frame_edges = 0;
   long long revisits = 0;
+  long long revisits_ambiguous = 0;
   long long frame_corrections = 0;
   long long reanchorings = 0;
   long long links_accepted = 0;

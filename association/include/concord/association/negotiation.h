@@ -138,6 +138,9 @@ struct NegotiationCounters {
   long long tilted = 0;             ///< of which tilted the start frames (start_up_axis)
   long long frame_edges = 0;        ///< transforms accepted (as owner)
   long long revisits = 0;           ///< align_maps calls on pairs already in one frame
+  /// Revisits beyond the gate left alone because the accepted alignment matched as many
+  /// correspondences (NegotiationOptions::revisit_ambiguity_ratio).
+  long long revisits_ambiguous = 0;
   long long frame_corrections = 0;  ///< accepted transforms corrected (as owner)
   long long reanchorings = 0;       ///< moves of its own state into another frame
   long long links_accepted = 0;     ///< correspondences accepted (as owner)

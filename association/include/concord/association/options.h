@@ -119,6 +119,12 @@ struct NegotiationOptions {
   /// revisit_chi2_probability: the maps are misaligned when the 6-D transform a revisit finds is
   /// beyond this chi-square quantile from the identity under its covariance.
   double revisit_chi2_probability = 0.9999;
+  /// revisit_ambiguity_ratio: the accepted alignment is a hypothesis too. A revisit whose maps,
+  /// as they stand in the common frame, match at least this fraction of the correspondences the
+  /// found transform matches is ambiguous (a layout that fits two ways, or one robot's map gone
+  /// wrong on its own), as a rival clique makes a search: it corrects nothing. 0.5, the
+  /// search's ambiguity_ratio; above 1 only a clearly better supported transform is ambiguous.
+  double revisit_ambiguity_ratio = 0.5;
   /// max_corrections: corrections of one frame edge at most.
   int max_corrections = 2;
 
