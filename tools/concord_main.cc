@@ -382,11 +382,11 @@ int run_replay(const fs::path& dataset_dir, const fs::path& out, bool separate,
     std::cerr << "concord replay: negotiation: " << s.searches << " searches (" << s.ambiguous
               << " ambiguous; " << s.tilted << " tilted), " << s.frame_edges << " frame edges ("
               << s.revisits << " revisits, " << s.revisits_ambiguous << " ambiguous, "
-              << s.frame_corrections << " corrected), "
-              << s.reanchorings << " moves, " << s.links_accepted << " links accepted, "
-              << s.links_split << " split, " << s.link_conflicts << " refused as conflicts, "
-              << s.team_id_conflicts << " left out by the team ids; " << s.negotiation_bytes
-              << " bytes in " << s.negotiation_messages << " messages\n";
+              << s.frame_corrections << " corrected), " << s.reanchorings << " moves, "
+              << s.links_accepted << " links accepted, " << s.links_split << " split, "
+              << s.link_conflicts << " refused as conflicts, " << s.team_id_conflicts
+              << " left out by the team ids; " << s.negotiation_bytes << " bytes in "
+              << s.negotiation_messages << " messages\n";
   }
   report(data, results, out,
          data.name + (separate ? " separate" : " consensus") +
