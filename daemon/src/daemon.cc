@@ -170,6 +170,8 @@ struct LiveState {
   /// refused (innovation not positive definite).
   std::uint64_t object_observations_rejected = 0;
   std::uint64_t object_initializations_gated = 0;
+  /// Archived objects whose old marginal disagreed with their fresh estimate (not fused back).
+  std::uint64_t object_rejoins_refused = 0;
   std::uint64_t feature_tracks_rejected = 0;
   std::uint64_t update_failures = 0;
   double update_seconds = 0.0;
@@ -912,6 +914,7 @@ bool Daemon::Impl::process(QueuedFrame& item) {
     live_.objects_initialized += static_cast<std::uint64_t>(report.objects.initialized);
     live_.object_observations_rejected += static_cast<std::uint64_t>(report.objects.rejected);
     live_.object_initializations_gated += static_cast<std::uint64_t>(report.objects.init_gated);
+    live_.object_rejoins_refused += static_cast<std::uint64_t>(report.objects.rejoins_refused);
     live_.feature_tracks_rejected += static_cast<std::uint64_t>(report.features.tracks_rejected);
     live_.update_failures += static_cast<std::uint64_t>(report.objects.update_failures +
                                                         report.features.update_failures +
@@ -1400,6 +1403,9 @@ void Daemon::Impl::register_routes() {
       text.counter("concord_object_initializations_gated_total",
                    "New objects whose initialization failed the chi-square test", robot,
                    static_cast<double>(live_.object_initializations_gated));
+      text.counter("concord_object_rejoins_refused_total",
+                   "Archived objects seen again whose old marginal failed the chi-square test",
+                   robot, static_cast<double>(live_.object_rejoins_refused));
       text.counter("concord_feature_tracks_rejected_total",
                    "Point-feature tracks rejected (triangulation, depth or chi-square)", robot,
                    static_cast<double>(live_.feature_tracks_rejected));

@@ -434,12 +434,26 @@ ObjectUpdater::InitResult ObjectUpdater::try_initialize(State& state, LandmarkId
   //    by the conditional (Proposition 2), but its covariance does not shrink: how the old
   //    marginal's errors correlate with the poses' is unknown, so what the object gained says
   //    nothing certain about them (docs/estimator.md, "Archiving").
+  //    First the two must agree: their difference within the object gate (chi-square, 3 dof)
+  //    under the sum of their covariances (errors that rest on one trajectory are correlated
+  //    positively, so the sum is the wider bound). An old marginal beyond it is wrong (averaged
+  //    with a wrong merge, or the object is another one) or the robot is, and fusing it would
+  //    drag the whole state by the conditional: it is dropped, the fresh estimate stands, and
+  //    the refusal is counted.
   if (const auto archived = state.archived.find(id); archived != state.archived.end()) {
     const int slot = state.landmark_slot(id);
     const int index = state.landmark_index(slot);
     const ObjectEstimate fresh{id, state.landmarks[slot].p_world,
                                state.covariance.block<3, 3>(index, index)};
-    if (const auto fused = Consensus::covariance_intersection(fresh, archived->second)) {
+    const Eigen::Vector3d difference = fresh.p_world - archived->second.p_world;
+    const Eigen::LLT<Eigen::Matrix3d> sum(fresh.covariance + archived->second.covariance);
+    const bool agrees =
+        sum.info() == Eigen::Success &&
+        difference.dot(sum.solve(difference)) <=
+            UpdaterHelper::chi2_quantile(options_.object_chi2_probability, 3);
+    if (!agrees) {
+      ++stats.rejoins_refused;
+    } else if (const auto fused = Consensus::covariance_intersection(fresh, archived->second)) {
       if (Consensus::replace_marginal_keeping_the_rest(state, slot, fused->p_world,
                                                        fused->covariance)) {
         ++stats.reactivated;

@@ -221,6 +221,7 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
       statistics.feature_tracks_used += report.features.tracks_used;
       statistics.feature_tracks_rejected += report.features.tracks_rejected;
       statistics.object_initializations_gated += report.objects.init_gated;
+      statistics.object_rejoins_refused += report.objects.rejoins_refused;
       statistics.objects_reactivated += report.objects.reactivated;
       statistics.update_failures += report.objects.update_failures + report.features.update_failures +
                                     (report.level_failed ? 1 : 0);

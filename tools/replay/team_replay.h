@@ -107,6 +107,7 @@ struct ReplayStatistics {
   long long neighbours_skipped = 0;
   long long landmarks_refused = 0;  ///< neighbours' landmarks refused by the chi-square test
   long long object_initializations_gated = 0;
+  long long object_rejoins_refused = 0;  ///< archived objects not fused back (chi-square)
   long long objects_reactivated = 0;
   long long update_failures = 0;  ///< Kalman updates refused (objects and point features)
   long long objects_initialized = 0;

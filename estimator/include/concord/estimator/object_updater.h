@@ -22,6 +22,9 @@ struct ObjectUpdateStats {
   int init_gated = 0;       ///< initializations rejected by the chi-square test of their other rows
   int reactivated = 0;      ///< archived objects seen again (consider: active again; marginal:
                             ///< rejoined the state, fused back by CI)
+  /// archived objects whose old marginal disagreed with the fresh estimate beyond the object
+  /// gate when they rejoined (marginal mode): the old marginal is dropped, not fused
+  int rejoins_refused = 0;
   int archived = 0;         ///< objects archived this frame (object_archive_mode)
   int update_failures = 0;  ///< Kalman updates refused (innovation not positive definite)
   int offsets_added = 0;    ///< detection offsets added to the state (object_offset_sigma)
