@@ -331,13 +331,17 @@ bool Negotiator::revisit_edge(PairState& pair, const MapDescription& theirs, int
   //    clique makes a search: maps that fit two ways are no evidence that the accepted way is
   //    wrong, and one robot's map gone wrong on its own is no reason to move every robot behind
   //    the edge.
+  //    Only a revisit beyond the gate needs it.
   const std::size_t supported =
-      match_with_transform(own, theirs, Eigen::Isometry3d::Identity(), true, options_.association)
-          .size();
+      distance > revisit_bound_ ? match_with_transform(own, theirs, Eigen::Isometry3d::Identity(),
+                                                       true, options_.association)
+                                      .size()
+                                : 0;
   const bool rivalled =
+      distance > revisit_bound_ &&
       static_cast<double>(supported) >=
-      options_.revisit_ambiguity_ratio * static_cast<double>(found.matches.size());
-  if (rivalled && distance > revisit_bound_) ++counters_.revisits_ambiguous;
+          options_.revisit_ambiguity_ratio * static_cast<double>(found.matches.size());
+  if (rivalled) ++counters_.revisits_ambiguous;
   if (std::getenv("CONCORD_DEBUG_ASSOCIATION")) {
     const lie::Vector6d local = lie::se3_log(found.T_a_b);
     std::fprintf(stderr,

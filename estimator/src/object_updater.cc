@@ -447,9 +447,8 @@ ObjectUpdater::InitResult ObjectUpdater::try_initialize(State& state, LandmarkId
                                state.covariance.block<3, 3>(index, index)};
     const Eigen::Vector3d difference = fresh.p_world - archived->second.p_world;
     const Eigen::LLT<Eigen::Matrix3d> sum(fresh.covariance + archived->second.covariance);
-    const bool agrees = sum.info() == Eigen::Success &&
-                        difference.dot(sum.solve(difference)) <=
-                            UpdaterHelper::chi2_quantile(options_.object_chi2_probability, 3);
+    const bool agrees =
+        sum.info() == Eigen::Success && difference.dot(sum.solve(difference)) <= gate(3);
     if (!agrees) {
       ++stats.rejoins_refused;
     } else if (const auto fused = Consensus::covariance_intersection(fresh, archived->second)) {
