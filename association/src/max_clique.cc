@@ -74,8 +74,10 @@ class CliqueSearch {
   /// (in their order within a colour) with the colour (1-based) of each.
   void colour(const std::vector<int>& candidates, std::vector<int>& ordered,
               std::vector<int>& colours) {
-    // A vertex goes to the first class holding none of its neighbours: the test is one AND of its
-    // adjacency row with each class's member bits.
+    // A vertex goes to the first class holding none of its neighbours. Each class keeps the
+    // union of its members' neighbours (the graph is undirected: v is adjacent to a member
+    // exactly when v is among the members' neighbours), so the test is one bit a class, and a
+    // vertex that joins a class adds its row to that union.
     const std::size_t words = graph_.words();
     std::size_t classes = 0;
     class_bits_.clear();
@@ -83,14 +85,10 @@ class CliqueSearch {
     colours.resize(candidates.size());  // first the class of each candidate, in their order
     for (std::size_t n = 0; n < candidates.size(); ++n) {
       const int v = candidates[n];
-      const std::uint64_t* row = graph_.row(v);
+      const std::size_t word = static_cast<std::size_t>(v) >> 6;
+      const std::uint64_t mask = std::uint64_t{1} << (v & 63);
       std::size_t c = 0;
-      for (; c < classes; ++c) {
-        const std::uint64_t* members = class_bits_.data() + c * words;
-        bool conflict = false;
-        for (std::size_t w = 0; w < words && !conflict; ++w) conflict = (row[w] & members[w]) != 0;
-        if (!conflict) break;
-      }
+      while (c < classes && (class_bits_[c * words + word] & mask) != 0) ++c;
       if (c == classes) {
         ++classes;
         class_bits_.resize(class_bits_.size() + words, 0);
@@ -98,7 +96,9 @@ class CliqueSearch {
       }
       colours[n] = static_cast<int>(c);
       ++class_sizes_[c];
-      class_bits_[c * words + (static_cast<std::size_t>(v) >> 6)] |= std::uint64_t{1} << (v & 63);
+      const std::uint64_t* row = graph_.row(v);
+      std::uint64_t* neighbours = class_bits_.data() + c * words;
+      for (std::size_t w = 0; w < words; ++w) neighbours[w] |= row[w];
     }
     // Counting sort by class, stable: class_sizes_ becomes each class's first position.
     int position = 0;
@@ -155,8 +155,8 @@ class CliqueSearch {
   long long expansions_ = 0;
   bool stopped_ = false;
   std::vector<int> best_;
-  /// colour()'s member bits of each class (words() words a class) and class sizes, reused
-  /// between calls.
+  /// colour()'s neighbours of each class's members (words() words a class) and class sizes,
+  /// reused between calls.
   std::vector<std::uint64_t> class_bits_;
   std::vector<int> class_sizes_;
   /// levels_[d]: the buffers of the expansion of a clique of d vertices.
