@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <functional>
 #include <cmath>
 #include <iterator>
 #include <map>
@@ -829,10 +830,11 @@ TEST(TeamIdsTest, AnIndexKeptUpToDateOneSourceAtATimeAgreesWithTheWholeUnionFind
 
 // ---- Negotiation ----
 
-/// Robots of a synthetic team exchanging messages on a complete graph, round by round, with
-/// fixed maps (each robot's map of the scene in its own frame, or in whatever frame it moved to);
-/// with reveal_per_round > 0 a robot describes only the first reveal_per_round x (round + 1)
-/// objects of its map (a shuffled subset: the maps grow as the robots go on).
+/// Robots of a synthetic team exchanging messages round by round (on a complete graph, or over
+/// the links `linked` allows), with fixed maps (each robot's map of the scene in its own frame,
+/// or in whatever frame it moved to); with reveal_per_round > 0 a robot describes only the first
+/// reveal_per_round x (round + 1) objects of its map (a shuffled subset: the maps grow as the
+/// robots go on).
 class SyntheticTeam {
  public:
   SyntheticTeam(const Scene& scene, const std::vector<Eigen::Isometry3d>& T_own_world,
@@ -866,7 +868,8 @@ class SyntheticTeam {
     std::vector<std::vector<NegotiationMessage>> inbox(n);
     for (int r = 0; r < n; ++r)
       for (int s = 0; s < n; ++s)
-        if (r != s) inbox[s].push_back(negotiators_[r].message_for(s, round_));
+        if (r != s && (!linked || linked(r, s)))
+          inbox[s].push_back(negotiators_[r].message_for(s, round_));
     for (int r = 0; r < n; ++r) {
       for (const auto& message : inbox[r]) negotiators_[r].receive(message, round_);
       if (const auto move = negotiators_[r].finish_round(round_)) {
@@ -891,6 +894,7 @@ class SyntheticTeam {
   }
 
   int reveal_per_round = 0;
+  std::function<bool(int, int)> linked;  ///< empty: the complete graph
   Eigen::Isometry3d wrong_into_zero = Eigen::Isometry3d::Identity();
   std::vector<Negotiator> negotiators_;
   std::vector<RobotMap> maps_;
@@ -993,6 +997,76 @@ TEST(NegotiationTest, EveryRobotSearchesThePairsItOwns) {
     EXPECT_GT(team.negotiators_[r].counters().searches, 0) << "robot " << r;
     EXPECT_EQ(team.negotiators_[r].frame(), 0) << "robot " << r;
   }
+}
+
+/// Three robots in a row of overlapping maps (robots 0 and 2 overlap too), each in its own frame.
+SyntheticTeam three_in_a_row(int relay_delay) {
+  std::mt19937 random(31);
+  const Scene scene = random_scene(90, 60.0, 2.5, 0, random);
+  NegotiationOptions options;
+  options.association = test_options();
+  options.description_interval = 2;
+  options.confirmations = 2;
+  options.confirmation_new_matches = 0;
+  options.relay_delay = relay_delay;
+  return SyntheticTeam(scene,
+                       {make_transform(0.2, 0.0, Eigen::Vector3d(1, 2, 0)),
+                        make_transform(2.0, 0.0, Eigen::Vector3d(-30, 4, 0)),
+                        make_transform(-1.2, 0.03, Eigen::Vector3d(10, 50, 1))},
+                       {{0, 35}, {15, 50}, {25, 60}}, 7, options);
+}
+
+TEST(NegotiationTest, OnTheCompleteGraphRecordsComeFromTheirOwnersAlone) {
+  // Relayed at once, a record reaches a robot from its owner and again from every other robot;
+  // held back relay_delay rounds, the neighbours say first that they have it. The decisions are
+  // the same: on the complete graph every record comes from its owner in the round it is sent.
+  SyntheticTeam at_once = three_in_a_row(0);
+  SyntheticTeam held_back = three_in_a_row(2);
+  at_once.run(16);
+  held_back.run(16);
+  long long redundant_at_once = 0, bytes_at_once = 0, bytes_held_back = 0;
+  for (int r = 0; r < 3; ++r) {
+    const NegotiationCounters& once = at_once.negotiators_[r].counters();
+    const NegotiationCounters& held = held_back.negotiators_[r].counters();
+    redundant_at_once += once.records_redundant;
+    EXPECT_EQ(held.records_redundant, 0) << "robot " << r;
+    bytes_at_once += once.bytes_sent;
+    bytes_held_back += held.bytes_sent;
+    EXPECT_EQ(held_back.negotiators_[r].frame(), at_once.negotiators_[r].frame());
+    EXPECT_EQ(held_back.negotiators_[r].team_ids().team_of,
+              at_once.negotiators_[r].team_ids().team_of) << "robot " << r;
+    EXPECT_EQ(held.frame_edges, once.frame_edges);
+    EXPECT_EQ(held.links_accepted, once.links_accepted);
+  }
+  EXPECT_GT(redundant_at_once, 0);
+  EXPECT_LT(bytes_held_back, bytes_at_once);
+}
+
+TEST(NegotiationTest, ARecordStillCrossesARobotToReachOneItsOwnerDoesNotTalkTo) {
+  // Robots 1 and 2 are not linked, robot 0 is linked with both. Robot 1 owns the pair 0-1 and
+  // robot 0 the pair 0-2 (owns_pair): robot 0 relays robot 1's record (after relay_delay
+  // rounds), so that robot 2 puts robot 1's objects in the teams of its own.
+  SyntheticTeam team = three_in_a_row(2);
+  team.linked = [](int a, int b) { return (a == 0) != (b == 0); };
+  team.run(24);
+  int teams_of_three = 0;
+  for (const auto& [team_id, members] : team.negotiators_[2].team_ids().members) {
+    std::set<int> robots;
+    for (const ObjectKey key : members) robots.insert(robot_of(key));
+    if (robots.size() < 3) continue;
+    ++teams_of_three;
+    // Robot 1 sees the same team: the same id and members.
+    EXPECT_EQ(team.negotiators_[1].team_ids().members.at(team_id), members);
+  }
+  EXPECT_GT(teams_of_three, 0);
+  // Without relaying (a delay longer than the run) robot 2 never hears of robot 1's links.
+  SyntheticTeam silent = three_in_a_row(1000);
+  silent.linked = team.linked;
+  silent.run(24);
+  for (const auto& [team_id, members] : silent.negotiators_[2].team_ids().members) {
+    for (const ObjectKey key : members) EXPECT_NE(robot_of(key), 1);
+  }
+  for (int r = 0; r < 3; ++r) EXPECT_EQ(team.negotiators_[r].frame(), 0) << "robot " << r;
 }
 
 /// Two robots of a 60-object scene, robot 1's frame turned by 1 rad and shifted, describing every

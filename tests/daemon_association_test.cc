@@ -102,6 +102,7 @@ association::NegotiationMessage sample_message() {
   edge.corrections.push_back(correction);
   record.frame_edges.push_back(edge);
   message.records.push_back(std::make_shared<const association::OwnerRecord>(record));
+  message.held = {{0, 4}, {1, 9}, {3, 2}};
   return message;
 }
 
@@ -157,6 +158,7 @@ TEST(NegotiationWire, RoundTripIsExact) {
   EXPECT_EQ(got.T.matrix(), sent.T.matrix());
   EXPECT_EQ(got.covariance, sent.covariance);
   EXPECT_EQ(got.round, 40);
+  EXPECT_EQ(decoded->held, message.held);
 }
 
 TEST(NegotiationWire, MalformedDescriptionsAreRefusedNamingTheProblem) {
@@ -247,6 +249,12 @@ TEST(NegotiationWire, MalformedDescriptionsAreRefusedNamingTheProblem) {
        },
        "malformed frame edge"},
       {"frame out of range", [&](v1::Negotiation& m) { m.set_frame(-5); }, "out of range"},
+      {"held version of no robot",
+       [&](v1::Negotiation& m) { m.mutable_held(1)->set_owner(1u << 30); },
+       "held record version out of range"},
+      {"held version out of range",
+       [&](v1::Negotiation& m) { m.mutable_held(0)->set_version(0xffffffffu); },
+       "held record version out of range"},
   };
   for (const Case& c : cases) {
     v1::Negotiation wire = good;
@@ -264,6 +272,11 @@ TEST(NegotiationWire, MalformedDescriptionsAreRefusedNamingTheProblem) {
   limits = {};
   limits.max_records = 0;
   EXPECT_FALSE(decode(good, error, limits));
+  limits = {};
+  limits.max_records = 2;  // one record, three held versions
+  EXPECT_FALSE(decode(good, error, limits));
+  EXPECT_NE(error.find("3 held record versions, above the limit of 2"), std::string::npos)
+      << error;
   limits = {};
   limits.max_links_per_record = 0;
   EXPECT_FALSE(decode(good, error, limits));

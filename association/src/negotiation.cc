@@ -68,6 +68,7 @@ std::vector<std::string> NegotiationOptions::validate() const {
           "revisit_chi2_probability", revisit_chi2_probability, "in (0, 1)");
   require(revisit_ambiguity_ratio > 0.0, "revisit_ambiguity_ratio", revisit_ambiguity_ratio, "> 0");
   require(max_corrections >= 0, "max_corrections", max_corrections, ">= 0");
+  require(relay_delay >= 0, "relay_delay", relay_delay, ">= 0");
   return problems;
 }
 
@@ -78,7 +79,7 @@ std::size_t OwnerRecord::wire_size() const {
 }
 
 std::size_t NegotiationMessage::wire_size() const {
-  std::size_t size = 8;
+  std::size_t size = 8 + 8 * held.size();
   if (map) size += map->wire_size();
   for (const auto& record : records) size += record->wire_size();
   return size;
@@ -109,10 +110,19 @@ NegotiationMessage Negotiator::message_for(int neighbour, int round) {
   if (describes(round) && own_map_ && own_map_round_ == round) message.map = own_map_;
   std::map<int, int>& sent = sent_versions_[neighbour];
   for (const auto& [owner, record] : records_) {
+    if (record->version == 0) continue;  // nothing decided yet
+    message.held.emplace_back(owner, record->version);
     if (owner == neighbour) continue;  // it knows its own decisions
     const auto it = sent.find(owner);
     if (it != sent.end() && it->second >= record->version) continue;
-    if (record->version == 0) continue;  // nothing decided yet
+    // Another owner's record waits relay_delay rounds: the neighbour may have it from its owner
+    // and say so meanwhile.
+    if (owner != robot_) {
+      const auto arrived = record_round_.find(owner);
+      if (arrived != record_round_.end() && round - arrived->second < options_.relay_delay) {
+        continue;
+      }
+    }
     message.records.push_back(record);
     sent[owner] = record->version;
   }
@@ -130,13 +140,21 @@ void Negotiator::receive(const NegotiationMessage& message, int round) {
     auto it = records_.find(record->owner);
     if (it == records_.end() || it->second->version < record->version) {
       records_[record->owner] = record;
+      record_round_[record->owner] = round;
       team_ids_.stage(record->owner, record->links);
+    } else {
+      ++counters_.records_redundant;
     }
   }
-  // The sender has every record it sent, so it need not get them back.
+  // The sender has every record it sent and every one it says it holds: it need not get them
+  // (or older ones) from this robot.
   std::map<int, int>& sent = sent_versions_[message.sender];
   for (const auto& record : message.records) {
     if (record) sent[record->owner] = std::max(sent[record->owner], record->version);
+  }
+  for (const auto& [owner, version] : message.held) {
+    int& known = sent[owner];
+    known = std::max(known, version);
   }
 }
 

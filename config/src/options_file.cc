@@ -58,6 +58,7 @@ void for_each_association_field(Negotiation& options, Visitor&& visit) {
   visit("revisit_chi2_probability", options.revisit_chi2_probability);
   visit("revisit_ambiguity_ratio", options.revisit_ambiguity_ratio);
   visit("max_corrections", options.max_corrections);
+  visit("relay_delay", options.relay_delay);
 }
 
 /// Calls visit(key, field) for every field of ConsensusOptions (const or not): the one list of

@@ -1154,6 +1154,7 @@ json Daemon::Impl::stats_json() const {
                             {"frame_edges", n.frame_edges},
                             {"revisits", n.revisits},
                             {"revisits_ambiguous", n.revisits_ambiguous},
+                            {"records_redundant", n.records_redundant},
                             {"frame_corrections", n.frame_corrections},
                             {"reanchorings", n.reanchorings},
                             {"links_accepted", n.links_accepted},

@@ -206,6 +206,11 @@ void to_wire(const association::NegotiationMessage& message, v1::Negotiation& ou
       entry->set_archived(object.archived);
     }
   }
+  for (const auto& [owner, version] : message.held) {
+    v1::RecordVersion* entry = out.add_held();
+    entry->set_owner(static_cast<std::uint32_t>(owner));
+    entry->set_version(static_cast<std::uint32_t>(version));
+  }
   for (const auto& shared : message.records) {
     if (!shared) continue;
     const association::OwnerRecord& record = *shared;
@@ -273,6 +278,20 @@ std::optional<association::NegotiationMessage> from_wire(const v1::Negotiation& 
       return std::nullopt;
     }
     out.records.push_back(std::make_shared<const association::OwnerRecord>(std::move(entry)));
+  }
+  // One held version an owner at most, as many as records may come.
+  if (message.held_size() > limits.max_records) {
+    error = "negotiation: " + std::to_string(message.held_size()) +
+            " held record versions, above the limit of " + std::to_string(limits.max_records);
+    return std::nullopt;
+  }
+  for (const v1::RecordVersion& held : message.held()) {
+    if (held.owner() > static_cast<std::uint32_t>(kMaxRobot) ||
+        held.version() > static_cast<std::uint32_t>(std::numeric_limits<int>::max())) {
+      error = "negotiation: held record version out of range";
+      return std::nullopt;
+    }
+    out.held.emplace_back(static_cast<int>(held.owner()), static_cast<int>(held.version()));
   }
   return out;
 }

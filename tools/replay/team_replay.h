@@ -140,6 +140,8 @@ struct ReplayStatistics {
   long long frame_edges = 0;
   long long revisits = 0;
   long long revisits_ambiguous = 0;
+  /// Owner records received that the receiver already held (NegotiationCounters).
+  long long records_redundant = 0;
   long long frame_corrections = 0;
   long long reanchorings = 0;
   long long links_accepted = 0;

@@ -116,8 +116,13 @@ struct NegotiationMessage {
   /// Owner records the neighbour has not had from the sender (shared like the map: a record is
   /// never changed once made, a newer version is a new record).
   std::vector<std::shared_ptr<const OwnerRecord>> records;
+  /// (owner, version) of every owner record the sender holds (its own included): the receiver
+  /// sends it none of those again, nor an older one. On a graph with cycles most robots hear of a
+  /// record from its owner and from their other neighbours; without this every robot would relay
+  /// every record to every neighbour (NegotiationOptions::relay_delay).
+  std::vector<std::pair<int, int>> held;
 
-  /// 8 bytes of header plus the description and the records.
+  /// 8 bytes of header, the description, the records and 8 bytes a held version.
   std::size_t wire_size() const;
 };
 
@@ -141,6 +146,9 @@ struct NegotiationCounters {
   /// Revisits beyond the gate left alone because the accepted alignment matched as many
   /// correspondences (NegotiationOptions::revisit_ambiguity_ratio).
   long long revisits_ambiguous = 0;
+  /// Owner records received that were not newer than the one held (sent before the sender knew
+  /// the receiver had it).
+  long long records_redundant = 0;
   long long frame_corrections = 0;  ///< accepted transforms corrected (as owner)
   long long reanchorings = 0;       ///< moves of its own state into another frame
   long long links_accepted = 0;     ///< correspondences accepted (as owner)
@@ -275,8 +283,10 @@ class Negotiator {
   std::map<int, PairState> pairs_;
   /// Newest record of every owner heard of (including its own).
   std::map<int, std::shared_ptr<const OwnerRecord>> records_;
-  /// Per neighbour: version of each owner's record last sent to it.
+  /// Per neighbour: version of each owner's record last sent to it, or that it said it holds.
   std::map<int, std::map<int, int>> sent_versions_;
+  /// Round in which the record held of each other owner arrived (relay_delay).
+  std::map<int, int> record_round_;
   std::vector<FrameEdge> own_frame_edges_;
   /// Corrections already seen: (owner, edge round, frame_a, frame_b, index).
   std::set<std::tuple<int, int, int, int, std::size_t>> corrections_seen_;

@@ -125,6 +125,14 @@ struct NegotiationOptions {
   /// wrong on its own), as a rival clique makes a search: it corrects nothing. 0.5, the
   /// search's ambiguity_ratio; above 1 only a clearly better supported transform is ambiguous.
   double revisit_ambiguity_ratio = 0.5;
+  /// relay_delay: rounds a robot holds another owner's record before it relays it to a neighbour
+  /// that has not said it holds it (every message lists the versions its sender holds). On the
+  /// complete graph every robot has a record from its owner in the round it is sent: relayed at
+  /// once, each record would cross every link of the team, most of them for nothing. Two rounds
+  /// let a neighbour's next message say so first (messages of a round are made before that
+  /// round's are read). A record then crosses a hop in relay_delay + 1 rounds where its owner
+  /// is not a neighbour; 0 relays at once.
+  int relay_delay = 2;
   /// max_corrections: corrections of one frame edge at most.
   int max_corrections = 2;
 
