@@ -5,8 +5,8 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
-#include <functional>
 #include <cmath>
+#include <functional>
 #include <iterator>
 #include <map>
 #include <numbers>
@@ -1034,7 +1034,8 @@ TEST(NegotiationTest, OnTheCompleteGraphRecordsComeFromTheirOwnersAlone) {
     bytes_held_back += held.bytes_sent;
     EXPECT_EQ(held_back.negotiators_[r].frame(), at_once.negotiators_[r].frame());
     EXPECT_EQ(held_back.negotiators_[r].team_ids().team_of,
-              at_once.negotiators_[r].team_ids().team_of) << "robot " << r;
+              at_once.negotiators_[r].team_ids().team_of)
+        << "robot " << r;
     EXPECT_EQ(held.frame_edges, once.frame_edges);
     EXPECT_EQ(held.links_accepted, once.links_accepted);
   }

@@ -275,8 +275,7 @@ TEST(NegotiationWire, MalformedDescriptionsAreRefusedNamingTheProblem) {
   limits = {};
   limits.max_records = 2;  // one record, three held versions
   EXPECT_FALSE(decode(good, error, limits));
-  EXPECT_NE(error.find("3 held record versions, above the limit of 2"), std::string::npos)
-      << error;
+  EXPECT_NE(error.find("3 held record versions, above the limit of 2"), std::string::npos) << error;
   limits = {};
   limits.max_links_per_record = 0;
   EXPECT_FALSE(decode(good, error, limits));
