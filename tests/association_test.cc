@@ -977,28 +977,6 @@ TEST(NegotiationTest, EveryPairHasOneOwnerAndTheTeamSharesThePairsEvenly) {
   }
 }
 
-TEST(NegotiationTest, EveryRobotSearchesThePairsItOwns) {
-  // Three robots in a row of overlapping maps: each owns one pair (0-2, 1-0 and 2-1), so each
-  // searches; before the pairs were shared out, robot 2 owned none and never searched.
-  std::mt19937 random(31);
-  const Scene scene = random_scene(90, 60.0, 2.5, 0, random);
-  NegotiationOptions options;
-  options.association = test_options();
-  options.description_interval = 2;
-  options.confirmations = 2;
-  options.confirmation_new_matches = 0;
-  SyntheticTeam team(scene,
-                     {make_transform(0.2, 0.0, Eigen::Vector3d(1, 2, 0)),
-                      make_transform(2.0, 0.0, Eigen::Vector3d(-30, 4, 0)),
-                      make_transform(-1.2, 0.03, Eigen::Vector3d(10, 50, 1))},
-                     {{0, 35}, {15, 50}, {25, 60}}, 7, options);
-  team.run(12);
-  for (int r = 0; r < 3; ++r) {
-    EXPECT_GT(team.negotiators_[r].counters().searches, 0) << "robot " << r;
-    EXPECT_EQ(team.negotiators_[r].frame(), 0) << "robot " << r;
-  }
-}
-
 /// Three robots in a row of overlapping maps (robots 0 and 2 overlap too), each in its own frame.
 SyntheticTeam three_in_a_row(int relay_delay) {
   std::mt19937 random(31);
@@ -1014,6 +992,17 @@ SyntheticTeam three_in_a_row(int relay_delay) {
                         make_transform(2.0, 0.0, Eigen::Vector3d(-30, 4, 0)),
                         make_transform(-1.2, 0.03, Eigen::Vector3d(10, 50, 1))},
                        {{0, 35}, {15, 50}, {25, 60}}, 7, options);
+}
+
+TEST(NegotiationTest, EveryRobotSearchesThePairsItOwns) {
+  // Three robots in a row of overlapping maps: each owns one pair (0-2, 1-0 and 2-1), so each
+  // searches; before the pairs were shared out, robot 2 owned none and never searched.
+  SyntheticTeam team = three_in_a_row(NegotiationOptions().relay_delay);
+  team.run(12);
+  for (int r = 0; r < 3; ++r) {
+    EXPECT_GT(team.negotiators_[r].counters().searches, 0) << "robot " << r;
+    EXPECT_EQ(team.negotiators_[r].frame(), 0) << "robot " << r;
+  }
 }
 
 TEST(NegotiationTest, OnTheCompleteGraphRecordsComeFromTheirOwnersAlone) {
