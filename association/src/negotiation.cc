@@ -111,8 +111,8 @@ NegotiationMessage Negotiator::message_for(int neighbour, int round) {
   std::map<int, int>& sent = sent_versions_[neighbour];
   for (const auto& [owner, record] : records_) {
     if (record->version == 0) continue;  // nothing decided yet
+    if (owner == neighbour) continue;     // it knows its own decisions
     message.held.emplace_back(owner, record->version);
-    if (owner == neighbour) continue;  // it knows its own decisions
     const auto it = sent.find(owner);
     if (it != sent.end() && it->second >= record->version) continue;
     // Another owner's record waits relay_delay rounds: the neighbour may have it from its owner
@@ -152,7 +152,11 @@ void Negotiator::receive(const NegotiationMessage& message, int round) {
   for (const auto& record : message.records) {
     if (record) sent[record->owner] = std::max(sent[record->owner], record->version);
   }
+  // Claims on owners this robot holds no record of are left out: it has nothing of theirs to
+  // send, and a peer must not grow the table with owners that do not exist (it says what it
+  // holds again in every message).
   for (const auto& [owner, version] : message.held) {
+    if (!records_.contains(owner)) continue;
     int& known = sent[owner];
     known = std::max(known, version);
   }

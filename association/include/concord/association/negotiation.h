@@ -116,10 +116,11 @@ struct NegotiationMessage {
   /// Owner records the neighbour has not had from the sender (shared like the map: a record is
   /// never changed once made, a newer version is a new record).
   std::vector<std::shared_ptr<const OwnerRecord>> records;
-  /// (owner, version) of every owner record the sender holds (its own included): the receiver
-  /// sends it none of those again, nor an older one. On a graph with cycles most robots hear of a
-  /// record from its owner and from their other neighbours; without this every robot would relay
-  /// every record to every neighbour (NegotiationOptions::relay_delay).
+  /// (owner, version) of every owner record the sender holds (its own included, the receiver's
+  /// left out): the receiver sends it none of those again, nor an older one. On a graph with
+  /// cycles most robots hear of a record from its owner and from their other neighbours; without
+  /// this every robot would relay every record to every neighbour (NegotiationOptions::
+  /// relay_delay).
   std::vector<std::pair<int, int>> held;
 
   /// 8 bytes of header, the description, the records and 8 bytes a held version.
