@@ -111,7 +111,7 @@ NegotiationMessage Negotiator::message_for(int neighbour, int round) {
   std::map<int, int>& sent = sent_versions_[neighbour];
   for (const auto& [owner, record] : records_) {
     if (record->version == 0) continue;  // nothing decided yet
-    if (owner == neighbour) continue;     // it knows its own decisions
+    if (owner == neighbour) continue;    // it knows its own decisions
     message.held.emplace_back(owner, record->version);
     const auto it = sent.find(owner);
     if (it != sent.end() && it->second >= record->version) continue;
