@@ -944,6 +944,19 @@ TEST(Archiving, AnArchivedObjectKeepsItsCovarianceRelativeToThePoseOfThatMoment)
   EXPECT_GT(moved.archived.at(100).covariance.trace(), marginal.trace() + 0.01);
 }
 
+/// Frames of archiving_run.
+constexpr int kArchivingFrames = 300;
+
+/// One simulated robot of kArchivingFrames frames, objects only (the archiving tests' runs).
+dataset::Dataset archiving_run(std::uint64_t seed) {
+  sim::SimulationOptions simulation;
+  simulation.robots = 1;
+  simulation.frames = kArchivingFrames;
+  simulation.seed = seed;
+  simulation.points_per_frame = 0;
+  return sim::simulate(simulation);
+}
+
 TEST(Archiving, AnOldMarginalThatDisagreesWithTheFreshEstimateIsNotFusedBack) {
   // A separate run with marginal archiving, resumed at frame 150 from its own state twice: as it
   // was, and with every archived object's marginal moved 4 m sideways and made certain to 5 cm
@@ -952,12 +965,7 @@ TEST(Archiving, AnOldMarginalThatDisagreesWithTheFreshEstimateIsNotFusedBack) {
   // the certain old marginal and drag the whole state by the conditional): the rejoins are
   // refused and counted, and the run ends near the untouched one. The untouched one refuses
   // none.
-  sim::SimulationOptions simulation;
-  simulation.robots = 1;
-  simulation.frames = 300;
-  simulation.seed = 53;  // not used while developing
-  simulation.points_per_frame = 0;
-  const dataset::Dataset data = sim::simulate(simulation);
+  const dataset::Dataset data = archiving_run(53);  // seed not used while developing
   const dataset::RobotData& robot = data.robots.front();
   const EstimatorOptions options = config::load_estimator_options(kSimConfig);
   Estimator first_half(options, data.camera, robot.groundtruth.front());
@@ -973,7 +981,7 @@ TEST(Archiving, AnOldMarginalThatDisagreesWithTheFreshEstimateIsNotFusedBack) {
   const auto finish = [&](State state, int& reactivated, int& refused) -> Eigen::Vector3d {
     Estimator estimator(options, data.camera, std::move(state), first_half.pending_objects());
     reactivated = refused = 0;
-    for (int frame = resume; frame < simulation.frames; ++frame) {
+    for (int frame = resume; frame < kArchivingFrames; ++frame) {
       const FrameReport report = estimator.process(robot.frame_input(frame));
       reactivated += report.objects.reactivated;
       refused += report.objects.rejoins_refused;
@@ -1000,16 +1008,11 @@ TEST(Archiving, ObjectsArchivedTogetherKnowTheirRelativeGeometryBetterThanTheirM
   // error of their difference is free of the drift both share; the recorded covariances
   // (relative to the pose of that moment) are smaller than the marginals by that drift and
   // still cover it. An object that rejoined the state keeps no stale entry.
-  sim::SimulationOptions simulation;
-  simulation.robots = 1;
-  simulation.frames = 300;
-  simulation.seed = 47;  // not used while developing
-  simulation.points_per_frame = 0;
-  const dataset::Dataset data = sim::simulate(simulation);
+  const dataset::Dataset data = archiving_run(47);  // seed not used while developing
   const dataset::RobotData& robot = data.robots.front();
   const EstimatorOptions options = config::load_estimator_options(kSimConfig);
   Estimator estimator(options, data.camera, robot.groundtruth.front());
-  for (int frame = 0; frame < simulation.frames; ++frame)
+  for (int frame = 0; frame < kArchivingFrames; ++frame)
     (void)estimator.process(robot.frame_input(frame));
   const State& state = estimator.state();
   ASSERT_GT(state.archived.size(), 10u);
