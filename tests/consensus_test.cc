@@ -266,6 +266,53 @@ TEST(ConsensusMarginal, IntoAMarginalOfTheSameShapeTheArchivedBlocksAllocateNoth
   EXPECT_EQ(reused.blocks[1], state.archived.at(41).covariance);
 }
 
+TEST(ConsensusMarginal, AscendingIdsAreFoundAsIdsInAnyOrderAre) {
+  // Ascending ids are merged with the state's objects and its archive; ids in any other order are
+  // looked up one by one. Both must find the same objects: ids held and not held, in-state and
+  // archived interleaved, an archive far longer than the list (its walk gives way to a search)
+  // and a repeated id.
+  std::mt19937 random(41);
+  State state = testing::random_state(2, 5, random);  // in-state ids 100-104
+  for (LandmarkId id = 3; id < 400; id += 3) {
+    state.archived[id] = {id, Eigen::Vector3d::Constant(static_cast<double>(id)),
+                          (1.0 + 0.001 * static_cast<double>(id)) * Eigen::Matrix3d::Identity()};
+  }
+  const std::vector<LandmarkId> ascending{2, 3, 99, 101, 102, 102, 104, 105, 201, 390, 399, 500};
+  const std::vector<LandmarkId> reversed(ascending.rbegin(), ascending.rend());
+  const Marginal merged = Consensus::marginal(state, ascending);
+  const Marginal looked_up = Consensus::marginal(state, reversed);
+  // In-state first (101, 102 twice, 104), then archived (the multiples of 3); 2 and 500 are not
+  // held.
+  EXPECT_EQ(merged.ids, (std::vector<LandmarkId>{101, 102, 102, 104, 3, 99, 105, 201, 390, 399}));
+  ASSERT_TRUE(merged.well_formed());
+  ASSERT_EQ(looked_up.ids.size(), merged.ids.size());
+  // The same objects, each with the same mean and the same covariance with every other.
+  const Eigen::MatrixXd merged_dense = merged.dense_covariance();
+  const Eigen::MatrixXd looked_up_dense = looked_up.dense_covariance();
+  const auto position = [](const Marginal& m, LandmarkId id) {
+    return static_cast<Eigen::Index>(std::find(m.ids.begin(), m.ids.end(), id) - m.ids.begin());
+  };
+  for (std::size_t a = 0; a < merged.ids.size(); ++a) {
+    const Eigen::Index i = position(looked_up, merged.ids[a]);
+    ASSERT_LT(i, static_cast<Eigen::Index>(looked_up.ids.size())) << merged.ids[a];
+    EXPECT_EQ(merged.mean.segment<3>(3 * static_cast<Eigen::Index>(a)),
+              looked_up.mean.segment<3>(3 * i));
+    for (std::size_t b = 0; b < merged.ids.size(); ++b) {
+      const Eigen::Index j = position(looked_up, merged.ids[b]);
+      const Eigen::Matrix3d merged_block = merged_dense.block<3, 3>(
+          3 * static_cast<Eigen::Index>(a), 3 * static_cast<Eigen::Index>(b));
+      const Eigen::Matrix3d looked_up_block = looked_up_dense.block<3, 3>(3 * i, 3 * j);
+      EXPECT_EQ(merged_block, looked_up_block) << merged.ids[a] << ", " << merged.ids[b];
+    }
+  }
+  EXPECT_EQ(merged.mean.segment<3>(3 * 9), state.archived.at(399).p_world);
+  const Eigen::Index row = state.landmark_index(state.landmark_slot(101));
+  const Eigen::Index column = state.landmark_index(state.landmark_slot(104));
+  const Eigen::Matrix3d cross = merged_dense.block<3, 3>(0, 9);
+  const Eigen::Matrix3d expected = state.covariance.block<3, 3>(row, column);
+  EXPECT_EQ(cross, expected);
+}
+
 TEST(ConsensusAverage, IdenticalMarginalsAreANoOp) {
   std::mt19937 random(22);
   State state = testing::random_state(2, 3, random);

@@ -636,15 +636,50 @@ void Consensus::marginal(const State& state, const std::vector<LandmarkId>& ids,
   // enough).
   thread_local std::vector<std::pair<int, Eigen::Index>> in_state;  // slot, index in the state
   thread_local std::vector<std::pair<LandmarkId, const ObjectEstimate*>> archived;
+  thread_local std::vector<std::pair<LandmarkId, int>> slots;  // the in-state objects by id
   in_state.clear();
   archived.clear();
   out.ids.clear();
-  for (LandmarkId id : ids) {
-    if (const int slot = state.landmark_slot(id); slot >= 0) {
-      out.ids.push_back(id);
-      in_state.emplace_back(slot, state.landmark_index(slot));
-    } else if (const auto it = state.archived.find(id); it != state.archived.end()) {
-      archived.emplace_back(id, &it->second);
+  if (std::is_sorted(ids.begin(), ids.end())) {
+    // Ascending ids (as a neighbour's common list comes) are merged with the in-state objects
+    // sorted by id and with the archive (ordered by id) instead of looked up one by one in two
+    // trees: with tens of archived objects a marginal, the look-ups' pointer chasing was a third
+    // of the time here. The archive's iterator walks a few entries, then searches.
+    slots.clear();
+    for (int slot = 0; slot < state.num_landmarks(); ++slot) {
+      if (!state.landmarks[slot].detection_offset) slots.emplace_back(state.landmarks[slot].id, slot);
+    }
+    std::sort(slots.begin(), slots.end());
+    auto next_slot = slots.begin();
+    auto next_archived = state.archived.begin();
+    for (LandmarkId id : ids) {
+      while (next_slot != slots.end() && next_slot->first < id) ++next_slot;
+      if (next_slot != slots.end() && next_slot->first == id) {
+        out.ids.push_back(id);
+        in_state.emplace_back(next_slot->second, state.landmark_index(next_slot->second));
+        continue;
+      }
+      constexpr int kWalk = 4;
+      for (int step = 0; step < kWalk && next_archived != state.archived.end() &&
+                         next_archived->first < id;
+           ++step) {
+        ++next_archived;
+      }
+      if (next_archived != state.archived.end() && next_archived->first < id) {
+        next_archived = state.archived.lower_bound(id);
+      }
+      if (next_archived != state.archived.end() && next_archived->first == id) {
+        archived.emplace_back(id, &next_archived->second);
+      }
+    }
+  } else {
+    for (LandmarkId id : ids) {
+      if (const int slot = state.landmark_slot(id); slot >= 0) {
+        out.ids.push_back(id);
+        in_state.emplace_back(slot, state.landmark_index(slot));
+      } else if (const auto it = state.archived.find(id); it != state.archived.end()) {
+        archived.emplace_back(id, &it->second);
+      }
     }
   }
   const auto joint = static_cast<Eigen::Index>(out.ids.size());
