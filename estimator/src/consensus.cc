@@ -647,7 +647,8 @@ void Consensus::marginal(const State& state, const std::vector<LandmarkId>& ids,
     // of the time here. The archive's iterator walks a few entries, then searches.
     slots.clear();
     for (int slot = 0; slot < state.num_landmarks(); ++slot) {
-      if (!state.landmarks[slot].detection_offset) slots.emplace_back(state.landmarks[slot].id, slot);
+      if (!state.landmarks[slot].detection_offset)
+        slots.emplace_back(state.landmarks[slot].id, slot);
     }
     std::sort(slots.begin(), slots.end());
     auto next_slot = slots.begin();
@@ -660,8 +661,8 @@ void Consensus::marginal(const State& state, const std::vector<LandmarkId>& ids,
         continue;
       }
       constexpr int kWalk = 4;
-      for (int step = 0; step < kWalk && next_archived != state.archived.end() &&
-                         next_archived->first < id;
+      for (int step = 0;
+           step < kWalk && next_archived != state.archived.end() && next_archived->first < id;
            ++step) {
         ++next_archived;
       }
