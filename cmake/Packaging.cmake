@@ -30,6 +30,14 @@ set(CPACK_PACKAGE_DESCRIPTION "One concordd per robot estimates its trajectory a
 map and agrees on the map with its team by consensus over an authenticated peer-to-peer network; \
 concord replays, simulates and evaluates. Runs under systemd (concordd@ROBOT.service, Type=notify \
 with a watchdog).")
+# A package of a build for a CPU (CONCORD_ARCH, CMakeLists.txt) runs only on such CPUs: it says
+# so. Configure with -DCONCORD_ARCH=baseline for a package meant for any machine.
+if(CONCORD_MARCH)
+  string(APPEND CPACK_PACKAGE_DESCRIPTION " Built for -march=${CONCORD_MARCH}: it runs only on \
+CPUs with those instructions.")
+  message(STATUS "Concord: the Debian package is built for -march=${CONCORD_MARCH}, not for \
+every ${CMAKE_SYSTEM_PROCESSOR} machine (CONCORD_ARCH=baseline for that)")
+endif()
 set(CPACK_PACKAGE_CONTACT "Concord maintainers <concord@example.invalid>")
 set(CPACK_PACKAGING_INSTALL_PREFIX "/usr")
 set(CPACK_STRIP_FILES ON)

@@ -92,7 +92,7 @@ bool AffineTemplate::align(const cv::Mat& image, AffineWarp& warp, int max_itera
   if (!valid_) return false;
   const int side = side_, half = side / 2, count = side * side;
   const Eigen::Map<const DescentMatrix> descent(descent_.data(), count, kParameters);
-  thread_local std::vector<float> errors;
+  thread_local Floats errors;
   errors.resize(static_cast<std::size_t>(count));
   const Eigen::Map<const Eigen::VectorXf> error_vector(errors.data(), count);
 

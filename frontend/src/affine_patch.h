@@ -14,6 +14,7 @@
 /// long as it aligns the same patch (an anchored track, frame after frame); an iteration then
 /// costs a bilinear sample and six dot products a pixel.
 
+#include <Eigen/Core>
 #include <opencv2/core.hpp>
 #include <vector>
 
@@ -72,11 +73,15 @@ class AffineTemplate {
  private:
   int side_ = 0;
   bool valid_ = false;
+  /// Storage aligned to Eigen's widest packet: Eigen's sums and products over a buffer start
+  /// their vector loop where the address allows, so over malloc's 16-byte alignment a build with
+  /// 32-byte packets (CONCORD_ARCH=x86-64-v3) summed in an order that changed from run to run.
+  using Floats = std::vector<float, Eigen::aligned_allocator<float>>;
   /// The zero-mean template, side x side row by row, and its squared norm.
-  std::vector<float> values_;
+  Floats values_;
   double template_norm_ = 0.0;
   /// The six descent images, one after the other (a count x 6 column-major matrix).
-  std::vector<float> descent_;
+  Floats descent_;
   /// Inverse of descent^T descent (a parameter left out by the model has a zero row and column).
   cv::Matx<double, 6, 6> inverse_;
 };
