@@ -43,7 +43,10 @@ class Scratch {
       storage_.resize(static_cast<std::size_t>(size));
     }
   }
-  std::vector<double> storage_;
+  /// Aligned to Eigen's widest packet: a product or sum over a view starts its vector loop where
+  /// the address allows, so with malloc's 16-byte alignment and 32-byte packets (a build for
+  /// x86-64-v3) the rounding would hang on where the heap put the buffer.
+  std::vector<double, Eigen::aligned_allocator<double>> storage_;
 };
 
 /// Makes a square matrix symmetric in place, 0.5 (A + A^T), element pair by element pair.
