@@ -313,6 +313,47 @@ TEST(ConsensusMarginal, AscendingIdsAreFoundAsIdsInAnyOrderAre) {
   EXPECT_EQ(cross, expected);
 }
 
+TEST(ConsensusMarginal, ACutOfTheWholeMarginalIsTheMarginalOfTheCut) {
+  // A robot builds the marginal of everything it holds once a round and cuts each neighbour's
+  // out of it: for ascending ids the cut must equal the marginal built from the state for those
+  // ids, to the bit (ids, means and blocks: in-state ones a sub-block of the joint block, in the
+  // joint block's order, then the archived ones' 3x3 blocks).
+  std::mt19937 random(43);
+  State state = testing::random_state(3, 6, random);  // in-state ids 100-105
+  for (LandmarkId id = 5; id < 300; id += 5) {
+    if (state.landmark_slot(id) >= 0) continue;  // an object is in the state or archived
+    state.archived[id] = {id, Eigen::Vector3d::Constant(static_cast<double>(id)),
+                          (1.0 + 0.002 * static_cast<double>(id)) * Eigen::Matrix3d::Identity()};
+  }
+  const Marginal whole = Consensus::marginal(state, state.object_ids());
+  ASSERT_GT(whole.blocks.front().rows(), 3);  // the joint block leads
+  std::vector<std::vector<LandmarkId>> cuts{
+      {},                                // nothing
+      {1, 2, 999},                       // nothing held
+      {101, 104},                        // in-state only, not adjacent in the joint block
+      {100, 101, 102, 103, 104, 105},    // the whole joint block
+      {5, 150, 295},                     // archived only
+      {3, 5, 100, 103, 105, 120, 121},   // mixed, with ids not held
+  };
+  // Random subsets of what the robot holds and some it does not.
+  std::bernoulli_distribution keep(0.4);
+  for (int draw = 0; draw < 20; ++draw) {
+    std::vector<LandmarkId> cut;
+    for (LandmarkId id = 0; id < 310; ++id)
+      if (keep(random)) cut.push_back(id);
+    cuts.push_back(std::move(cut));
+  }
+  Marginal reused;  // one output for every cut: storage of another shape must not leak through
+  for (const auto& ids : cuts) {
+    const Marginal expected = Consensus::marginal(state, ids);
+    Consensus::select(whole, ids, reused);
+    ASSERT_TRUE(reused.well_formed());
+    EXPECT_EQ(reused.ids, expected.ids);
+    EXPECT_EQ(reused.mean, expected.mean);
+    EXPECT_TRUE(testing::same_blocks(reused.blocks, expected.blocks)) << ids.size() << " ids";
+  }
+}
+
 TEST(ConsensusAverage, IdenticalMarginalsAreANoOp) {
   std::mt19937 random(22);
   State state = testing::random_state(2, 3, random);

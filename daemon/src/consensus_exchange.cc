@@ -13,6 +13,7 @@
 #include "concord/daemon/negotiation_wire.h"
 #include "concord/daemon/wire.h"
 #include "concord/dataset/radio.h"
+#include "concord/estimator/consensus.h"
 #include "concord/estimator/estimator.h"
 #include "concord/net/log_limiter.h"
 #include "concord/v1/concord.pb.h"
@@ -553,7 +554,7 @@ void ConsensusExchange::send_marginal(int robot, std::uint64_t round, const Esti
     }
     if (!sharing()) {
       if (!common.empty()) {
-        estimator.marginal(common, outgoing_);
+        Consensus::select(held_, common, outgoing_);
         to_wire(outgoing_, *message);
       }
     } else {
@@ -568,7 +569,9 @@ void ConsensusExchange::send_marginal(int robot, std::uint64_t round, const Esti
           found->second->sender_reset = false;
         }
       }
-      Marginal sent = sender.select(common.empty() ? Marginal() : estimator.marginal(common),
+      Marginal cut;
+      if (!common.empty()) Consensus::select(held_, common, cut);
+      Marginal sent = sender.select(cut,
                                     config_.share_kl_threshold,
                                     link_landmark_cap(config_.share_max_landmarks, degree));
       sent = split_blocks(sent, config_.share_block_landmarks);
@@ -672,6 +675,7 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
     negotiate(round, estimator, candidates, neighbours);
     add_negotiation_seconds(thread_cpu_seconds() - negotiation_start);
   }
+  if (!association_ && !neighbours.empty()) estimator.marginal(ids, held_);
   for (int robot : neighbours) {
     send_marginal(robot, round, estimator, ids, neighbour_ids[robot], degree, links_left--);
   }
@@ -783,6 +787,7 @@ RoundReport ConsensusExchange::async_round(std::uint64_t round, Estimator& estim
   budget_->refill(Clock::now());
   for (int robot : live) send_landmark_set(robot, round, ids);
   auto links_left = static_cast<int>(known_ids.size());
+  if (!association_ && !known_ids.empty()) estimator.marginal(ids, held_);
   for (int robot : live) {
     if (const auto it = known_ids.find(robot); it != known_ids.end()) {
       send_marginal(robot, round, estimator, ids, it->second, degree, links_left--);

@@ -200,6 +200,8 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
   // into the one of the previous round at its place (Consensus::marginal reuses it).
   std::vector<std::vector<WeightedMarginal>> inbox(robots);
   std::vector<std::size_t> inbox_size(robots, 0);
+  std::vector<Marginal> held(robots);  // a round's marginal of all a robot holds (storage kept)
+  std::vector<WeightedMarginal> given_inbox;  // with given ids, each robot's in turn
   const auto next_in = [&](int i) -> WeightedMarginal& {
     auto& box = inbox[static_cast<std::size_t>(i)];
     std::size_t& size = inbox_size[static_cast<std::size_t>(i)];
@@ -309,58 +311,76 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
             next_in(i) = {weight, std::move(marginal)};
           }
         }
-      } else {
-        std::vector<std::vector<LandmarkId>> ids(robots);
+      }
+      // Given ids: every robot's marginal of all it holds is taken here, before anyone fuses;
+      // what a neighbour is sent is cut out of it just before that neighbour fuses, into one
+      // inbox all robots use in turn (storage still in cache from the previous robot's).
+      std::vector<std::vector<LandmarkId>> ids(negotiated ? 0 : robots);
+      if (!negotiated) {
         for (int i = 0; i < robots; ++i)
           if (active[i]) ids[i] = estimators[i].object_ids();
-        for (int i = 0; i < robots; ++i) {
-          for (int j : round_neighbours[i]) {
-            const auto common = intersection(ids[i], ids[j]);
-            if (common.empty()) continue;
-            const double weight =
-                Consensus::metropolis_weight(static_cast<int>(round_neighbours[i].size()),
-                                             static_cast<int>(round_neighbours[j].size()));
-            if (!compact_sharing) {
-              WeightedMarginal& in = next_in(i);
-              in.weight = weight;
-              estimators[j].marginal(common, in.marginal);
-              count_bytes(j, marginal_bytes(in.marginal));
-              continue;
-            }
-            // What j sends i (the changed landmarks, in float32 if asked), then what i fuses.
-            MarginalSender& sender = senders[{j, i}];
-            Marginal sent = sender.select(
-                estimators[j].marginal(common), sharing.share_kl_threshold,
-                link_landmark_cap(sharing.share_max_landmarks,
-                                  static_cast<int>(round_neighbours[j].size())));
-            sent = split_blocks(sent, sharing.share_block_landmarks);
-            if (sharing.share_float32) {
-              const CompactMarginal wire = compact(sent);
-              count_bytes(j, wire.bytes());
-              sent = expand(wire);
-            } else {
-              count_bytes(j, marginal_bytes(sent));
-            }
-            sender.delivered(sent);
-            Marginal fused = receivers[{i, j}].complete(sent, common);
-            if (!fused.ids.empty()) next_in(i) = {weight, std::move(fused)};
-          }
+        for (int j = 0; j < robots; ++j) {
+          if (!ids[j].empty() && !round_neighbours[j].empty())
+            estimators[j].marginal(ids[j], held[j]);
         }
       }
-      for (int i = 0; i < robots; ++i) {
-        if (active[i] && !round_neighbours[i].empty())
-          statistics.marginal_bytes_per_robot_round.push_back(sent_bytes[i]);
-      }
+      // What robot i receives from its neighbours this round (given ids), into `box`; returns
+      // how many marginals.
+      const auto receive_given = [&](int i, std::vector<WeightedMarginal>& box) {
+        std::size_t size = 0;
+        const auto next = [&]() -> WeightedMarginal& {
+          if (size == box.size()) box.emplace_back();
+          return box[size++];
+        };
+        for (int j : round_neighbours[i]) {
+          const auto common = intersection(ids[i], ids[j]);
+          if (common.empty()) continue;
+          const double weight =
+              Consensus::metropolis_weight(static_cast<int>(round_neighbours[i].size()),
+                                           static_cast<int>(round_neighbours[j].size()));
+          if (!compact_sharing) {
+            WeightedMarginal& in = next();
+            in.weight = weight;
+            Consensus::select(held[j], common, in.marginal);
+            count_bytes(j, marginal_bytes(in.marginal));
+            continue;
+          }
+          // What j sends i (the changed landmarks, in float32 if asked), then what i fuses.
+          MarginalSender& sender = senders[{j, i}];
+          Marginal cut;
+          Consensus::select(held[j], common, cut);
+          Marginal sent = sender.select(cut, sharing.share_kl_threshold,
+                                        link_landmark_cap(sharing.share_max_landmarks,
+                                                          static_cast<int>(round_neighbours[j].size())));
+          sent = split_blocks(sent, sharing.share_block_landmarks);
+          if (sharing.share_float32) {
+            const CompactMarginal wire = compact(sent);
+            count_bytes(j, wire.bytes());
+            sent = expand(wire);
+          } else {
+            count_bytes(j, marginal_bytes(sent));
+          }
+          sender.delivered(sent);
+          Marginal fused = receivers[{i, j}].complete(sent, common);
+          if (!fused.ids.empty()) next() = {weight, std::move(fused)};
+        }
+        return size;
+      };
       // 4. Every robot fuses.
       for (int i = 0; i < robots; ++i) {
-        inbox[i].resize(inbox_size[i]);  // this round's marginals only
-        if (inbox[i].empty()) continue;
-        const ConsensusReport& report = estimators[i].fuse(inbox[i]);
+        std::vector<WeightedMarginal>& box = negotiated ? inbox[i] : given_inbox;
+        box.resize(negotiated ? inbox_size[i] : receive_given(i, given_inbox));
+        if (box.empty()) continue;
+        const ConsensusReport& report = estimators[i].fuse(box);
         ++statistics.consensus_robot_steps;
         statistics.landmarks_fused += report.landmarks_fused;
         statistics.landmarks_settled += report.landmarks_settled;
         statistics.neighbours_skipped += report.neighbours_skipped;
         statistics.landmarks_refused += report.landmarks_refused;
+      }
+      for (int i = 0; i < robots; ++i) {
+        if (active[i] && !round_neighbours[i].empty())
+          statistics.marginal_bytes_per_robot_round.push_back(sent_bytes[i]);
       }
       statistics.consensus_seconds += seconds_since(phase_start);
     }

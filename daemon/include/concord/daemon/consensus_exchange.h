@@ -280,6 +280,9 @@ class ConsensusExchange {
   std::map<int, MarginalSender> senders_;
   /// Estimator thread only: the marginal being sent, its storage kept from round to round.
   Marginal outgoing_;
+  /// The round's marginal of every object the robot holds (given ids), built once before the
+  /// marginals go out; each neighbour's is cut out of it (Consensus::select).
+  Marginal held_;
 };
 
 }  // namespace concord::daemon

@@ -68,6 +68,13 @@ class Consensus {
   /// The same into `out`, reusing its storage: blocks of the sizes `out` already holds (an
   /// archived object's 3x3) are overwritten, not allocated again. Same result as above.
   static void marginal(const State& state, const std::vector<LandmarkId>& ids, Marginal& out);
+  /// The marginal of the ids of `full` that are in `ids` (ascending; others are skipped), into
+  /// `out` (its storage reused): each of full's blocks cut down to the ids it keeps, in full's
+  /// order. A robot with several neighbours builds the marginal of everything it holds once a
+  /// round and cuts each neighbour's out of it: for ascending ids the result equals
+  /// marginal(state, ids) entry for entry when `full` is marginal(state, all) with `all`
+  /// ascending, without a look-up in the state's trees per neighbour.
+  static void select(const Marginal& full, const std::vector<LandmarkId>& ids, Marginal& out);
 
   /// Averages the robot's marginals with its neighbours' (eq. 19) and reconstructs the joint
   /// (Proposition 2, eq. 21). Each neighbour carries its weight A_ij; the robot's own weight is
