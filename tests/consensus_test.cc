@@ -328,12 +328,12 @@ TEST(ConsensusMarginal, ACutOfTheWholeMarginalIsTheMarginalOfTheCut) {
   const Marginal whole = Consensus::marginal(state, state.object_ids());
   ASSERT_GT(whole.blocks.front().rows(), 3);  // the joint block leads
   std::vector<std::vector<LandmarkId>> cuts{
-      {},                                // nothing
-      {1, 2, 999},                       // nothing held
-      {101, 104},                        // in-state only, not adjacent in the joint block
-      {100, 101, 102, 103, 104, 105},    // the whole joint block
-      {5, 150, 295},                     // archived only
-      {3, 5, 100, 103, 105, 120, 121},   // mixed, with ids not held
+      {},                               // nothing
+      {1, 2, 999},                      // nothing held
+      {101, 104},                       // in-state only, not adjacent in the joint block
+      {100, 101, 102, 103, 104, 105},   // the whole joint block
+      {5, 150, 295},                    // archived only
+      {3, 5, 100, 103, 105, 120, 121},  // mixed, with ids not held
   };
   // Random subsets of what the robot holds and some it does not.
   std::bernoulli_distribution keep(0.4);

@@ -571,8 +571,7 @@ void ConsensusExchange::send_marginal(int robot, std::uint64_t round, const Esti
       }
       Marginal cut;
       if (!common.empty()) Consensus::select(held_, common, cut);
-      Marginal sent = sender.select(cut,
-                                    config_.share_kl_threshold,
+      Marginal sent = sender.select(cut, config_.share_kl_threshold,
                                     link_landmark_cap(config_.share_max_landmarks, degree));
       sent = split_blocks(sent, config_.share_block_landmarks);
       if (config_.share_float32) {

@@ -349,9 +349,10 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
           MarginalSender& sender = senders[{j, i}];
           Marginal cut;
           Consensus::select(held[j], common, cut);
-          Marginal sent = sender.select(cut, sharing.share_kl_threshold,
-                                        link_landmark_cap(sharing.share_max_landmarks,
-                                                          static_cast<int>(round_neighbours[j].size())));
+          Marginal sent =
+              sender.select(cut, sharing.share_kl_threshold,
+                            link_landmark_cap(sharing.share_max_landmarks,
+                                              static_cast<int>(round_neighbours[j].size())));
           sent = split_blocks(sent, sharing.share_block_landmarks);
           if (sharing.share_float32) {
             const CompactMarginal wire = compact(sent);
