@@ -373,6 +373,39 @@ TEST(PairwiseAssociationTest, RecoversTheKnownAnswerOnOverlappingMaps) {
   EXPECT_EQ(found.rival_clique_size < 3 || found.rival_clique_size < found.clique_size / 2, true);
 }
 
+TEST(PairwiseAssociationTest, AMapPreparedOnceSearchesEveryNeighbourAsAFreshOneDoes) {
+  // A robot prepares its own map once a round and searches it against each neighbour's: the
+  // results must be those of align_maps on the maps, whatever was searched before (an aligned
+  // pair, a disjoint one, then the aligned one again).
+  std::mt19937 random(23);
+  const Scene scene = random_scene(80, 60.0, 2.5, 2, random);
+  const RobotMap own = observe(scene, 0, 0, make_transform(0.3, 0.0, Eigen::Vector3d(-5, 2, 0)),
+                               0.0, 40.0, 0.08, 2, random);
+  const RobotMap overlapping = observe(
+      scene, 1, 1, make_transform(-2.2, 0.02, Eigen::Vector3d(40, -10, 1)), 20.0, 60.0, 0.08, 2,
+      random);
+  const RobotMap disjoint = observe(scene, 2, 2, make_transform(1.0, 0.0, Eigen::Vector3d(4, 4, 0)),
+                                    45.0, 60.0, 0.08, 0, random);
+  const AssociationOptions options = test_options();
+  const PreparedMap prepared(own.map, options);
+  for (const RobotMap* theirs : {&overlapping, &disjoint, &overlapping}) {
+    const PairAlignment fresh = align_maps(own.map, theirs->map, options);
+    const PairAlignment reused = align_maps(prepared, PreparedMap(theirs->map, options), options);
+    EXPECT_EQ(reused.status, fresh.status) << to_string(reused.status);
+    EXPECT_EQ(reused.candidates, fresh.candidates);
+    EXPECT_EQ(reused.consistency_edges, fresh.consistency_edges);
+    EXPECT_EQ(reused.clique_size, fresh.clique_size);
+    EXPECT_TRUE(reused.T_a_b.matrix() == fresh.T_a_b.matrix());
+    ASSERT_EQ(reused.matches.size(), fresh.matches.size());
+    for (std::size_t m = 0; m < fresh.matches.size(); ++m) {
+      EXPECT_EQ(reused.matches[m].id_a, fresh.matches[m].id_a);
+      EXPECT_EQ(reused.matches[m].id_b, fresh.matches[m].id_b);
+    }
+  }
+  EXPECT_EQ(align_maps(prepared, PreparedMap(overlapping.map, options), options).status,
+            AlignmentStatus::kAligned);
+}
+
 TEST(PairwiseAssociationTest, FivePercentFalseDetectionsAreNotMatched) {
   for (unsigned seed = 1; seed <= 5; ++seed) {
     std::mt19937 random(100 + seed);

@@ -101,6 +101,12 @@ Negotiator::Negotiator(int robot, int start_frame, NegotiationOptions options)
 void Negotiator::set_own_map(MapDescription map, int round) {
   own_map_ = std::make_shared<const MapDescription>(std::move(map));
   own_map_round_ = round;
+  own_prepared_.reset();
+}
+
+const PreparedMap& Negotiator::own_prepared() {
+  if (!own_prepared_) own_prepared_ = std::make_unique<PreparedMap>(*own_map_, options_.association);
+  return *own_prepared_;
 }
 
 NegotiationMessage Negotiator::message_for(int neighbour, int round) {
@@ -248,7 +254,8 @@ bool Negotiator::process_pair(int neighbour, const MapDescription& theirs, int r
     // Frames already joined by a known edge: wait for the robots to move into the team frame.
     if (frames_connected(own.frame, theirs.frame)) return false;
     ++counters_.searches;
-    const PairAlignment found = align_maps(own, theirs, options_.association);
+    const PairAlignment found = align_maps(own_prepared(), PreparedMap(theirs, options_.association),
+                                           options_.association);
     if (const char* dump = std::getenv("CONCORD_DUMP_DESCRIPTIONS")) {
       const std::string file = std::string(dump) + "/r" + std::to_string(round) + "_" +
                                std::to_string(robot_) + "_" + std::to_string(theirs.robot) + ".txt";
@@ -322,7 +329,8 @@ bool Negotiator::process_pair(int neighbour, const MapDescription& theirs, int r
 bool Negotiator::revisit_edge(PairState& pair, const MapDescription& theirs, int round) {
   const MapDescription& own = *own_map_;
   ++counters_.revisits;
-  const PairAlignment found = align_maps(own, theirs, options_.association);
+  const PairAlignment found = align_maps(own_prepared(), PreparedMap(theirs, options_.association),
+                                           options_.association);
   const auto aligned_as_accepted = [&pair] {
     pair.revisit_streak = 0;
     pair.revisit_last.reset();

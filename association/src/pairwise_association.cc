@@ -19,20 +19,18 @@
 
 namespace concord::association {
 
-namespace {
-
-constexpr double kInfinity = std::numeric_limits<double>::infinity();
-
-bool classes_compatible(int a, int b, const AssociationOptions& options) {
-  return !options.use_classes || a == kUnknownClass || b == kUnknownClass || a == b;
-}
+namespace pairwise_detail {
 
 /// Distances and their variances between every two objects of one map (local covariances):
 /// sigma^2 of |p_i - p_j| is u^T (C_i + C_j) u + 2 distance_noise^2 along the unit vector u.
 class DistanceTable {
  public:
+  /// A distance and its variance; the two lie together (the consistency graph reads both of
+  /// two objects at once, in rows it does not walk in order).
+  using Entry = std::pair<double, double>;
+
   DistanceTable(const MapDescription& map, double distance_noise)
-      : n_(map.objects.size()), distance_(n_ * n_, 0.0), variance_(n_ * n_, 0.0) {
+      : n_(map.objects.size()), entries_(n_ * n_, Entry(0.0, 0.0)) {
     const double floor = 2.0 * distance_noise * distance_noise;
     for (std::size_t i = 0; i < n_; ++i) {
       for (std::size_t j = i + 1; j < n_; ++j) {
@@ -46,21 +44,21 @@ class DistanceTable {
         } else {
           variance += (map.objects[i].local_covariance + map.objects[j].local_covariance).trace();
         }
-        distance_[i * n_ + j] = distance_[j * n_ + i] = distance;
-        variance_[i * n_ + j] = variance_[j * n_ + i] = variance;
+        entries_[i * n_ + j] = entries_[j * n_ + i] = Entry(distance, variance);
       }
     }
   }
 
-  double distance(std::size_t i, std::size_t j) const { return distance_[i * n_ + j]; }
-  double variance(std::size_t i, std::size_t j) const { return variance_[i * n_ + j]; }
+  const Entry& entry(std::size_t i, std::size_t j) const { return entries_[i * n_ + j]; }
+  /// Row i: the entries of object i with every object (its own first-to-last, itself 0, 0).
+  const Entry* row(std::size_t i) const { return entries_.data() + i * n_; }
 
   /// The k nearest other objects of object i as (distance, variance), by distance.
-  std::vector<std::pair<double, double>> neighbours(std::size_t i, int k) const {
-    std::vector<std::pair<double, double>> all;
+  std::vector<Entry> neighbours(std::size_t i, int k) const {
+    std::vector<Entry> all;
     all.reserve(n_);
     for (std::size_t j = 0; j < n_; ++j) {
-      if (j != i) all.emplace_back(distance(i, j), variance(i, j));
+      if (j != i) all.push_back(entry(i, j));
     }
     const std::size_t keep = std::min<std::size_t>(all.size(), static_cast<std::size_t>(k));
     std::partial_sort(all.begin(), all.begin() + static_cast<std::ptrdiff_t>(keep), all.end());
@@ -70,32 +68,59 @@ class DistanceTable {
 
  private:
   std::size_t n_;
-  std::vector<double> distance_;
-  std::vector<double> variance_;
+  std::vector<Entry> entries_;
 };
+
+}  // namespace pairwise_detail
+
+/// What a prepared map holds: the objects a search uses, their distance table and descriptors.
+struct PreparedMap::Parts {
+  MapDescription placed;
+  pairwise_detail::DistanceTable table;
+  std::vector<std::vector<pairwise_detail::DistanceTable::Entry>> descriptors;
+};
+
+namespace {
+
+using pairwise_detail::DistanceTable;
+
+constexpr double kInfinity = std::numeric_limits<double>::infinity();
+
+bool classes_compatible(int a, int b, const AssociationOptions& options) {
+  return !options.use_classes || a == kUnknownClass || b == kUnknownClass || a == b;
+}
 
 /// How well two sorted neighbour lists agree: the number of distances that agree within the
 /// bound (greedy two-pointer matching, each used once), plus, to order equal counts, the sum of
 /// exp(-z^2 / 2) over those (z the normalized difference) divided by (list size + 1).
+/// A count below `min_count` is returned alone (without the closeness, which only orders equal
+/// counts): a candidate needs min_count matches to be kept, and any score below min_count ranks
+/// below every score that is kept.
 double descriptor_score(const std::vector<std::pair<double, double>>& a,
-                        const std::vector<std::pair<double, double>>& b, double bound) {
-  int count = 0;
-  double closeness = 0.0;
-  std::size_t i = 0, j = 0;
-  while (i < a.size() && j < b.size()) {
-    const double difference = a[i].first - b[j].first;
-    const double squared = difference * difference / (a[i].second + b[j].second);
-    if (squared <= bound) {
-      ++count;
-      closeness += std::exp(-0.5 * squared);
-      ++i;
-      ++j;
-    } else if (difference < 0.0) {
-      ++i;
-    } else {
-      ++j;
+                        const std::vector<std::pair<double, double>>& b, double bound,
+                        int min_count) {
+  // The matching is walked once to count, and again for the closeness only when it counts.
+  const auto walk = [&](auto&& on_match) {
+    std::size_t i = 0, j = 0;
+    while (i < a.size() && j < b.size()) {
+      const double difference = a[i].first - b[j].first;
+      const double squared = difference * difference / (a[i].second + b[j].second);
+      if (squared <= bound) {
+        on_match(squared);
+        ++i;
+        ++j;
+      } else if (difference < 0.0) {
+        ++i;
+      } else {
+        ++j;
+      }
     }
-  }
+  };
+  int count = 0;
+  walk([&](double) { ++count; });
+  if (count < min_count) return count;
+  double closeness = 0.0;
+  walk([&](double squared) { closeness += std::exp(-0.5 * squared); });
   return count + closeness / static_cast<double>(std::max(a.size(), b.size()) + 1);
 }
 
@@ -106,15 +131,23 @@ struct Candidate {
 };
 
 /// Candidate pairs: each object's best-described partners in the other map (both directions).
+using Descriptors = std::vector<std::vector<DistanceTable::Entry>>;
+
+/// Each object's descriptor: its descriptor_neighbours nearest other objects as (distance,
+/// variance), by distance.
+Descriptors descriptors_of(const MapDescription& map, const DistanceTable& table,
+                           const AssociationOptions& options) {
+  Descriptors descriptors;
+  descriptors.reserve(map.objects.size());
+  for (std::size_t i = 0; i < map.objects.size(); ++i)
+    descriptors.push_back(table.neighbours(i, options.descriptor_neighbours));
+  return descriptors;
+}
+
 std::vector<Candidate> find_candidates(const MapDescription& a, const MapDescription& b,
-                                       const DistanceTable& table_a, const DistanceTable& table_b,
+                                       const Descriptors& descriptors_a,
+                                       const Descriptors& descriptors_b,
                                        const AssociationOptions& options) {
-  const int k = options.descriptor_neighbours;
-  std::vector<std::vector<std::pair<double, double>>> descriptors_a, descriptors_b;
-  for (std::size_t i = 0; i < a.objects.size(); ++i)
-    descriptors_a.push_back(table_a.neighbours(i, k));
-  for (std::size_t j = 0; j < b.objects.size(); ++j)
-    descriptors_b.push_back(table_b.neighbours(j, k));
   const std::size_t na = a.objects.size(), nb = b.objects.size();
   const double bound = UpdaterHelper::chi2_quantile(options.descriptor_chi2_probability, 1);
   std::vector<double> scores(na * nb, 0.0);
@@ -123,7 +156,8 @@ std::vector<Candidate> find_candidates(const MapDescription& a, const MapDescrip
       if (!classes_compatible(a.objects[i].object_class, b.objects[j].object_class, options)) {
         continue;
       }
-      scores[i * nb + j] = descriptor_score(descriptors_a[i], descriptors_b[j], bound);
+      scores[i * nb + j] = descriptor_score(descriptors_a[i], descriptors_b[j], bound,
+                                            options.min_descriptor_matches);
     }
   }
   // Keep the best candidates_per_object of each row and of each column.
@@ -172,12 +206,16 @@ ConsistencyGraph consistency_graph(const std::vector<Candidate>& candidates,
                                    double bound) {
   ConsistencyGraph graph(static_cast<int>(candidates.size()));
   for (std::size_t u = 0; u < candidates.size(); ++u) {
+    const Candidate& x = candidates[u];
+    const DistanceTable::Entry* row_a = table_a.row(static_cast<std::size_t>(x.a));
+    const DistanceTable::Entry* row_b = table_b.row(static_cast<std::size_t>(x.b));
     for (std::size_t v = u + 1; v < candidates.size(); ++v) {
-      const Candidate& x = candidates[u];
       const Candidate& y = candidates[v];
       if (x.a == y.a || x.b == y.b) continue;
-      const double difference = table_a.distance(x.a, y.a) - table_b.distance(x.b, y.b);
-      const double variance = table_a.variance(x.a, y.a) + table_b.variance(x.b, y.b);
+      const DistanceTable::Entry& in_a = row_a[y.a];
+      const DistanceTable::Entry& in_b = row_b[y.b];
+      const double difference = in_a.first - in_b.first;
+      const double variance = in_a.second + in_b.second;
       if (difference * difference <= bound * variance) {
         graph.add_edge(static_cast<int>(u), static_cast<int>(v));
       }
@@ -408,19 +446,37 @@ MapDescription well_placed(const MapDescription& map, double max_sigma) {
 
 }  // namespace
 
-PairAlignment align_maps(const MapDescription& full_a, const MapDescription& full_b,
+PreparedMap::PreparedMap(const MapDescription& map, const AssociationOptions& options) {
+  MapDescription placed = well_placed(map, options.search_max_sigma);
+  DistanceTable table(placed, options.distance_noise);
+  Descriptors descriptors = descriptors_of(placed, table, options);
+  parts_ = std::make_unique<const Parts>(
+      Parts{std::move(placed), std::move(table), std::move(descriptors)});
+}
+
+PreparedMap::~PreparedMap() = default;
+PreparedMap::PreparedMap(PreparedMap&&) noexcept = default;
+PreparedMap& PreparedMap::operator=(PreparedMap&&) noexcept = default;
+
+PairAlignment align_maps(const MapDescription& a, const MapDescription& b,
+                         const AssociationOptions& options) {
+  return align_maps(PreparedMap(a, options), PreparedMap(b, options), options);
+}
+
+PairAlignment align_maps(const PreparedMap& prepared_a, const PreparedMap& prepared_b,
                          const AssociationOptions& options) {
   PairAlignment result;
   const auto min_inliers = static_cast<std::size_t>(options.min_inliers);
-  // The search uses the well-placed objects; the final matching all of them.
-  const MapDescription a = well_placed(full_a, options.search_max_sigma);
-  const MapDescription b = well_placed(full_b, options.search_max_sigma);
+  // The search and the matching use the well-placed objects.
+  const MapDescription& a = prepared_a.parts_->placed;
+  const MapDescription& b = prepared_b.parts_->placed;
   if (a.objects.size() < min_inliers || b.objects.size() < min_inliers) return result;
 
   // 1. Candidates from the objects' surroundings.
-  const DistanceTable table_a(a, options.distance_noise);
-  const DistanceTable table_b(b, options.distance_noise);
-  const std::vector<Candidate> candidates = find_candidates(a, b, table_a, table_b, options);
+  const DistanceTable& table_a = prepared_a.parts_->table;
+  const DistanceTable& table_b = prepared_b.parts_->table;
+  const std::vector<Candidate> candidates = find_candidates(
+      a, b, prepared_a.parts_->descriptors, prepared_b.parts_->descriptors, options);
   result.candidates = static_cast<int>(candidates.size());
   if (candidates.size() < min_inliers) {
     result.status = AlignmentStatus::kTooFewCandidates;

@@ -243,6 +243,8 @@ class Negotiator {
 
   /// Owner work for one neighbour; true when the robot's record changed.
   bool process_pair(int neighbour, const MapDescription& theirs, int round);
+  /// The own map of the round, prepared for align_maps once for all the pairs searched.
+  const PreparedMap& own_prepared();
   bool accept_frames(PairState& pair, const MapDescription& theirs, const PairAlignment& found,
                      int round);
   bool match_in_frame(PairState& pair, const MapDescription& theirs);
@@ -279,6 +281,8 @@ class Negotiator {
   double agreement_bound_;
   std::shared_ptr<const MapDescription> own_map_;
   int own_map_round_ = -1;
+  /// own_map_ prepared for searches, made at the first search of it (own_prepared()).
+  std::unique_ptr<PreparedMap> own_prepared_;
   std::map<int, NeighbourMap> neighbour_maps_;
   std::map<int, int> neighbour_frames_;
   std::map<int, PairState> pairs_;

@@ -17,6 +17,7 @@
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -64,6 +65,30 @@ struct PairAlignment {
 
 /// Correspondences and transform between two maps in different frames (see the file comment).
 PairAlignment align_maps(const MapDescription& a, const MapDescription& b,
+                         const AssociationOptions& options);
+
+/// A map made ready for align_maps: the objects a search uses (the well placed ones), the
+/// distances between them and each one's descriptor, all of which depend on the map alone. A
+/// robot searches its own map against several neighbours' in a round: prepared once, the same
+/// results as align_maps on the maps themselves, without deriving them again for every pair.
+class PreparedMap {
+ public:
+  /// `options` must be those the searches use (search_max_sigma, distance_noise and
+  /// descriptor_neighbours shape what is prepared).
+  PreparedMap(const MapDescription& map, const AssociationOptions& options);
+  ~PreparedMap();
+  PreparedMap(PreparedMap&&) noexcept;
+  PreparedMap& operator=(PreparedMap&&) noexcept;
+
+ private:
+  friend PairAlignment align_maps(const PreparedMap& a, const PreparedMap& b,
+                                  const AssociationOptions& options);
+  struct Parts;
+  std::unique_ptr<const Parts> parts_;
+};
+
+/// align_maps on prepared maps (the same result as on the maps they were prepared from).
+PairAlignment align_maps(const PreparedMap& a, const PreparedMap& b,
                          const AssociationOptions& options);
 
 /// Correspondences of two maps under a known transform T_a_b (identity for maps in one frame):
