@@ -381,9 +381,9 @@ TEST(PairwiseAssociationTest, AMapPreparedOnceSearchesEveryNeighbourAsAFreshOneD
   const Scene scene = random_scene(80, 60.0, 2.5, 2, random);
   const RobotMap own = observe(scene, 0, 0, make_transform(0.3, 0.0, Eigen::Vector3d(-5, 2, 0)),
                                0.0, 40.0, 0.08, 2, random);
-  const RobotMap overlapping = observe(
-      scene, 1, 1, make_transform(-2.2, 0.02, Eigen::Vector3d(40, -10, 1)), 20.0, 60.0, 0.08, 2,
-      random);
+  const RobotMap overlapping =
+      observe(scene, 1, 1, make_transform(-2.2, 0.02, Eigen::Vector3d(40, -10, 1)), 20.0, 60.0,
+              0.08, 2, random);
   const RobotMap disjoint = observe(scene, 2, 2, make_transform(1.0, 0.0, Eigen::Vector3d(4, 4, 0)),
                                     45.0, 60.0, 0.08, 0, random);
   const AssociationOptions options = test_options();

@@ -105,7 +105,8 @@ void Negotiator::set_own_map(MapDescription map, int round) {
 }
 
 const PreparedMap& Negotiator::own_prepared() {
-  if (!own_prepared_) own_prepared_ = std::make_unique<PreparedMap>(*own_map_, options_.association);
+  if (!own_prepared_)
+    own_prepared_ = std::make_unique<PreparedMap>(*own_map_, options_.association);
   return *own_prepared_;
 }
 
@@ -254,8 +255,8 @@ bool Negotiator::process_pair(int neighbour, const MapDescription& theirs, int r
     // Frames already joined by a known edge: wait for the robots to move into the team frame.
     if (frames_connected(own.frame, theirs.frame)) return false;
     ++counters_.searches;
-    const PairAlignment found = align_maps(own_prepared(), PreparedMap(theirs, options_.association),
-                                           options_.association);
+    const PairAlignment found =
+        align_maps(own_prepared(), PreparedMap(theirs, options_.association), options_.association);
     if (const char* dump = std::getenv("CONCORD_DUMP_DESCRIPTIONS")) {
       const std::string file = std::string(dump) + "/r" + std::to_string(round) + "_" +
                                std::to_string(robot_) + "_" + std::to_string(theirs.robot) + ".txt";
@@ -329,8 +330,8 @@ bool Negotiator::process_pair(int neighbour, const MapDescription& theirs, int r
 bool Negotiator::revisit_edge(PairState& pair, const MapDescription& theirs, int round) {
   const MapDescription& own = *own_map_;
   ++counters_.revisits;
-  const PairAlignment found = align_maps(own_prepared(), PreparedMap(theirs, options_.association),
-                                           options_.association);
+  const PairAlignment found =
+      align_maps(own_prepared(), PreparedMap(theirs, options_.association), options_.association);
   const auto aligned_as_accepted = [&pair] {
     pair.revisit_streak = 0;
     pair.revisit_last.reset();
