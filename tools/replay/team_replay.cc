@@ -320,8 +320,7 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
         for (int i = 0; i < robots; ++i)
           if (active[i]) ids[i] = estimators[i].object_ids();
         for (int j = 0; j < robots; ++j) {
-          if (!ids[j].empty() && !round_neighbours[j].empty())
-            estimators[j].marginal(ids[j], held[j]);
+          if (!ids[j].empty()) estimators[j].marginal(ids[j], held[j]);
         }
       }
       // What robot i receives from its neighbours this round (given ids), into `box`; returns
