@@ -181,6 +181,28 @@ ConsistencyGraph random_graph(int n, double edge_probability, std::mt19937& rand
   return graph;
 }
 
+TEST(MaxCliqueTest, EdgesAddedARowAtATimeMakeTheGraphEdgesAddedOneByOneMake) {
+  // Sizes around the 64-bit words, densities from none to full.
+  std::mt19937 random(11);
+  for (const int n : {1, 2, 63, 64, 65, 130}) {
+    for (const double density : {0.0, 0.1, 0.5, 1.0}) {
+      const ConsistencyGraph one_by_one = random_graph(n, density, random);
+      ConsistencyGraph by_rows(n);
+      std::vector<std::uint64_t> upper(by_rows.words());
+      for (int a = 0; a < n; ++a) {
+        std::fill(upper.begin(), upper.end(), 0);
+        for (int b = a + 1; b < n; ++b)
+          if (one_by_one.adjacent(a, b)) upper[b >> 6] |= std::uint64_t{1} << (b & 63);
+        by_rows.add_edges_above(a, upper.data());
+      }
+      EXPECT_EQ(by_rows.edges(), one_by_one.edges()) << n << " " << density;
+      for (int a = 0; a < n; ++a)
+        for (int b = 0; b < n; ++b)
+          ASSERT_EQ(by_rows.adjacent(a, b), one_by_one.adjacent(a, b)) << a << ", " << b;
+    }
+  }
+}
+
 TEST(MaxCliqueTest, FindsAPlantedCliqueInARandomGraph) {
   std::mt19937 random(3);
   const int n = 120;

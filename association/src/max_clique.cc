@@ -19,6 +19,23 @@ void ConsistencyGraph::add_edge(int a, int b) {
   rows_[static_cast<std::size_t>(b) * words_ + (a >> 6)] |= std::uint64_t{1} << (a & 63);
 }
 
+void ConsistencyGraph::add_edges_above(int a, const std::uint64_t* upper) {
+  assert(a >= 0 && a < vertices_);
+  std::uint64_t* row_a = rows_.data() + static_cast<std::size_t>(a) * words_;
+  const std::uint64_t a_bit = std::uint64_t{1} << (a & 63);
+  for (std::size_t w = 0; w < words_; ++w) {
+    std::uint64_t bits = upper[w];
+    if (bits == 0) continue;
+    row_a[w] |= bits;
+    do {
+      const int b = static_cast<int>(w * 64) + std::countr_zero(bits);
+      assert(b > a && b < vertices_);
+      rows_[static_cast<std::size_t>(b) * words_ + (static_cast<std::size_t>(a) >> 6)] |= a_bit;
+      bits &= bits - 1;
+    } while (bits != 0);
+  }
+}
+
 int ConsistencyGraph::degree(int vertex) const {
   int count = 0;
   for (std::size_t w = 0; w < words_; ++w) {

@@ -204,22 +204,32 @@ std::vector<Candidate> find_candidates(const MapDescription& a, const MapDescrip
 ConsistencyGraph consistency_graph(const std::vector<Candidate>& candidates,
                                    const DistanceTable& table_a, const DistanceTable& table_b,
                                    double bound) {
-  ConsistencyGraph graph(static_cast<int>(candidates.size()));
-  for (std::size_t u = 0; u < candidates.size(); ++u) {
+  const std::size_t n = candidates.size();
+  ConsistencyGraph graph(static_cast<int>(n));
+  // Each candidate's edges to the later ones as a row of bits, 64 tests a word without a
+  // branch, then added at once (their mirror bits too).
+  std::vector<std::uint64_t> upper(graph.words(), 0);
+  for (std::size_t u = 0; u < n; ++u) {
     const Candidate& x = candidates[u];
     const DistanceTable::Entry* row_a = table_a.row(static_cast<std::size_t>(x.a));
     const DistanceTable::Entry* row_b = table_b.row(static_cast<std::size_t>(x.b));
-    for (std::size_t v = u + 1; v < candidates.size(); ++v) {
-      const Candidate& y = candidates[v];
-      if (x.a == y.a || x.b == y.b) continue;
-      const DistanceTable::Entry& in_a = row_a[y.a];
-      const DistanceTable::Entry& in_b = row_b[y.b];
-      const double difference = in_a.first - in_b.first;
-      const double variance = in_a.second + in_b.second;
-      if (difference * difference <= bound * variance) {
-        graph.add_edge(static_cast<int>(u), static_cast<int>(v));
+    std::fill(upper.begin(), upper.end(), 0);
+    for (std::size_t w = (u + 1) / 64; w < upper.size(); ++w) {
+      std::uint64_t word = 0;
+      const std::size_t end = std::min(n, 64 * (w + 1));
+      for (std::size_t v = std::max(u + 1, 64 * w); v < end; ++v) {
+        const Candidate& y = candidates[v];
+        const DistanceTable::Entry& in_a = row_a[y.a];
+        const DistanceTable::Entry& in_b = row_b[y.b];
+        const double difference = in_a.first - in_b.first;
+        const double variance = in_a.second + in_b.second;
+        const bool consistent =
+            (x.a != y.a) & (x.b != y.b) & (difference * difference <= bound * variance);
+        word |= static_cast<std::uint64_t>(consistent) << (v & 63);
       }
+      upper[w] = word;
     }
+    graph.add_edges_above(static_cast<int>(u), upper.data());
   }
   return graph;
 }

@@ -19,6 +19,10 @@ class ConsistencyGraph {
   int size() const { return vertices_; }
   /// Adds the edge {a, b} (a != b, both in range; asserted).
   void add_edge(int a, int b);
+  /// Adds the edges {a, b} for every b > a whose bit is set in `upper` (words() words laid out
+  /// as row(); bits at or below a, and beyond size(), must be clear; asserted). Row a's words
+  /// are or-ed in whole and each b's bit for a is set: the same graph as add_edge one by one.
+  void add_edges_above(int a, const std::uint64_t* upper);
   bool adjacent(int a, int b) const {
     return (rows_[static_cast<std::size_t>(a) * words_ + (b >> 6)] >> (b & 63)) & 1U;
   }
