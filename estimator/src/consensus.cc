@@ -728,66 +728,21 @@ void Consensus::marginal(const State& state, const std::vector<LandmarkId>& ids,
 void Consensus::select(const Marginal& full, const std::vector<LandmarkId>& ids, Marginal& out) {
   assert(std::is_sorted(ids.begin(), ids.end()));
   assert(full.well_formed());
-  // Positions (in full's ids) kept, and where each of full's blocks ends among them.
-  thread_local std::vector<Eigen::Index> kept;
-  thread_local std::vector<std::size_t> block_end;  // kept.size() after each block
-  kept.clear();
-  block_end.clear();
-  out.ids.clear();
-  // A cursor in `ids` walks along full's ids while they ascend (they do within each block of
-  // a marginal of ascending ids) and searches where they do not.
-  Eigen::Index position = 0;
+  // Which of full's landmarks are in `ids`: a cursor in `ids` walks along full's ids while they
+  // ascend (they do within each block of a marginal of ascending ids) and searches where they
+  // do not. The cut itself is sub_marginal's.
+  thread_local std::vector<bool> keep;
+  keep.assign(full.ids.size(), false);
   auto cursor = ids.begin();
   LandmarkId previous = std::numeric_limits<LandmarkId>::min();
-  for (const Eigen::MatrixXd& block : full.blocks) {
-    const Eigen::Index end = position + block.rows() / 3;
-    for (; position < end; ++position) {
-      const LandmarkId id = full.ids[static_cast<std::size_t>(position)];
-      if (id < previous) cursor = std::lower_bound(ids.begin(), ids.end(), id);
-      previous = id;
-      while (cursor != ids.end() && *cursor < id) ++cursor;
-      if (cursor != ids.end() && *cursor == id) {
-        kept.push_back(position);
-        out.ids.push_back(id);
-      }
-    }
-    block_end.push_back(kept.size());
+  for (std::size_t position = 0; position < full.ids.size(); ++position) {
+    const LandmarkId id = full.ids[position];
+    if (id < previous) cursor = std::lower_bound(ids.begin(), ids.end(), id);
+    previous = id;
+    while (cursor != ids.end() && *cursor < id) ++cursor;
+    keep[position] = cursor != ids.end() && *cursor == id;
   }
-  const auto count = static_cast<Eigen::Index>(kept.size());
-  if (out.mean.size() != 3 * count) out.mean.resize(3 * count);
-  for (Eigen::Index k = 0; k < count; ++k) {
-    out.mean.segment<3>(3 * k) = full.mean.segment<3>(3 * kept[static_cast<std::size_t>(k)]);
-  }
-  std::size_t blocks = 0;
-  for (std::size_t b = 0; b < block_end.size(); ++b) {
-    if (block_end[b] > (b > 0 ? block_end[b - 1] : 0)) ++blocks;
-  }
-  out.blocks.resize(blocks);  // kept blocks keep their storage
-  std::size_t block = 0;
-  Eigen::Index first_of_block = 0;  // the block's first position in full
-  for (std::size_t b = 0; b < block_end.size(); ++b) {
-    const std::size_t begin = b > 0 ? block_end[b - 1] : 0;
-    const std::size_t end = block_end[b];
-    const Eigen::MatrixXd& source = full.blocks[b];
-    if (end > begin) {
-      const auto n = static_cast<Eigen::Index>(end - begin);
-      Eigen::MatrixXd& target = out.blocks[block++];
-      if (target.rows() != 3 * n || target.cols() != 3 * n) target.resize(3 * n, 3 * n);
-      if (n == source.rows() / 3) {
-        target = source;  // the whole block (an archived object's 3x3, most often)
-      } else {
-        for (Eigen::Index c = 0; c < n; ++c) {
-          const Eigen::Index sc = 3 * (kept[begin + static_cast<std::size_t>(c)] - first_of_block);
-          for (Eigen::Index r = 0; r < n; ++r) {
-            const Eigen::Index sr =
-                3 * (kept[begin + static_cast<std::size_t>(r)] - first_of_block);
-            target.block<3, 3>(3 * r, 3 * c) = source.block<3, 3>(sr, sc);
-          }
-        }
-      }
-    }
-    first_of_block += source.rows() / 3;
-  }
+  sub_marginal(full, keep, out);
 }
 
 bool Consensus::replace_marginal(State& state, const std::vector<int>& slots,

@@ -52,22 +52,60 @@ ObjectEstimate landmark_estimate(const Marginal& marginal, std::size_t k) {
 
 Marginal sub_marginal(const Marginal& marginal, const std::vector<bool>& keep) {
   Marginal out;
-  std::vector<double> mean;
-  std::size_t k = 0;
+  sub_marginal(marginal, keep, out);
+  return out;
+}
+
+void sub_marginal(const Marginal& marginal, const std::vector<bool>& keep, Marginal& out) {
+  // Positions kept, and where each block's run of them ends.
+  thread_local std::vector<Eigen::Index> kept;
+  thread_local std::vector<std::size_t> block_end;  // kept.size() after each block
+  kept.clear();
+  block_end.clear();
+  out.ids.clear();
+  Eigen::Index position = 0;
   for (const Eigen::MatrixXd& block : marginal.blocks) {
-    std::vector<Eigen::Index> rows;
-    for (Eigen::Index offset = 0; offset < block.rows(); offset += 3, ++k) {
-      if (!keep[k]) continue;
-      out.ids.push_back(marginal.ids[k]);
-      for (int i = 0; i < 3; ++i) {
-        rows.push_back(offset + i);
-        mean.push_back(marginal.mean(3 * static_cast<Eigen::Index>(k) + i));
+    for (const Eigen::Index end = position + block.rows() / 3; position < end; ++position) {
+      if (!keep[static_cast<std::size_t>(position)]) continue;
+      kept.push_back(position);
+      out.ids.push_back(marginal.ids[static_cast<std::size_t>(position)]);
+    }
+    block_end.push_back(kept.size());
+  }
+  const auto count = static_cast<Eigen::Index>(kept.size());
+  if (out.mean.size() != 3 * count) out.mean.resize(3 * count);
+  for (Eigen::Index k = 0; k < count; ++k) {
+    out.mean.segment<3>(3 * k) = marginal.mean.segment<3>(3 * kept[static_cast<std::size_t>(k)]);
+  }
+  std::size_t blocks = 0;
+  for (std::size_t b = 0; b < block_end.size(); ++b) {
+    if (block_end[b] > (b > 0 ? block_end[b - 1] : 0)) ++blocks;
+  }
+  out.blocks.resize(blocks);  // kept blocks keep their storage
+  std::size_t block = 0;
+  Eigen::Index first_of_block = 0;  // the block's first position in `marginal`
+  for (std::size_t b = 0; b < block_end.size(); ++b) {
+    const std::size_t begin = b > 0 ? block_end[b - 1] : 0;
+    const Eigen::MatrixXd& source = marginal.blocks[b];
+    if (block_end[b] > begin) {
+      const auto n = static_cast<Eigen::Index>(block_end[b] - begin);
+      Eigen::MatrixXd& target = out.blocks[block++];
+      if (target.rows() != 3 * n || target.cols() != 3 * n) target.resize(3 * n, 3 * n);
+      if (n == source.rows() / 3) {
+        target = source;  // the whole block (an archived object's 3x3, most often)
+      } else {
+        for (Eigen::Index c = 0; c < n; ++c) {
+          const Eigen::Index sc = 3 * (kept[begin + static_cast<std::size_t>(c)] - first_of_block);
+          for (Eigen::Index r = 0; r < n; ++r) {
+            const Eigen::Index sr =
+                3 * (kept[begin + static_cast<std::size_t>(r)] - first_of_block);
+            target.block<3, 3>(3 * r, 3 * c) = source.block<3, 3>(sr, sc);
+          }
+        }
       }
     }
-    if (!rows.empty()) out.blocks.push_back(block(rows, rows));
+    first_of_block += source.rows() / 3;
   }
-  out.mean = Eigen::Map<const Eigen::VectorXd>(mean.data(), static_cast<Eigen::Index>(mean.size()));
-  return out;
 }
 
 long long CompactMarginal::bytes() const {

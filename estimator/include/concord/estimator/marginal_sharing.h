@@ -35,6 +35,9 @@ ObjectEstimate landmark_estimate(const Marginal& marginal, std::size_t k);
 /// The marginal's landmarks whose positions are given, as a sub-marginal with the joint blocks
 /// restricted to them (order kept).
 Marginal sub_marginal(const Marginal& marginal, const std::vector<bool>& keep);
+/// The same into `out`, reusing its storage (blocks of the sizes it already holds are
+/// overwritten, not allocated again).
+void sub_marginal(const Marginal& marginal, const std::vector<bool>& keep, Marginal& out);
 
 /// The marginal with every block cut into consecutive runs of at most max_block_landmarks
 /// landmarks (each run's diagonal block of the block it was in): the correlations between runs
