@@ -354,6 +354,100 @@ TEST(ConsensusMarginal, ACutOfTheWholeMarginalIsTheMarginalOfTheCut) {
   }
 }
 
+/// A random state whose in-state landmarks are renamed `ids` (as many as it has) and whose
+/// archive holds `archived` (unit-ish covariances, positions near the in-state ones).
+State renamed_state(int poses, const std::vector<LandmarkId>& ids,
+                    const std::vector<LandmarkId>& archived, std::mt19937& random) {
+  State state = testing::random_state(poses, static_cast<int>(ids.size()), random);
+  for (std::size_t j = 0; j < ids.size(); ++j) state.landmarks[j].id = ids[j];
+  state.rebuild_landmark_index();
+  for (LandmarkId id : archived) {
+    state.archived[id] = {id, Eigen::Vector3d(0.1 * static_cast<double>(id), 1.0, 1.0),
+                          (0.3 + 0.001 * static_cast<double>(id)) * Eigen::Matrix3d::Identity()};
+  }
+  return state;
+}
+
+TEST(ConsensusAverage, ASharedMarginalFusesAsTheCutOfWhatTheRobotHolds) {
+  // The replay builds every robot's marginal of all it holds once a round, and each neighbour
+  // fuses the part of it that it holds itself. That must give, to the bit, what fusing the
+  // marginal of the common ids (what a daemon receives, Consensus::select) gives: the same
+  // holders, groups, order and numbers, whatever the shared marginal holds besides.
+  std::mt19937 random(47);
+  const State robot = renamed_state(3, {100, 101, 102, 103, 104, 105}, {10, 13, 16, 19, 22}, random);
+  const std::vector<LandmarkId> robot_ids = robot.object_ids();
+  std::vector<State> neighbours{
+      // More in its joint block than the robot holds, and some of its archived objects.
+      renamed_state(3, {100, 101, 102, 103, 104, 105, 106, 107}, {10, 16, 40}, random),
+      // Part of the robot's in-state landmarks, not adjacent, with others between; one the
+      // robot archived (13) in its joint block.
+      renamed_state(2, {13, 98, 101, 103, 104, 200}, {19, 22, 41}, random),
+      // Nothing in common.
+      renamed_state(2, {300, 301}, {50}, random),
+  };
+  std::vector<SharedMarginal> shared(neighbours.size());
+  std::vector<WeightedShare> shares;
+  std::vector<WeightedMarginal> cuts;
+  for (std::size_t j = 0; j < neighbours.size(); ++j) {
+    Consensus::marginal(neighbours[j], neighbours[j].object_ids(), shared[j].marginal());
+    ASSERT_TRUE(shared[j].index());
+    shares.push_back({0.2, &shared[j]});
+    cuts.push_back({0.2, {}});
+    Consensus::select(shared[j].marginal(), robot_ids, cuts.back().marginal);
+  }
+  ASSERT_EQ(cuts[0].marginal.blocks.size(), 3u);  // a cut of the joint block, two archived
+  ASSERT_EQ(cuts[1].marginal.ids.size(), 6u);     // 13, 101, 103, 104 in the joint; 19, 22
+  ASSERT_TRUE(cuts[2].marginal.ids.empty());
+  // The block sizes of each cut, counted on the shared marginal.
+  for (std::size_t j = 0; j < neighbours.size(); ++j) {
+    std::vector<int> per_block;
+    shared[j].count_common(robot_ids, per_block);
+    std::vector<int> expected;
+    for (const Eigen::MatrixXd& block : cuts[j].marginal.blocks) {
+      expected.push_back(static_cast<int>(block.rows() / 3));
+    }
+    per_block.erase(std::remove(per_block.begin(), per_block.end(), 0), per_block.end());
+    EXPECT_EQ(per_block, expected) << "neighbour " << j;
+  }
+  for (const ConsensusOptions& options : {no_safeguards(), ConsensusOptions()}) {
+    State expected = robot;
+    const ConsensusReport expected_report = Consensus::fuse(expected, cuts, options);
+    ASSERT_GT(expected_report.landmarks_fused, 6);
+    State fused = robot;
+    ConsensusWorkspace workspace;
+    const ConsensusReport& report = Consensus::fuse(fused, shares, options, workspace);
+    EXPECT_EQ(report.landmarks_fused, expected_report.landmarks_fused);
+    EXPECT_EQ(report.groups, expected_report.groups);
+    EXPECT_EQ(report.neighbours_skipped, expected_report.neighbours_skipped);
+    EXPECT_EQ(report.landmarks_refused, expected_report.landmarks_refused);
+    EXPECT_EQ(report.refused_per_neighbour, expected_report.refused_per_neighbour);
+    EXPECT_EQ(report.tested_per_neighbour, expected_report.tested_per_neighbour);
+    EXPECT_EQ(fused.covariance, expected.covariance);
+    for (int slot = 0; slot < fused.num_landmarks(); ++slot) {
+      EXPECT_EQ(fused.landmarks[slot].p_world, expected.landmarks[slot].p_world);
+    }
+    for (const auto& [id, object] : expected.archived) {
+      EXPECT_EQ(fused.archived.at(id).p_world, object.p_world) << id;
+      EXPECT_EQ(fused.archived.at(id).covariance, object.covariance) << id;
+    }
+    for (std::size_t k = 0; k < fused.poses.size(); ++k) {
+      EXPECT_EQ(fused.poses[k].T_world_body.matrix(), expected.poses[k].T_world_body.matrix());
+    }
+  }
+  // A shared marginal with a non-finite entry anywhere is left out whole, and counted.
+  SharedMarginal broken;
+  broken.marginal() = shared[0].marginal();
+  broken.marginal().blocks.back()(0, 0) = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_FALSE(broken.index());
+  State without = robot;
+  Consensus::fuse(without, std::vector<WeightedMarginal>{cuts[1]}, no_safeguards());
+  State with = robot;
+  ConsensusWorkspace workspace;
+  const std::vector<WeightedShare> with_broken{{0.2, &broken}, {0.2, &shared[1]}};
+  EXPECT_EQ(Consensus::fuse(with, with_broken, no_safeguards(), workspace).neighbours_skipped, 1);
+  EXPECT_EQ(with.covariance, without.covariance);
+}
+
 TEST(ConsensusAverage, IdenticalMarginalsAreANoOp) {
   std::mt19937 random(22);
   State state = testing::random_state(2, 3, random);

@@ -120,9 +120,11 @@ struct Member {
   const Marginal* marginal = nullptr;  ///< a neighbour's
   const State* state = nullptr;        ///< the robot's
   const std::vector<const ObjectEstimate*>* archived = nullptr;  ///< the robot's, by position
-  Locations locations;
+  Locations owned;                     ///< where each id sits, unless shared
+  const Locations* shared = nullptr;   ///< a shared marginal's, indexed once
 
-  const Location* find(LandmarkId id) const { return find_location(locations, id); }
+  const Locations& locations() const { return shared != nullptr ? *shared : owned; }
+  const Location* find(LandmarkId id) const { return find_location(locations(), id); }
   Eigen::Vector3d mean(const Location& at) const {
     if (marginal != nullptr) return marginal->mean.segment<3>(3 * at.position);
     return at.block == 0 ? state->landmarks[at.position].p_world : (*archived)[at.position]->p_world;
@@ -138,7 +140,8 @@ struct Member {
 /// when malformed.
 bool check(const Marginal& marginal, int index, double weight, Member& member, Locations& spare) {
   if (!marginal.well_formed()) return false;
-  if (!locate(marginal.ids, marginal.blocks, member.locations, spare)) return false;
+  if (!locate(marginal.ids, marginal.blocks, member.owned, spare)) return false;
+  member.shared = nullptr;
   member.index = index;
   member.weight = weight;
   member.marginal = &marginal;
@@ -155,18 +158,19 @@ void own_member(const State& state, double weight, std::vector<const ObjectEstim
   member.marginal = nullptr;
   member.state = &state;
   member.archived = &archived;
-  member.locations.clear();
+  member.shared = nullptr;
+  member.owned.clear();
   archived.clear();
   for (int slot = 0; slot < state.num_landmarks(); ++slot) {
     if (state.landmarks[slot].detection_offset) continue;  // the robot's own, not an object
-    member.locations.push_back({state.landmarks[slot].id, {slot, 0, state.landmark_index(slot)}});
+    member.owned.push_back({state.landmarks[slot].id, {slot, 0, state.landmark_index(slot)}});
   }
   for (const auto& [id, estimate] : state.archived) {
     const auto position = static_cast<int>(archived.size());
-    member.locations.push_back({id, {position, 1 + position, 0}});
+    member.owned.push_back({id, {position, 1 + position, 0}});
     archived.push_back(&estimate);
   }
-  sort_by_id(member.locations, spare);
+  sort_by_id(member.owned, spare);
 }
 
 /// The inverse of a covariance, into `inverse` (symmetrised), if the covariance is positive
@@ -778,23 +782,65 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
   return fuse(state, neighbours, options, workspace);
 }
 
+namespace consensus_internal {
+
+/// The report of a step with `neighbours` neighbours, zeroed.
+void reset(ConsensusReport& report, std::size_t neighbours) {
+  report.landmarks_fused = 0;
+  report.groups = 0;
+  report.neighbours_skipped = 0;
+  report.landmarks_refused = 0;
+  report.refused_per_neighbour.assign(neighbours, 0);
+  report.tested_per_neighbour.assign(neighbours, 0);
+  report.landmarks_settled = 0;
+  report.largest_mean_shift = 0.0;
+}
+
+/// Consensus::fuse once the neighbours' members (the first w.neighbour_count) are ready.
+const ConsensusReport& fuse_members(State& state, const ConsensusOptions& options,
+                                    ConsensusWorkspace::Buffers& w);
+
+}  // namespace consensus_internal
+
+struct SharedMarginal::Index {
+  Locations locations;
+  Locations spare;
+  bool usable = false;
+};
+
+SharedMarginal::SharedMarginal() : index_(std::make_unique<Index>()) {}
+SharedMarginal::~SharedMarginal() = default;
+SharedMarginal::SharedMarginal(SharedMarginal&&) noexcept = default;
+SharedMarginal& SharedMarginal::operator=(SharedMarginal&&) noexcept = default;
+
+bool SharedMarginal::index() {
+  index_->usable = marginal_.well_formed() &&
+                   locate(marginal_.ids, marginal_.blocks, index_->locations, index_->spare);
+  return index_->usable;
+}
+
+bool SharedMarginal::usable() const { return index_->usable; }
+
+void SharedMarginal::count_common(const std::vector<LandmarkId>& ids,
+                                  std::vector<int>& per_block) const {
+  assert(usable());
+  per_block.assign(marginal_.blocks.size(), 0);
+  const Locations& locations = index_->locations;  // sorted by id
+  std::size_t cursor = 0;
+  for (LandmarkId id : ids) {
+    while (cursor < locations.size() && locations[cursor].first < id) ++cursor;
+    if (cursor == locations.size()) break;
+    if (locations[cursor].first == id) ++per_block[locations[cursor].second.block];
+  }
+}
+
 const ConsensusReport& Consensus::fuse(State& state,
                                        const std::vector<WeightedMarginal>& neighbours,
                                        const ConsensusOptions& options,
                                        ConsensusWorkspace& workspace) {
   ConsensusWorkspace::Buffers& w = *workspace.buffers_;
-  ConsensusReport& report = w.report;
-  report.landmarks_fused = 0;
-  report.groups = 0;
-  report.neighbours_skipped = 0;
-  report.landmarks_refused = 0;
-  report.refused_per_neighbour.assign(neighbours.size(), 0);
-  report.tested_per_neighbour.assign(neighbours.size(), 0);
-  report.landmarks_settled = 0;
-  report.largest_mean_shift = 0.0;
-
-  // 1. The robot's own marginal of everything it holds (read from its state), and every
-  //    neighbour's marginal checked once.
+  reset(w.report, neighbours.size());
+  // 1. Every neighbour's marginal checked once.
   if (w.neighbour_members.size() < neighbours.size()) w.neighbour_members.resize(neighbours.size());
   w.neighbour_count = 0;
   for (std::size_t j = 0; j < neighbours.size(); ++j) {
@@ -805,11 +851,45 @@ const ConsensusReport& Consensus::fuse(State& state,
                         check(m, static_cast<int>(j), neighbours[j].weight,
                               w.neighbour_members[w.neighbour_count], w.spare_locations);
     if (!usable) {
-      ++report.neighbours_skipped;
+      ++w.report.neighbours_skipped;
       continue;
     }
     ++w.neighbour_count;
   }
+  return fuse_members(state, options, w);
+}
+
+const ConsensusReport& Consensus::fuse(State& state, std::span<const WeightedShare> neighbours,
+                                       const ConsensusOptions& options,
+                                       ConsensusWorkspace& workspace) {
+  ConsensusWorkspace::Buffers& w = *workspace.buffers_;
+  reset(w.report, neighbours.size());
+  // 1. Every neighbour's marginal was checked and indexed by its owner, once.
+  if (w.neighbour_members.size() < neighbours.size()) w.neighbour_members.resize(neighbours.size());
+  w.neighbour_count = 0;
+  for (std::size_t j = 0; j < neighbours.size(); ++j) {
+    const WeightedShare& share = neighbours[j];
+    if (share.marginal == nullptr || share.marginal->marginal().ids.empty()) continue;
+    if (!(share.weight > 0.0 && share.weight < 1.0) || !share.marginal->usable()) {
+      ++w.report.neighbours_skipped;
+      continue;
+    }
+    Member& member = w.neighbour_members[w.neighbour_count++];
+    member.index = static_cast<int>(j);
+    member.weight = share.weight;
+    member.marginal = &share.marginal->marginal();
+    member.state = nullptr;
+    member.archived = nullptr;
+    member.shared = &share.marginal->index_->locations;
+  }
+  return fuse_members(state, options, w);
+}
+
+const ConsensusReport& consensus_internal::fuse_members(State& state,
+                                                        const ConsensusOptions& options,
+                                                        ConsensusWorkspace::Buffers& w) {
+  ConsensusReport& report = w.report;
+  // 1. The robot's own marginal of everything it holds (read from its state).
   const std::span<const Member> neighbour_members(w.neighbour_members.data(), w.neighbour_count);
   double neighbour_weight = 0.0;
   for (const Member& member : neighbour_members) neighbour_weight += member.weight;
@@ -838,14 +918,14 @@ const ConsensusReport& Consensus::fuse(State& state,
   // Every member's locations are sorted by id: one cursor a neighbour walks them alongside the
   // robot's (a merge, not a search a landmark and neighbour).
   w.cursors.assign(neighbour_members.size(), 0);
-  for (const auto& [id, own_at] : own->locations) {  // sorted by id
+  for (const auto& [id, own_at] : own->locations()) {  // sorted by id
     const std::size_t first = holder_buffer.size();
     const Eigen::Vector3d own_mean = own->mean(own_at);
     const Eigen::Matrix3d own_covariance = own->covariance(own_at);
     share = NeighbourShare();
     for (std::size_t j = 0; j < neighbour_members.size(); ++j) {
       const Member& neighbour = neighbour_members[j];
-      const Locations& theirs = neighbour.locations;
+      const Locations& theirs = neighbour.locations();
       std::size_t& cursor = w.cursors[j];
       while (cursor < theirs.size() && theirs[cursor].first < id) ++cursor;
       if (cursor == theirs.size() || theirs[cursor].first != id) continue;

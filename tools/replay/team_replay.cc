@@ -200,8 +200,12 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
   // into the one of the previous round at its place (Consensus::marginal reuses it).
   std::vector<std::vector<WeightedMarginal>> inbox(robots);
   std::vector<std::size_t> inbox_size(robots, 0);
-  std::vector<Marginal> held(robots);  // a round's marginal of all a robot holds (storage kept)
-  std::vector<WeightedMarginal> given_inbox;  // with given ids, each robot's in turn
+  // With given ids: a round's marginal of all a robot holds (storage kept), which each of its
+  // neighbours fuses the common part of.
+  std::vector<SharedMarginal> held(robots);
+  std::vector<WeightedShare> given_shares;    // with given ids, each robot's in turn
+  std::vector<WeightedMarginal> given_inbox;  // the same, cut and sent in compact form
+  std::vector<int> common_per_block;
   const auto next_in = [&](int i) -> WeightedMarginal& {
     auto& box = inbox[static_cast<std::size_t>(i)];
     std::size_t& size = inbox_size[static_cast<std::size_t>(i)];
@@ -312,19 +316,47 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
           }
         }
       }
-      // Given ids: every robot's marginal of all it holds is taken here, before anyone fuses;
-      // what a neighbour is sent is cut out of it just before that neighbour fuses, into one
-      // inbox all robots use in turn (storage still in cache from the previous robot's).
+      // Given ids: every robot's marginal of all it holds is taken here, before anyone fuses,
+      // and indexed once. A neighbour fuses the part of it that it holds too: the marginal of
+      // their common objects, which a daemon would send it (counted as such), without a copy.
+      // In compact form what a neighbour is sent is cut out of it just before that neighbour
+      // fuses, into one inbox all robots use in turn.
       std::vector<std::vector<LandmarkId>> ids(negotiated ? 0 : robots);
       if (!negotiated) {
         for (int i = 0; i < robots; ++i)
           if (active[i]) ids[i] = estimators[i].object_ids();
         for (int j = 0; j < robots; ++j) {
-          if (!ids[j].empty()) estimators[j].marginal(ids[j], held[j]);
+          if (ids[j].empty()) continue;
+          estimators[j].marginal(ids[j], held[j].marginal());
+          held[j].index();
         }
       }
-      // What robot i receives from its neighbours this round (given ids), into `box`; returns
-      // how many marginals.
+      // What robot i receives from its neighbours this round (given ids, in full), into
+      // given_shares.
+      const auto share_given = [&](int i) {
+        given_shares.clear();
+        for (int j : round_neighbours[i]) {
+          if (ids[i].empty() || ids[j].empty()) continue;
+          const double weight =
+              Consensus::metropolis_weight(static_cast<int>(round_neighbours[i].size()),
+                                           static_cast<int>(round_neighbours[j].size()));
+          if (!held[j].usable()) {  // left out by fuse, and counted there
+            given_shares.push_back({weight, &held[j]});
+            continue;
+          }
+          held[j].count_common(ids[i], common_per_block);
+          long long common = 0, block_bytes = 0;
+          for (int kept : common_per_block) {
+            common += kept;
+            block_bytes += 8 * (3LL * kept) * (3LL * kept + 1) / 2;
+          }
+          if (common == 0) continue;
+          count_bytes(j, 8 * 4 * common + block_bytes);  // marginal_bytes of the cut
+          given_shares.push_back({weight, &held[j]});
+        }
+      };
+      // What robot i receives from its neighbours this round (given ids, compact), into `box`;
+      // returns how many marginals.
       const auto receive_given = [&](int i, std::vector<WeightedMarginal>& box) {
         std::size_t size = 0;
         const auto next = [&]() -> WeightedMarginal& {
@@ -337,17 +369,10 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
           const double weight =
               Consensus::metropolis_weight(static_cast<int>(round_neighbours[i].size()),
                                            static_cast<int>(round_neighbours[j].size()));
-          if (!compact_sharing) {
-            WeightedMarginal& in = next();
-            in.weight = weight;
-            Consensus::select(held[j], common, in.marginal);
-            count_bytes(j, marginal_bytes(in.marginal));
-            continue;
-          }
           // What j sends i (the changed landmarks, in float32 if asked), then what i fuses.
           MarginalSender& sender = senders[{j, i}];
           Marginal cut;
-          Consensus::select(held[j], common, cut);
+          Consensus::select(held[j].marginal(), common, cut);
           Marginal sent =
               sender.select(cut, sharing.share_kl_threshold,
                             link_landmark_cap(sharing.share_max_landmarks,
@@ -368,10 +393,18 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
       };
       // 4. Every robot fuses.
       for (int i = 0; i < robots; ++i) {
-        std::vector<WeightedMarginal>& box = negotiated ? inbox[i] : given_inbox;
-        box.resize(negotiated ? inbox_size[i] : receive_given(i, given_inbox));
-        if (box.empty()) continue;
-        const ConsensusReport& report = estimators[i].fuse(box);
+        const ConsensusReport* fused = nullptr;
+        if (!negotiated && !compact_sharing) {
+          share_given(i);
+          if (given_shares.empty()) continue;
+          fused = &estimators[i].fuse(std::span<const WeightedShare>(given_shares));
+        } else {
+          std::vector<WeightedMarginal>& box = negotiated ? inbox[i] : given_inbox;
+          box.resize(negotiated ? inbox_size[i] : receive_given(i, given_inbox));
+          if (box.empty()) continue;
+          fused = &estimators[i].fuse(box);
+        }
+        const ConsensusReport& report = *fused;
         ++statistics.consensus_robot_steps;
         statistics.landmarks_fused += report.landmarks_fused;
         statistics.landmarks_settled += report.landmarks_settled;

@@ -12,6 +12,7 @@
 
 #include <memory>
 #include <optional>
+#include <span>
 #include <vector>
 
 #include "concord/estimator/options.h"
@@ -60,6 +61,44 @@ class ConsensusWorkspace {
   std::unique_ptr<Buffers> buffers_;
 };
 
+/// A marginal that several robots fuse in one round, checked and indexed by id once. In the
+/// replay every robot's marginal of all it holds is read by each of its neighbours: each fuses
+/// the part it holds itself, which is what a daemon receives from that neighbour (the marginal
+/// of their common objects, Consensus::select), without a copy cut for each (issue 13).
+class SharedMarginal {
+ public:
+  SharedMarginal();
+  ~SharedMarginal();
+  SharedMarginal(SharedMarginal&&) noexcept;
+  SharedMarginal& operator=(SharedMarginal&&) noexcept;
+
+  /// The marginal, to be filled (its storage is reused from round to round); index() after.
+  Marginal& marginal() { return marginal_; }
+  const Marginal& marginal() const { return marginal_; }
+  /// Checks the marginal (shapes, finite values, no repeated id) and indexes it by id. A
+  /// malformed one is left out by every robot that fuses it (counted in neighbours_skipped).
+  /// Returns whether it is usable.
+  bool index();
+  /// Whether the last index() found it well formed.
+  bool usable() const;
+  /// Of the landmarks `ids` (ascending), how many it holds in each of its blocks, into
+  /// `per_block` (one count a block; usable() marginals only): the block sizes of
+  /// Consensus::select(marginal(), ids), without the cut.
+  void count_common(const std::vector<LandmarkId>& ids, std::vector<int>& per_block) const;
+
+ private:
+  friend class Consensus;
+  struct Index;  ///< defined in consensus.cc
+  Marginal marginal_;
+  std::unique_ptr<Index> index_;
+};
+
+/// A shared marginal and the weight A_ij the robot that fuses it gives it (eq. 19).
+struct WeightedShare {
+  double weight = 0.0;
+  const SharedMarginal* marginal = nullptr;
+};
+
 class Consensus {
  public:
   /// Joint marginal of any subset of the objects the robot holds (in-state block of the joint
@@ -84,6 +123,13 @@ class Consensus {
   /// The same with the buffers of earlier rounds; the report is the workspace's, valid until
   /// its next use.
   static const ConsensusReport& fuse(State& state, const std::vector<WeightedMarginal>& neighbours,
+                                     const ConsensusOptions& options,
+                                     ConsensusWorkspace& workspace);
+
+  /// The same with shared marginals (indexed; see SharedMarginal): the robot fuses the part of
+  /// each that it holds. Gives what fuse() gives on Consensus::select of each marginal to the
+  /// ids the robot holds, for the neighbours that hold any of them.
+  static const ConsensusReport& fuse(State& state, std::span<const WeightedShare> neighbours,
                                      const ConsensusOptions& options,
                                      ConsensusWorkspace& workspace);
 

@@ -9,6 +9,7 @@
 /// frame k+1.
 
 #include <memory>
+#include <span>
 #include <vector>
 
 #include "concord/estimator/consensus.h"
@@ -61,6 +62,8 @@ class Estimator {
   /// Consensus step with neighbours' marginals and weights A_ij (eq. 19-21). The report is
   /// valid until the next call (the buffers are kept from round to round).
   const ConsensusReport& fuse(const std::vector<WeightedMarginal>& neighbours);
+  /// The same with shared marginals (Consensus::fuse on SharedMarginal).
+  const ConsensusReport& fuse(std::span<const WeightedShare> neighbours);
   /// Moves the state into another frame, p_new = T_new_old p_old, with the transform's covariance
   /// (left perturbation in the new frame) folded in (StateHelper::reanchor).
   void reanchor(const Eigen::Isometry3d& T_new_old, const Eigen::Matrix<double, 6, 6>& covariance);
