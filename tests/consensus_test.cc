@@ -374,7 +374,8 @@ TEST(ConsensusAverage, ASharedMarginalFusesAsTheCutOfWhatTheRobotHolds) {
   // marginal of the common ids (what a daemon receives, Consensus::select) gives: the same
   // holders, groups, order and numbers, whatever the shared marginal holds besides.
   std::mt19937 random(47);
-  const State robot = renamed_state(3, {100, 101, 102, 103, 104, 105}, {10, 13, 16, 19, 22}, random);
+  const State robot =
+      renamed_state(3, {100, 101, 102, 103, 104, 105}, {10, 13, 16, 19, 22}, random);
   const std::vector<LandmarkId> robot_ids = robot.object_ids();
   std::vector<State> neighbours{
       // More in its joint block than the robot holds, and some of its archived objects.

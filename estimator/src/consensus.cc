@@ -120,8 +120,8 @@ struct Member {
   const Marginal* marginal = nullptr;  ///< a neighbour's
   const State* state = nullptr;        ///< the robot's
   const std::vector<const ObjectEstimate*>* archived = nullptr;  ///< the robot's, by position
-  Locations owned;                     ///< where each id sits, unless shared
-  const Locations* shared = nullptr;   ///< a shared marginal's, indexed once
+  Locations owned;                    ///< where each id sits, unless shared
+  const Locations* shared = nullptr;  ///< a shared marginal's, indexed once
 
   const Locations& locations() const { return shared != nullptr ? *shared : owned; }
   const Location* find(LandmarkId id) const { return find_location(locations(), id); }
