@@ -70,22 +70,6 @@ struct Location {
 
 using Locations = std::vector<std::pair<LandmarkId, Location>>;
 
-/// A holder's share of an average from its 3x3 marginal (mean m, covariance C): I = C^-1, I m,
-/// and the 1-norm condition number ||C||_1 ||I||_1 (NaN where C is not positive definite).
-struct HolderInformation {
-  Eigen::Matrix3d inverse;
-  Eigen::Vector3d times_mean;
-  double condition = std::numeric_limits<double>::quiet_NaN();
-};
-
-/// Every landmark's HolderInformation in a shared marginal, by position: computed once for all
-/// the robots that read it.
-struct Information {
-  std::vector<HolderInformation> by_position;
-
-  void compute(const Marginal& marginal, const Locations& locations);
-};
-
 /// Sorts locations by id. They most often come as two ascending runs (a marginal's joint block,
 /// then its archived objects; the robot's: the state, then the archive): those are merged
 /// through `spare` in linear time, anything else is sorted.
@@ -138,8 +122,6 @@ struct Member {
   const std::vector<const ObjectEstimate*>* archived = nullptr;  ///< the robot's, by position
   Locations owned;                    ///< where each id sits, unless shared
   const Locations* shared = nullptr;  ///< a shared marginal's, indexed once
-  /// A shared marginal's landmarks' information, by position (see Information).
-  const Information* information = nullptr;
 
   const Locations& locations() const { return shared != nullptr ? *shared : owned; }
   const Location* find(LandmarkId id) const { return find_location(locations(), id); }
@@ -160,7 +142,6 @@ bool check(const Marginal& marginal, int index, double weight, Member& member, L
   if (!marginal.well_formed()) return false;
   if (!locate(marginal.ids, marginal.blocks, member.owned, spare)) return false;
   member.shared = nullptr;
-  member.information = nullptr;
   member.index = index;
   member.weight = weight;
   member.marginal = &marginal;
@@ -178,7 +159,6 @@ void own_member(const State& state, double weight, std::vector<const ObjectEstim
   member.state = &state;
   member.archived = &archived;
   member.shared = nullptr;
-  member.information = nullptr;
   member.owned.clear();
   archived.clear();
   for (int slot = 0; slot < state.num_landmarks(); ++slot) {
@@ -241,17 +221,6 @@ std::optional<Eigen::Matrix3d> checked_inverse3(const Eigen::Matrix3d& covarianc
   const double condition = norm1(covariance.selfadjointView<Eigen::Lower>()) * norm1(*inverse);
   if (!(condition <= max_condition_number)) return std::nullopt;
   return inverse;
-}
-
-HolderInformation holder_information(const Eigen::Vector3d& mean,
-                                     const Eigen::Matrix3d& covariance) {
-  HolderInformation out;
-  const auto inverse = positive_definite_inverse3(covariance);
-  if (!inverse) return out;
-  out.inverse = *inverse;
-  out.times_mean = *inverse * mean;
-  out.condition = norm1(covariance.selfadjointView<Eigen::Lower>()) * norm1(*inverse);
-  return out;
 }
 
 /// r^T S^-1 r for S = A + B, two symmetric 3x3 matrices read from their lower triangles, through
@@ -507,18 +476,14 @@ struct NeighbourShare {
   /// Adds a holder's 3x3 marginal (mean, covariance) with its weight.
   void add(double holder_weight, const Eigen::Vector3d& mean, const Eigen::Matrix3d& covariance,
            double max_condition_number) {
-    add(holder_weight, holder_information(mean, covariance), max_condition_number);
-  }
-
-  /// The same from the holder's information, computed before or here (the same numbers).
-  void add(double holder_weight, const HolderInformation& holder, double max_condition_number) {
-    if (!(holder.condition <= max_condition_number)) {
+    const auto information = checked_inverse3(covariance, max_condition_number);
+    if (!information) {
       ++skipped;
       return;
     }
     weight += holder_weight;
-    matrix += holder_weight * holder.inverse;
-    vector += holder_weight * holder.times_mean;
+    matrix += holder_weight * *information;
+    vector += holder_weight * (*information * mean);
     ++used;
   }
 
@@ -837,19 +802,9 @@ const ConsensusReport& fuse_members(State& state, const ConsensusOptions& option
 
 }  // namespace consensus_internal
 
-void Information::compute(const Marginal& marginal, const Locations& locations) {
-  by_position.resize(marginal.ids.size());
-  for (const auto& [id, at] : locations) {
-    by_position[static_cast<std::size_t>(at.position)] =
-        holder_information(marginal.mean.segment<3>(3 * at.position),
-                           marginal.blocks[at.block].block<3, 3>(at.offset, at.offset));
-  }
-}
-
 struct SharedMarginal::Index {
   Locations locations;
   Locations spare;
-  Information information;
   bool usable = false;
 };
 
@@ -861,7 +816,6 @@ SharedMarginal& SharedMarginal::operator=(SharedMarginal&&) noexcept = default;
 bool SharedMarginal::index() {
   index_->usable = marginal_.well_formed() &&
                    locate(marginal_.ids, marginal_.blocks, index_->locations, index_->spare);
-  if (index_->usable) index_->information.compute(marginal_, index_->locations);
   return index_->usable;
 }
 
@@ -927,7 +881,6 @@ const ConsensusReport& Consensus::fuse(State& state, std::span<const WeightedSha
     member.state = nullptr;
     member.archived = nullptr;
     member.shared = &share.marginal->index_->locations;
-    member.information = &share.marginal->index_->information;
   }
   return fuse_members(state, options, w);
 }
@@ -990,13 +943,7 @@ const ConsensusReport& consensus_internal::fuse_members(State& state,
         }
       }
       holder_buffer.emplace_back(static_cast<int>(j), found);
-      if (neighbour.information != nullptr) {
-        share.add(neighbour.weight,
-                  neighbour.information->by_position[static_cast<std::size_t>(found->position)],
-                  options.max_condition_number);
-      } else {
-        share.add(neighbour.weight, their_mean, their_covariance, options.max_condition_number);
-      }
+      share.add(neighbour.weight, their_mean, their_covariance, options.max_condition_number);
     }
     if (holder_buffer.size() > first) {
       accepted.push_back({id, &own_at, first, holder_buffer.size() - first, Holders(), share});
