@@ -187,48 +187,6 @@ class CliqueSearch {
   std::vector<Level> levels_;
 };
 
-/// Whether at least `size` of the candidates remain after every vertex with fewer than
-/// `neighbours` neighbours among the remaining ones is removed, repeatedly (the graph's
-/// `neighbours`-core among the candidates). A clique of k vertices lies in the (k-1)-core, so
-/// without a core of min_size vertices there is no clique of min_size: most searches between
-/// maps that do not overlap end here, without a branch.
-bool has_core(const ConsistencyGraph& graph, const std::vector<int>& candidates, int neighbours,
-              int size) {
-  const std::size_t words = graph.words();
-  std::vector<std::uint64_t> alive(words, 0);
-  for (int v : candidates) alive[static_cast<std::size_t>(v) >> 6] |= std::uint64_t{1} << (v & 63);
-  std::vector<int> degree(static_cast<std::size_t>(graph.size()), 0);
-  std::vector<int> doomed;
-  for (int v : candidates) {
-    const std::uint64_t* row = graph.row(v);
-    int count = 0;
-    for (std::size_t w = 0; w < words; ++w) count += std::popcount(row[w] & alive[w]);
-    degree[static_cast<std::size_t>(v)] = count;
-    if (count < neighbours) doomed.push_back(v);
-  }
-  int remaining = static_cast<int>(candidates.size());
-  for (int v : doomed) alive[static_cast<std::size_t>(v) >> 6] &= ~(std::uint64_t{1} << (v & 63));
-  while (!doomed.empty() && remaining >= size) {
-    const int v = doomed.back();
-    doomed.pop_back();
-    --remaining;
-    // v's neighbours still in the core lose one; those that fall below the bound go too.
-    const std::uint64_t* row = graph.row(v);
-    for (std::size_t w = 0; w < words; ++w) {
-      std::uint64_t bits = row[w] & alive[w];
-      while (bits != 0) {
-        const int u = static_cast<int>(w * 64) + std::countr_zero(bits);
-        bits &= bits - 1;
-        if (--degree[static_cast<std::size_t>(u)] < neighbours) {
-          alive[w] &= ~(std::uint64_t{1} << (u & 63));
-          doomed.push_back(u);
-        }
-      }
-    }
-  }
-  return remaining >= size;
-}
-
 }  // namespace
 
 CliqueResult maximum_clique(const ConsistencyGraph& graph, long long max_expansions,
@@ -238,7 +196,6 @@ CliqueResult maximum_clique(const ConsistencyGraph& graph, long long max_expansi
     if (allowed.empty() || allowed[v]) candidates.push_back(v);
   }
   if (candidates.empty()) return {};
-  if (min_size > 1 && !has_core(graph, candidates, min_size - 1, min_size)) return {};
   return CliqueSearch(graph, max_expansions, min_size).run(std::move(candidates));
 }
 
