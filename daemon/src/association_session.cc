@@ -1,8 +1,10 @@
 #include "concord/daemon/association_session.h"
 
+#include <algorithm>
 #include <map>
 
 #include "concord/association/relabelling.h"
+#include "concord/estimator/consensus.h"
 #include "concord/estimator/estimator.h"
 
 namespace concord::daemon {
@@ -58,18 +60,22 @@ std::optional<association::Reanchoring> AssociationSession::finish_round(std::ui
 }
 
 std::pair<Marginal, std::vector<LandmarkId>> AssociationSession::marginal_for(
-    int robot, const Estimator& estimator) const {
-  const auto shared = negotiator_.shared_objects(robot);  // (own id, its id)
+    int robot, const Marginal& held) const {
+  const auto shared = negotiator_.shared_objects(robot);  // (own id, its id), ascending
   std::vector<LandmarkId> ids;
-  std::map<LandmarkId, LandmarkId> theirs;
-  for (const auto& [own, other] : shared) {
-    ids.push_back(own);
-    theirs[own] = other;
-  }
-  Marginal marginal = estimator.marginal(ids);
+  ids.reserve(shared.size());
+  for (const auto& [own, other] : shared) ids.push_back(own);
+  Marginal marginal;
+  Consensus::select(held, ids, marginal);
+  // The neighbour's id of each landmark kept (select keeps held's order, not the ids').
   std::vector<LandmarkId> receiver_ids;
   receiver_ids.reserve(marginal.ids.size());
-  for (LandmarkId id : marginal.ids) receiver_ids.push_back(theirs.at(id));
+  for (LandmarkId id : marginal.ids) {
+    const auto it = std::lower_bound(
+        shared.begin(), shared.end(), id,
+        [](const std::pair<LandmarkId, LandmarkId>& pair, LandmarkId key) { return pair.first < key; });
+    receiver_ids.push_back(it->second);
+  }
   return {std::move(marginal), std::move(receiver_ids)};
 }
 

@@ -522,7 +522,7 @@ void ConsensusExchange::send_marginal(int robot, std::uint64_t round, const Esti
   if (association_) {
     // Negotiated: the objects shared with this neighbour, with its ids and this robot's frame.
     // (The link budget does not trim negotiated marginals: their relabelling is per message.)
-    auto [marginal, receiver_ids] = association_->marginal_for(robot, estimator);
+    auto [marginal, receiver_ids] = association_->marginal_for(robot, held_);
     if (!marginal.ids.empty()) to_wire(marginal, *message);
     v1::Relabelling* relabelling = message->mutable_relabelling();
     relabelling->mutable_receiver_ids()->Assign(receiver_ids.begin(), receiver_ids.end());
@@ -674,7 +674,8 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
     negotiate(round, estimator, candidates, neighbours);
     add_negotiation_seconds(thread_cpu_seconds() - negotiation_start);
   }
-  if (!association_ && !neighbours.empty()) estimator.marginal(ids, held_);
+  // The marginal of everything the robot holds, once; each neighbour's is cut out of it.
+  if (!neighbours.empty()) estimator.marginal(association_ ? estimator.object_ids() : ids, held_);
   for (int robot : neighbours) {
     send_marginal(robot, round, estimator, ids, neighbour_ids[robot], degree, links_left--);
   }
@@ -786,7 +787,7 @@ RoundReport ConsensusExchange::async_round(std::uint64_t round, Estimator& estim
   budget_->refill(Clock::now());
   for (int robot : live) send_landmark_set(robot, round, ids);
   auto links_left = static_cast<int>(known_ids.size());
-  if (!association_ && !known_ids.empty()) estimator.marginal(ids, held_);
+  if (!known_ids.empty()) estimator.marginal(ids, held_);
   for (int robot : live) {
     if (const auto it = known_ids.find(robot); it != known_ids.end()) {
       send_marginal(robot, round, estimator, ids, it->second, degree, links_left--);

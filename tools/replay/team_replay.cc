@@ -109,15 +109,17 @@ long long marginal_bytes(const Marginal& marginal) {
 }
 
 /// Marginal of robot j's objects that robot i (the receiver) shares with it, relabelled with i's
-/// ids: only pairs both robots' views agree on (what a daemon receiving j's marginal keeps).
-Marginal relabelled_marginal(const Estimator& sender, const association::Negotiator& sender_view,
-                             const association::Negotiator& receiver_view) {
+/// ids: only pairs both robots' views agree on (what a daemon receiving j's marginal keeps). Cut
+/// out of `held`, j's marginal of all it holds, into `cut` (its storage reused).
+Marginal relabelled_marginal(const Marginal& held, const association::Negotiator& sender_view,
+                             const association::Negotiator& receiver_view, Marginal& cut) {
   const auto sent = sender_view.shared_objects(receiver_view.robot());      // (j id, i id)
   const auto received = receiver_view.shared_objects(sender_view.robot());  // (i id, j id)
   std::vector<LandmarkId> ids;
+  ids.reserve(sent.size());
   for (const auto& [own, theirs] : sent) ids.push_back(own);
-  return association::relabel_marginal(sender.marginal(ids),
-                                       association::agreed_labels(sent, received));
+  Consensus::select(held, ids, cut);
+  return association::relabel_marginal(cut, association::agreed_labels(sent, received));
 }
 
 }  // namespace
@@ -206,6 +208,7 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
   std::vector<WeightedShare> given_shares;    // with given ids, each robot's in turn
   std::vector<WeightedMarginal> given_inbox;  // the same, cut and sent in compact form
   std::vector<int> common_per_block;
+  Marginal cut;  // a negotiated marginal before its relabelling (storage kept)
   const auto next_in = [&](int i) -> WeightedMarginal& {
     auto& box = inbox[static_cast<std::size_t>(i)];
     std::size_t& size = inbox_size[static_cast<std::size_t>(i)];
@@ -303,10 +306,19 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
         sent_bytes[sender] += bytes;
       };
       if (negotiated) {
+        // Each robot's marginal of all it holds, built once for the neighbours in its frame.
+        std::vector<bool> sends(robots, false);
+        for (int i = 0; i < robots; ++i) {
+          for (int j : round_neighbours[i]) sends[j] = sends[j] || frame_of[i] == frame_of[j];
+        }
+        for (int j = 0; j < robots; ++j) {
+          if (sends[j]) estimators[j].marginal(estimators[j].object_ids(), held[j].marginal());
+        }
         for (int i = 0; i < robots; ++i) {
           for (int j : round_neighbours[i]) {
             if (frame_of[i] != frame_of[j]) continue;  // not aligned yet: separate
-            Marginal marginal = relabelled_marginal(estimators[j], negotiators[j], negotiators[i]);
+            Marginal marginal =
+                relabelled_marginal(held[j].marginal(), negotiators[j], negotiators[i], cut);
             if (marginal.ids.empty()) continue;
             count_bytes(j, marginal_bytes(marginal));
             const double weight =

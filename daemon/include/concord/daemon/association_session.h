@@ -58,9 +58,9 @@ class AssociationSession {
   std::optional<association::Reanchoring> finish_round(std::uint64_t round, Estimator& estimator);
 
   /// The marginal for `robot` (this robot's ids) and the neighbour's id of each of its landmarks
-  /// (parallel to the marginal's ids).
-  std::pair<Marginal, std::vector<LandmarkId>> marginal_for(int robot,
-                                                            const Estimator& estimator) const;
+  /// (parallel to the marginal's ids), cut out of `held`, the marginal of every object the robot
+  /// holds (built once a round for all neighbours, Estimator::marginal of object_ids()).
+  std::pair<Marginal, std::vector<LandmarkId>> marginal_for(int robot, const Marginal& held) const;
   /// What this robot fuses of `robot`'s marginal sent in `frame` with `receiver_ids` (parallel to
   /// its ids): nullopt when the frames differ or no pair is agreed.
   std::optional<Marginal> accept_marginal(int robot, const Marginal& marginal,
