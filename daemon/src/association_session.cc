@@ -71,9 +71,9 @@ std::pair<Marginal, std::vector<LandmarkId>> AssociationSession::marginal_for(
   std::vector<LandmarkId> receiver_ids;
   receiver_ids.reserve(marginal.ids.size());
   for (LandmarkId id : marginal.ids) {
-    const auto it = std::lower_bound(
-        shared.begin(), shared.end(), id,
-        [](const std::pair<LandmarkId, LandmarkId>& pair, LandmarkId key) { return pair.first < key; });
+    const auto it = std::lower_bound(shared.begin(), shared.end(), id,
+                                     [](const std::pair<LandmarkId, LandmarkId>& pair,
+                                        LandmarkId key) { return pair.first < key; });
     receiver_ids.push_back(it->second);
   }
   return {std::move(marginal), std::move(receiver_ids)};
