@@ -784,8 +784,10 @@ ConsensusReport Consensus::fuse(State& state, const std::vector<WeightedMarginal
 
 namespace consensus_internal {
 
-/// The report of a step with `neighbours` neighbours, zeroed.
-void reset(ConsensusReport& report, std::size_t neighbours) {
+/// The buffers of a step with `neighbours` neighbours: the report zeroed, room for a member a
+/// neighbour, none taken yet.
+ConsensusWorkspace::Buffers& begin_step(ConsensusWorkspace::Buffers& w, std::size_t neighbours) {
+  ConsensusReport& report = w.report;
   report.landmarks_fused = 0;
   report.groups = 0;
   report.neighbours_skipped = 0;
@@ -794,6 +796,9 @@ void reset(ConsensusReport& report, std::size_t neighbours) {
   report.tested_per_neighbour.assign(neighbours, 0);
   report.landmarks_settled = 0;
   report.largest_mean_shift = 0.0;
+  if (w.neighbour_members.size() < neighbours) w.neighbour_members.resize(neighbours);
+  w.neighbour_count = 0;
+  return w;
 }
 
 /// Consensus::fuse once the neighbours' members (the first w.neighbour_count) are ready.
@@ -838,11 +843,8 @@ const ConsensusReport& Consensus::fuse(State& state,
                                        const std::vector<WeightedMarginal>& neighbours,
                                        const ConsensusOptions& options,
                                        ConsensusWorkspace& workspace) {
-  ConsensusWorkspace::Buffers& w = *workspace.buffers_;
-  reset(w.report, neighbours.size());
+  ConsensusWorkspace::Buffers& w = begin_step(*workspace.buffers_, neighbours.size());
   // 1. Every neighbour's marginal checked once.
-  if (w.neighbour_members.size() < neighbours.size()) w.neighbour_members.resize(neighbours.size());
-  w.neighbour_count = 0;
   for (std::size_t j = 0; j < neighbours.size(); ++j) {
     const Marginal& m = neighbours[j].marginal;
     if (m.ids.empty()) continue;
@@ -862,11 +864,8 @@ const ConsensusReport& Consensus::fuse(State& state,
 const ConsensusReport& Consensus::fuse(State& state, std::span<const WeightedShare> neighbours,
                                        const ConsensusOptions& options,
                                        ConsensusWorkspace& workspace) {
-  ConsensusWorkspace::Buffers& w = *workspace.buffers_;
-  reset(w.report, neighbours.size());
+  ConsensusWorkspace::Buffers& w = begin_step(*workspace.buffers_, neighbours.size());
   // 1. Every neighbour's marginal was checked and indexed by its owner, once.
-  if (w.neighbour_members.size() < neighbours.size()) w.neighbour_members.resize(neighbours.size());
-  w.neighbour_count = 0;
   for (std::size_t j = 0; j < neighbours.size(); ++j) {
     const WeightedShare& share = neighbours[j];
     if (share.marginal == nullptr || share.marginal->marginal().ids.empty()) continue;
