@@ -534,10 +534,14 @@ TEST(DaemonExchange, AsyncFusesTheNewestRecentMarginalOnce) {
   // (here far behind, as a restarted robot's) do not matter, only arrival.
   team.exchanges[0]->on_message(1, marginal_message(3, 5, Eigen::Vector3d(8, 0, 0)));
   team.exchanges[0]->on_message(1, marginal_message(4, 5, Eigen::Vector3d(0.4, 0, 0)));
-  EXPECT_EQ(team.exchanges[0]->run_round(11, estimator).fused, 1);
+  const RoundReport fusing = team.exchanges[0]->run_round(11, estimator);
+  EXPECT_EQ(fusing.fused, 1);
+  EXPECT_GT(fusing.fuse_cpu_seconds, 0.0);  // the fuse's CPU is counted when it fuses
   // Weight 1/2 each, equal covariances: the midpoint.
   EXPECT_NEAR(estimator.state().archived.at(5).p_world.x(), 0.2, 1e-12);
-  EXPECT_EQ(team.exchanges[0]->run_round(12, estimator).fused, 0);
+  const RoundReport idle = team.exchanges[0]->run_round(12, estimator);
+  EXPECT_EQ(idle.fused, 0);
+  EXPECT_EQ(idle.fuse_cpu_seconds, 0.0);  // and only then
 }
 
 TEST(DaemonExchange, MalformedMarginalsAreCountedAndDropped) {

@@ -675,10 +675,12 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
     add_negotiation_seconds(thread_cpu_seconds() - negotiation_start);
   }
   // The marginal of everything the robot holds, once; each neighbour's is cut out of it.
+  const double send_start = thread_cpu_seconds();
   if (!neighbours.empty()) estimator.marginal(association_ ? estimator.object_ids() : ids, held_);
   for (int robot : neighbours) {
     send_marginal(robot, round, estimator, ids, neighbour_ids[robot], degree, links_left--);
   }
+  report.send_cpu_seconds = thread_cpu_seconds() - send_start;
 
   // Phase 2: every waited-for neighbour's Marginal(k) (a rejected one is its answer too).
   std::vector<WeightedMarginal> inbox;
@@ -749,7 +751,9 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
   }
   report.wait_seconds = seconds_between(start, Clock::now());
   if (!inbox.empty()) {
+    const double fuse_start = thread_cpu_seconds();
     report.consensus = estimator.fuse(inbox);
+    report.fuse_cpu_seconds = thread_cpu_seconds() - fuse_start;
     report.fused = static_cast<int>(inbox.size());
     judge(round, senders, report.consensus);
     recycle(inbox);
@@ -787,12 +791,14 @@ RoundReport ConsensusExchange::async_round(std::uint64_t round, Estimator& estim
   budget_->refill(Clock::now());
   for (int robot : live) send_landmark_set(robot, round, ids);
   auto links_left = static_cast<int>(known_ids.size());
+  const double send_start = thread_cpu_seconds();
   if (!known_ids.empty()) estimator.marginal(ids, held_);
   for (int robot : live) {
     if (const auto it = known_ids.find(robot); it != known_ids.end()) {
       send_marginal(robot, round, estimator, ids, it->second, degree, links_left--);
     }
   }
+  report.send_cpu_seconds = thread_cpu_seconds() - send_start;
   std::vector<WeightedMarginal> inbox;
   std::vector<int> senders;
   {
@@ -820,7 +826,9 @@ RoundReport ConsensusExchange::async_round(std::uint64_t round, Estimator& estim
     }
   }
   if (!inbox.empty()) {
+    const double fuse_start = thread_cpu_seconds();
     report.consensus = estimator.fuse(inbox);
+    report.fuse_cpu_seconds = thread_cpu_seconds() - fuse_start;
     report.fused = static_cast<int>(inbox.size());
     judge(round, senders, report.consensus);
     recycle(inbox);

@@ -177,6 +177,8 @@ struct LiveState {
   double update_seconds = 0.0;
   double consensus_seconds = 0.0;  ///< whole rounds, waiting included
   double wait_seconds = 0.0;
+  double send_cpu_seconds = 0.0;  ///< the consensus step's CPU (RoundReport)
+  double fuse_cpu_seconds = 0.0;
   std::vector<double> latencies_ms;  ///< per frame: popped -> estimate published
   /// System clock (seconds since the epoch) when the first frame was popped and the last frame's
   /// estimate published; 0 before the first frame.
@@ -927,6 +929,8 @@ bool Daemon::Impl::process(QueuedFrame& item) {
       live_.landmarks_settled += static_cast<std::uint64_t>(round.consensus.landmarks_settled);
       live_.consensus_seconds += seconds_between(updated, done);
       live_.wait_seconds += round.wait_seconds;
+      live_.send_cpu_seconds += round.send_cpu_seconds;
+      live_.fuse_cpu_seconds += round.fuse_cpu_seconds;
       push_bounded(live_.bytes_per_round, bytes);
     }
     push_bounded(live_.latencies_ms, 1e3 * seconds_between(popped, done));
@@ -1133,6 +1137,8 @@ json Daemon::Impl::stats_json() const {
       {"update_seconds", live_.update_seconds},
       {"consensus_seconds", live_.consensus_seconds},
       {"wait_seconds", live_.wait_seconds},
+      {"consensus_send_cpu_seconds", live_.send_cpu_seconds},
+      {"consensus_fuse_cpu_seconds", live_.fuse_cpu_seconds},
       {"first_frame_unix", live_.first_frame_unix},
       {"last_frame_unix", live_.last_frame_unix},
       {"latency_ms",
@@ -1372,6 +1378,12 @@ void Daemon::Impl::register_routes() {
                    "Time in consensus rounds, waiting included", robot, live_.consensus_seconds);
       text.counter("concord_consensus_wait_seconds_total",
                    "Time waiting for neighbours in consensus rounds", robot, live_.wait_seconds);
+      text.counter("concord_consensus_send_cpu_seconds_total",
+                   "CPU building the marginal and each neighbour's message in consensus rounds",
+                   robot, live_.send_cpu_seconds);
+      text.counter("concord_consensus_fuse_cpu_seconds_total",
+                   "CPU fusing neighbours' marginals in consensus rounds", robot,
+                   live_.fuse_cpu_seconds);
       text.counter("concord_consensus_rounds_total", "Consensus rounds", robot,
                    static_cast<double>(live_.rounds));
       text.counter("concord_marginals_fused_total", "Neighbour marginals fused", robot,

@@ -65,6 +65,11 @@ struct RoundReport {
   int bad_messages = 0;  ///< malformed marginals dropped in this round
   int excluded = 0;      ///< live peers not waited for (they missed miss_limit rounds in a row)
   double wait_seconds = 0.0;
+  /// This thread's CPU time in the round's consensus step, waiting and negotiation left out:
+  /// the robot's marginal and each neighbour's message (cut, encoded, handed to the network),
+  /// and the fuse of what arrived (its check included).
+  double send_cpu_seconds = 0.0;
+  double fuse_cpu_seconds = 0.0;
   ConsensusReport consensus;
 };
 
