@@ -8,6 +8,7 @@
 #include "allocation_counter.h"
 #include "checkpoint.h"
 #include "concord/daemon/wire.h"
+#include "concord/estimator/consensus.h"
 #include "concord/frontend/detections.h"
 #include "concord/v1/concord.pb.h"
 #include "test_support.h"
@@ -50,6 +51,31 @@ TEST(DaemonWire, MarginalRoundTripIsExact) {
   EXPECT_EQ(std::vector<std::uint32_t>(parsed.block_landmarks().begin(), parsed.block_landmarks().end()),
             (std::vector<std::uint32_t>{2, 1, 1}));
   EXPECT_EQ(parsed.packed_upper_size(), 21 + 6 + 6);
+}
+
+TEST(DaemonWire, ACutEncodedWithoutTheCopyIsTheCutsEncoding) {
+  // A daemon encodes each neighbour's cut of the marginal it built once straight from that
+  // marginal. The bytes must be those of the cut made first (sub_marginal): every subset of a
+  // marginal with a joint block of 4 landmarks and 3 archived ones, into one reused message.
+  std::mt19937 random(5);
+  Marginal full;
+  full.ids = {20, 21, 22, 23, 4, 9, 15};
+  full.mean = Eigen::VectorXd::Random(21);
+  full.blocks = {testing::random_spd(12, random), testing::random_spd(3, random),
+                 testing::random_spd(3, random), testing::random_spd(3, random)};
+  v1::Marginal direct;  // reused: nothing of an earlier cut may stay in it
+  for (unsigned mask = 0; mask < (1U << full.ids.size()); ++mask) {
+    std::vector<bool> keep(full.ids.size());
+    for (std::size_t k = 0; k < keep.size(); ++k) keep[k] = ((mask >> k) & 1U) != 0;
+    v1::Marginal expected;
+    to_wire(sub_marginal(full, keep), expected);
+    to_wire(full, keep, direct);
+    ASSERT_EQ(direct.SerializeAsString(), expected.SerializeAsString()) << "mask " << mask;
+  }
+  // The keep flags of a list of ids, as select() finds them.
+  std::vector<bool> keep;
+  Consensus::kept_by(full, {4, 15, 21, 23, 99}, keep);
+  EXPECT_EQ(keep, (std::vector<bool>{false, true, false, true, true, false, true}));
 }
 
 TEST(DaemonWire, AMarginalReadIntoOneOfTheSameShapeReusesItsStorage) {

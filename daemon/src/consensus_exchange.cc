@@ -554,8 +554,8 @@ void ConsensusExchange::send_marginal(int robot, std::uint64_t round, const Esti
     }
     if (!sharing()) {
       if (!common.empty()) {
-        Consensus::select(held_, common, outgoing_);
-        to_wire(outgoing_, *message);
+        Consensus::kept_by(held_, common, outgoing_);
+        to_wire(held_, outgoing_, *message);  // the cut, encoded without a copy
       }
     } else {
       // Event-triggered and compact: the landmarks that moved since this connection last

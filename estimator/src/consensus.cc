@@ -730,12 +730,19 @@ void Consensus::marginal(const State& state, const std::vector<LandmarkId>& ids,
 }
 
 void Consensus::select(const Marginal& full, const std::vector<LandmarkId>& ids, Marginal& out) {
-  assert(std::is_sorted(ids.begin(), ids.end()));
   assert(full.well_formed());
+  // The cut itself is sub_marginal's.
+  thread_local std::vector<bool> keep;
+  kept_by(full, ids, keep);
+  sub_marginal(full, keep, out);
+}
+
+void Consensus::kept_by(const Marginal& full, const std::vector<LandmarkId>& ids,
+                        std::vector<bool>& keep) {
+  assert(std::is_sorted(ids.begin(), ids.end()));
   // Which of full's landmarks are in `ids`: a cursor in `ids` walks along full's ids while they
   // ascend (they do within each block of a marginal of ascending ids) and searches where they
-  // do not. The cut itself is sub_marginal's.
-  thread_local std::vector<bool> keep;
+  // do not.
   keep.assign(full.ids.size(), false);
   auto cursor = ids.begin();
   LandmarkId previous = std::numeric_limits<LandmarkId>::min();
@@ -746,7 +753,6 @@ void Consensus::select(const Marginal& full, const std::vector<LandmarkId>& ids,
     while (cursor != ids.end() && *cursor < id) ++cursor;
     keep[position] = cursor != ids.end() && *cursor == id;
   }
-  sub_marginal(full, keep, out);
 }
 
 bool Consensus::replace_marginal(State& state, const std::vector<int>& slots,

@@ -283,8 +283,8 @@ class ConsensusExchange {
   std::map<int, std::map<LandmarkId, std::uint64_t>> last_sent_;
   /// Estimator thread only: per neighbour, what it holds of this robot's landmarks (sharing()).
   std::map<int, MarginalSender> senders_;
-  /// Estimator thread only: the marginal being sent, its storage kept from round to round.
-  Marginal outgoing_;
+  /// Estimator thread only: which of held_'s landmarks the message being sent carries.
+  std::vector<bool> outgoing_;
   /// The round's marginal of every object the robot holds (given ids), built once before the
   /// marginals go out; each neighbour's is cut out of it (Consensus::select).
   Marginal held_;

@@ -6,6 +6,7 @@
 
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "concord/estimator/marginal_sharing.h"
 #include "concord/estimator/types.h"
@@ -20,6 +21,9 @@ namespace concord::daemon {
 
 /// Writes `marginal` into `out` (ids, mean, each covariance block as its packed upper triangle).
 void to_wire(const Marginal& marginal, v1::Marginal& out);
+/// The landmarks of `full` with keep[k] set (one flag a landmark, Consensus::kept_by), encoded
+/// as to_wire encodes sub_marginal(full, keep), without making that copy.
+void to_wire(const Marginal& full, const std::vector<bool>& keep, v1::Marginal& out);
 /// The float32 form (consensus.share_float32); from_wire reads either.
 void to_wire(const CompactMarginal& marginal, v1::Marginal& out);
 /// The Marginal a message carries, or std::nullopt with `error` saying what is malformed.

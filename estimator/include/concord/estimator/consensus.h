@@ -114,6 +114,10 @@ class Consensus {
   /// marginal(state, ids) entry for entry when `full` is marginal(state, all) with `all`
   /// ascending, without a look-up in the state's trees per neighbour.
   static void select(const Marginal& full, const std::vector<LandmarkId>& ids, Marginal& out);
+  /// Which of full's landmarks select() keeps for `ids` (ascending): one flag a landmark of
+  /// full, into `keep` (for sub_marginal, or to encode the cut without making it).
+  static void kept_by(const Marginal& full, const std::vector<LandmarkId>& ids,
+                      std::vector<bool>& keep);
 
   /// Averages the robot's marginals with its neighbours' (eq. 19) and reconstructs the joint
   /// (Proposition 2, eq. 21). Each neighbour carries its weight A_ij; the robot's own weight is
