@@ -66,52 +66,33 @@ void to_wire(const Marginal& marginal, v1::Marginal& out) {
 }
 
 void to_wire(const Marginal& full, const std::vector<bool>& keep, v1::Marginal& out) {
-  // Kept positions, and where each block's run of them ends.
-  thread_local std::vector<Eigen::Index> kept;
-  thread_local std::vector<std::size_t> block_end;
-  kept.clear();
-  block_end.clear();
+  thread_local CutLayout layout;
+  layout.assign(full, keep);
   out.clear_landmark_ids();
   out.clear_mean();
-  Eigen::Index position = 0;
-  for (const Eigen::MatrixXd& block : full.blocks) {
-    for (const Eigen::Index end = position + block.rows() / 3; position < end; ++position) {
-      if (!keep[static_cast<std::size_t>(position)]) continue;
-      kept.push_back(position);
-      out.add_landmark_ids(full.ids[static_cast<std::size_t>(position)]);
-      for (int axis = 0; axis < 3; ++axis) out.add_mean(full.mean(3 * position + axis));
-    }
-    block_end.push_back(kept.size());
+  for (const Eigen::Index position : layout.kept) {
+    out.add_landmark_ids(full.ids[static_cast<std::size_t>(position)]);
+    for (int axis = 0; axis < 3; ++axis) out.add_mean(full.mean(3 * position + axis));
   }
   auto* sizes = out.mutable_block_landmarks();
   auto* packed = out.mutable_packed_upper();
   sizes->Clear();
   packed->Clear();
   Eigen::Index values = 0;
-  for (std::size_t b = 0; b < block_end.size(); ++b) {
-    const auto n = static_cast<Eigen::Index>(block_end[b] - (b > 0 ? block_end[b - 1] : 0));
-    values += 3 * n * (3 * n + 1) / 2;
-  }
+  for (const CutLayout::Block& cut : layout.blocks) values += 3 * cut.size() * (3 * cut.size() + 1) / 2;
   packed->Reserve(static_cast<int>(values));
-  Eigen::Index first_of_block = 0;  // the block's first landmark in `full`
-  for (std::size_t b = 0; b < block_end.size(); ++b) {
-    const std::size_t begin = b > 0 ? block_end[b - 1] : 0;
+  for (std::size_t b = 0; b < layout.blocks.size(); ++b) {
+    const CutLayout::Block& cut = layout.blocks[b];
+    const Eigen::Index n = cut.size();
+    if (n == 0) continue;
+    sizes->Add(static_cast<std::uint32_t>(n));
     const Eigen::MatrixXd& source = full.blocks[b];
-    const auto n = static_cast<Eigen::Index>(block_end[b] - begin);
-    if (n > 0) {
-      sizes->Add(static_cast<std::uint32_t>(n));
-      // Row r of the cut is row 3 (kept landmark - first of block) + r % 3 of the block.
-      const auto row_of = [&](Eigen::Index r) {
-        return 3 * (kept[begin + static_cast<std::size_t>(r / 3)] - first_of_block) + r % 3;
-      };
-      for (Eigen::Index r = 0; r < 3 * n; ++r) {
-        const Eigen::Index source_row = row_of(r);
-        for (Eigen::Index c = r; c < 3 * n; ++c) {
-          packed->AddAlreadyReserved(source(source_row, row_of(c)));
-        }
+    for (Eigen::Index r = 0; r < 3 * n; ++r) {
+      const Eigen::Index source_row = layout.source_row(cut, r);
+      for (Eigen::Index c = r; c < 3 * n; ++c) {
+        packed->AddAlreadyReserved(source(source_row, layout.source_row(cut, c)));
       }
     }
-    first_of_block += source.rows() / 3;
   }
 }
 

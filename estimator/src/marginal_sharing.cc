@@ -56,55 +56,53 @@ Marginal sub_marginal(const Marginal& marginal, const std::vector<bool>& keep) {
   return out;
 }
 
-void sub_marginal(const Marginal& marginal, const std::vector<bool>& keep, Marginal& out) {
-  // Positions kept, and where each block's run of them ends.
-  thread_local std::vector<Eigen::Index> kept;
-  thread_local std::vector<std::size_t> block_end;  // kept.size() after each block
+void CutLayout::assign(const Marginal& marginal, const std::vector<bool>& keep) {
   kept.clear();
-  block_end.clear();
-  out.ids.clear();
+  blocks.clear();
   Eigen::Index position = 0;
   for (const Eigen::MatrixXd& block : marginal.blocks) {
+    Block& layout = blocks.emplace_back();
+    layout.first = position;
+    layout.begin = kept.size();
     for (const Eigen::Index end = position + block.rows() / 3; position < end; ++position) {
-      if (!keep[static_cast<std::size_t>(position)]) continue;
-      kept.push_back(position);
-      out.ids.push_back(marginal.ids[static_cast<std::size_t>(position)]);
+      if (keep[static_cast<std::size_t>(position)]) kept.push_back(position);
     }
-    block_end.push_back(kept.size());
+    layout.end = kept.size();
   }
-  const auto count = static_cast<Eigen::Index>(kept.size());
+}
+
+void sub_marginal(const Marginal& marginal, const std::vector<bool>& keep, Marginal& out) {
+  thread_local CutLayout layout;
+  layout.assign(marginal, keep);
+  const auto count = static_cast<Eigen::Index>(layout.kept.size());
+  out.ids.clear();
   if (out.mean.size() != 3 * count) out.mean.resize(3 * count);
   for (Eigen::Index k = 0; k < count; ++k) {
-    out.mean.segment<3>(3 * k) = marginal.mean.segment<3>(3 * kept[static_cast<std::size_t>(k)]);
+    const Eigen::Index position = layout.kept[static_cast<std::size_t>(k)];
+    out.ids.push_back(marginal.ids[static_cast<std::size_t>(position)]);
+    out.mean.segment<3>(3 * k) = marginal.mean.segment<3>(3 * position);
   }
-  std::size_t blocks = 0;
-  for (std::size_t b = 0; b < block_end.size(); ++b) {
-    if (block_end[b] > (b > 0 ? block_end[b - 1] : 0)) ++blocks;
-  }
+  const auto blocks = static_cast<std::size_t>(std::count_if(
+      layout.blocks.begin(), layout.blocks.end(), [](const auto& b) { return b.size() > 0; }));
   out.blocks.resize(blocks);  // kept blocks keep their storage
   std::size_t block = 0;
-  Eigen::Index first_of_block = 0;  // the block's first position in `marginal`
-  for (std::size_t b = 0; b < block_end.size(); ++b) {
-    const std::size_t begin = b > 0 ? block_end[b - 1] : 0;
+  for (std::size_t b = 0; b < layout.blocks.size(); ++b) {
+    const CutLayout::Block& cut = layout.blocks[b];
     const Eigen::MatrixXd& source = marginal.blocks[b];
-    if (block_end[b] > begin) {
-      const auto n = static_cast<Eigen::Index>(block_end[b] - begin);
-      Eigen::MatrixXd& target = out.blocks[block++];
-      if (target.rows() != 3 * n || target.cols() != 3 * n) target.resize(3 * n, 3 * n);
-      if (n == source.rows() / 3) {
-        target = source;  // the whole block (an archived object's 3x3, most often)
-      } else {
-        for (Eigen::Index c = 0; c < n; ++c) {
-          const Eigen::Index sc = 3 * (kept[begin + static_cast<std::size_t>(c)] - first_of_block);
-          for (Eigen::Index r = 0; r < n; ++r) {
-            const Eigen::Index sr =
-                3 * (kept[begin + static_cast<std::size_t>(r)] - first_of_block);
-            target.block<3, 3>(3 * r, 3 * c) = source.block<3, 3>(sr, sc);
-          }
-        }
+    const Eigen::Index n = cut.size();
+    if (n == 0) continue;
+    Eigen::MatrixXd& target = out.blocks[block++];
+    if (target.rows() != 3 * n || target.cols() != 3 * n) target.resize(3 * n, 3 * n);
+    if (3 * n == source.rows()) {
+      target = source;  // the whole block (an archived object's 3x3, most often)
+      continue;
+    }
+    for (Eigen::Index c = 0; c < n; ++c) {
+      const Eigen::Index sc = layout.source_row(cut, 3 * c);
+      for (Eigen::Index r = 0; r < n; ++r) {
+        target.block<3, 3>(3 * r, 3 * c) = source.block<3, 3>(layout.source_row(cut, 3 * r), sc);
       }
     }
-    first_of_block += source.rows() / 3;
   }
 }
 

@@ -100,11 +100,14 @@ namespace {
 
 /// Bytes of a marginal in a fixed-width encoding (ids and numbers 8 bytes each, blocks as upper
 /// triangles).
+/// Bytes of a landmark in a marginal's double form: its id and mean.
+long long landmark_bytes(long long landmarks) { return 8 * 4 * landmarks; }
+/// Bytes of a covariance block of that many landmarks: its upper triangle.
+long long block_bytes(long long landmarks) { return 8 * (3 * landmarks) * (3 * landmarks + 1) / 2; }
+
 long long marginal_bytes(const Marginal& marginal) {
-  long long bytes = 8 * static_cast<long long>(marginal.ids.size() + marginal.mean.size());
-  for (const Eigen::MatrixXd& block : marginal.blocks) {
-    bytes += 8 * static_cast<long long>(block.rows() * (block.rows() + 1) / 2);
-  }
+  long long bytes = landmark_bytes(static_cast<long long>(marginal.ids.size()));
+  for (const Eigen::MatrixXd& block : marginal.blocks) bytes += block_bytes(block.rows() / 3);
   return bytes;
 }
 
@@ -357,13 +360,13 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
             continue;
           }
           held[j].count_common(ids[i], common_per_block);
-          long long common = 0, block_bytes = 0;
-          for (int kept : common_per_block) {
+          long long common = 0, bytes = 0;  // marginal_bytes of the cut
+          for (const int kept : common_per_block) {
             common += kept;
-            block_bytes += 8 * (3LL * kept) * (3LL * kept + 1) / 2;
+            bytes += block_bytes(kept);
           }
           if (common == 0) continue;
-          count_bytes(j, 8 * 4 * common + block_bytes);  // marginal_bytes of the cut
+          count_bytes(j, landmark_bytes(common) + bytes);
           given_shares.push_back({weight, &held[j]});
         }
       };

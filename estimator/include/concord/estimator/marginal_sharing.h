@@ -32,6 +32,26 @@ double kl_divergence(const ObjectEstimate& p, const ObjectEstimate& q);
 /// The 3x3 marginal of landmark k of a marginal (the diagonal block of its covariance block).
 ObjectEstimate landmark_estimate(const Marginal& marginal, std::size_t k);
 
+/// Where the landmarks a cut keeps (keep[k] set) sit in a block-diagonal marginal, block by
+/// block: what sub_marginal and the encoding of a cut without making it (concordd) share.
+struct CutLayout {
+  /// A block of the marginal: its first landmark's position, and its kept landmarks'
+  /// range [begin, end) in `kept`.
+  struct Block {
+    Eigen::Index first = 0;
+    std::size_t begin = 0, end = 0;
+    Eigen::Index size() const { return static_cast<Eigen::Index>(end - begin); }
+  };
+  std::vector<Eigen::Index> kept;  ///< each kept landmark's position, in the marginal's order
+  std::vector<Block> blocks;       ///< one a block of the marginal, kept landmarks or not
+
+  void assign(const Marginal& marginal, const std::vector<bool>& keep);
+  /// The row (or column) of the marginal's block that coordinate r of its cut is.
+  Eigen::Index source_row(const Block& block, Eigen::Index r) const {
+    return 3 * (kept[block.begin + static_cast<std::size_t>(r / 3)] - block.first) + r % 3;
+  }
+};
+
 /// The marginal's landmarks whose positions are given, as a sub-marginal with the joint blocks
 /// restricted to them (order kept).
 Marginal sub_marginal(const Marginal& marginal, const std::vector<bool>& keep);
