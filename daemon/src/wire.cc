@@ -79,7 +79,8 @@ void to_wire(const Marginal& full, const std::vector<bool>& keep, v1::Marginal& 
   sizes->Clear();
   packed->Clear();
   Eigen::Index values = 0;
-  for (const CutLayout::Block& cut : layout.blocks) values += 3 * cut.size() * (3 * cut.size() + 1) / 2;
+  for (const CutLayout::Block& cut : layout.blocks)
+    values += 3 * cut.size() * (3 * cut.size() + 1) / 2;
   packed->Reserve(static_cast<int>(values));
   for (std::size_t b = 0; b < layout.blocks.size(); ++b) {
     const CutLayout::Block& cut = layout.blocks[b];
