@@ -653,8 +653,10 @@ TEST(PairwiseAssociationTest, MatchingUnderATransformFindsWhatAnExhaustiveSearch
   MapDescription c, d;
   c.objects = {along_x(0, 0.0, 0.0), along_x(1, 0.0, 10.0)};
   d.objects = {along_x(5, 4.0, 0.0), along_x(6, 5.6, 10.0), along_x(7, -7.0, 10.0)};
+  AssociationOptions margin_nine = test_options();  // the figures above are for a margin of 9
+  margin_nine.match_margin = 9.0;
   const auto matches =
-      match_with_transform(c, d, Eigen::Isometry3d::Identity(), false, test_options());
+      match_with_transform(c, d, Eigen::Isometry3d::Identity(), false, margin_nine);
   ASSERT_EQ(matches.size(), 1u);
   EXPECT_EQ(matches[0].id_a, 0);
   EXPECT_EQ(matches[0].id_b, 5);
