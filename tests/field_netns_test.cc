@@ -192,26 +192,29 @@ TEST(FieldNetns, RateLimitedLinksUnderALinkBudgetTrimMarginalsAndKeepTheFrameRat
   EXPECT_TRUE(
       eventually([&] { return metric(*lab, 1, "concord_marginals_fused_total") > 0; }, 20s));
   EXPECT_GT(metric(*lab, 0, "concord_consensus_budget_landmarks_dropped_total"), 0);
-  // The frame rate is kept: the estimator is never held up by the saturated links, so its queue
-  // stays (nearly) empty. A machine busy with other work can delay a few frames for a moment, so
-  // the check is that the queue is found short while the links stay saturated, not at one
-  // instant; an estimator that waited on the links would keep it full (64 frames).
+  // The frame rate is kept: the estimator is never held up by the rate-limited links. Whether
+  // it keeps 20 Hz depends on the machine (a sanitizer build on a shared core does not), so what
+  // is checked is where its time goes, measured in the same run: async rounds never wait for a
+  // neighbour, and the rounds (building and posting the messages, fusing) take no more than a
+  // few times the estimator's filter updates (measured: 0.4-0.7 of them in a Release build,
+  // 0.07-0.14 under AddressSanitizer, on a busy core too). A round that waited for its bytes to
+  // leave through the links would take far more (40 ms a round: 100 times the updates).
   EXPECT_TRUE(
-      eventually([&] { return metric(*lab, 0, "concord_frames_processed_total") >= 150; }, 30s));
-  // (Robot 0 has 300 frames: found while frames are still coming, not after the run.)
-  EXPECT_TRUE(eventually(
-      [&] {
-        const double depth = metric(*lab, 0, "concord_frame_queue_depth");
-        const double processed = metric(*lab, 0, "concord_frames_processed_total");
-        return depth >= 0 && depth <= 2 && processed >= 0 && processed < 280;
-      },
-      20s))
-      << "queue depth " << metric(*lab, 0, "concord_frame_queue_depth");
+      eventually([&] { return metric(*lab, 0, "concord_frames_processed_total") >= 150; }, 60s));
+  const double update_seconds = metric(*lab, 0, "concord_update_seconds_total");
+  const double round_seconds = metric(*lab, 0, "concord_consensus_seconds_total");
+  EXPECT_GT(update_seconds, 0.0);
+  EXPECT_GE(round_seconds, 0.0);
+  EXPECT_LT(round_seconds, 3.0 * update_seconds);
+  EXPECT_EQ(metric(*lab, 0, "concord_consensus_wait_seconds_total"), 0.0);
   // Consensus stays within its budget: rate x elapsed + the one-second burst (+ a few control
   // messages that may overdraw it).
+  const double bytes_now = metric(*lab, 0, "concord_consensus_bytes_sent_total");
   const double elapsed = std::chrono::duration<double>(Clock::now() - start).count();
-  const double sent = metric(*lab, 0, "concord_consensus_bytes_sent_total") - bytes_at_start;
-  EXPECT_LE(sent, kBudget * (elapsed + 1.0) + 4000.0) << "over " << elapsed << " s";
+  ASSERT_GE(bytes_at_start, 0.0);
+  ASSERT_GT(bytes_now, bytes_at_start);
+  EXPECT_LE(bytes_now - bytes_at_start, kBudget * (elapsed + 1.0) + 4000.0)
+      << "over " << elapsed << " s";
 
   for (auto& daemon : daemons) daemon.signal(SIGTERM);
   for (int robot = 0; robot < 3; ++robot) {
