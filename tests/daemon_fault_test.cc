@@ -235,15 +235,20 @@ TEST(DaemonFault, HungAndSilentPeersCostAtMostOneDeadlineEach) {
   const json stats = read_json(out / "robot_00" / "stats.json");
   EXPECT_EQ(stats["frames"], 100);
   // At most one deadline per faulty peer (two phases may each time out once per peer), plus the
-  // normal run time.
-  EXPECT_LT(stats["wait_seconds"].get<double>(), 2 * 2 * 1.5 + 1.0) << stats.dump();
+  // normal waits of a lockstep team: for the partner's update, which takes about as long as this
+  // robot's own (its update time is the machine's pace: a loaded machine running sanitizer builds
+  // slows both alike). Waiting on the faulty peers every round would cost 100 x 1.5 s.
+  EXPECT_LT(stats["wait_seconds"].get<double>(),
+            2 * 2 * 1.5 + 1.0 + stats["update_seconds"].get<double>())
+      << stats.dump();
   EXPECT_LE(stats["consensus"]["deadline_misses"].get<int>(), 4) << stats.dump();
   EXPECT_GE(stats["consensus"]["exclusions"].get<int>(), 1);
-  // SIGTERM ends the hung robot at once, even in the middle of its hang.
+  // SIGTERM ends the hung robot in the middle of its hang (120 s): the bound is a tenth of that,
+  // so that a loaded machine cannot fail it (it takes a fraction of a second).
   const auto signalled = Clock::now();
   daemons[2].signal(SIGTERM);
-  ASSERT_TRUE(daemons[2].wait_for(5s));
-  EXPECT_LT(Clock::now() - signalled, 1500ms);
+  ASSERT_TRUE(daemons[2].wait_for(30s));
+  EXPECT_LT(Clock::now() - signalled, 12s);
   EXPECT_EQ(daemons[2].exit_code(), 0);
 }
 
