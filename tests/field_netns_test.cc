@@ -195,17 +195,18 @@ TEST(FieldNetns, RateLimitedLinksUnderALinkBudgetTrimMarginalsAndKeepTheFrameRat
   // The frame rate is kept: the estimator is never held up by the rate-limited links. Whether
   // it keeps 20 Hz depends on the machine (a sanitizer build on a shared core does not), so what
   // is checked is where its time goes, measured in the same run: async rounds never wait for a
-  // neighbour, and the rounds (building and posting the messages, fusing) take no more than a
-  // few times the estimator's filter updates (measured: 0.4-0.7 of them in a Release build,
-  // 0.07-0.14 under AddressSanitizer, on a busy core too). A round that waited for its bytes to
-  // leave through the links would take far more (40 ms a round: 100 times the updates).
+  // neighbour, and the rounds (building and posting the messages, fusing) take less than ten
+  // times the estimator's filter updates (measured: 0.4-0.7 of them in a Release build, up to
+  // 1.05 on a core shared with a busy loop; 0.07-0.14 under AddressSanitizer). A round that
+  // waited for its bytes to leave through the links would take far more (a Release round
+  // delayed 40 ms: 100 times the updates).
   EXPECT_TRUE(
       eventually([&] { return metric(*lab, 0, "concord_frames_processed_total") >= 150; }, 60s));
   const double update_seconds = metric(*lab, 0, "concord_update_seconds_total");
   const double round_seconds = metric(*lab, 0, "concord_consensus_seconds_total");
   EXPECT_GT(update_seconds, 0.0);
   EXPECT_GE(round_seconds, 0.0);
-  EXPECT_LT(round_seconds, 3.0 * update_seconds);
+  EXPECT_LT(round_seconds, 10.0 * update_seconds);
   EXPECT_EQ(metric(*lab, 0, "concord_consensus_wait_seconds_total"), 0.0);
   // Consensus stays within its budget: rate x elapsed + the one-second burst (+ a few control
   // messages that may overdraw it).
