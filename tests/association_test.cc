@@ -582,6 +582,42 @@ TEST(PairwiseAssociationTest, InOneFrameGatingIsMutualAndUnambiguous) {
   EXPECT_EQ(matches[0].id_b, 5);
 }
 
+TEST(PairwiseAssociationTest, AnUncertainTransformWidensTheGateWithTheDistanceFromItsOrigin) {
+  // b is a turned 0.02 rad about z (a's frame), and the transform used is the identity with a
+  // yaw standard deviation of 0.02 rad. Near the origin the turn moves an object by 2 cm, at
+  // (50, 0) by 1 m, ten of its 10 cm standard deviations: only the transform's uncertainty,
+  // 1 m there across the line of sight, lets that pair match.
+  MapDescription a, b;
+  a.robot = 0;
+  b.robot = 1;
+  const Eigen::Matrix3d covariance = 0.01 * Eigen::Matrix3d::Identity();
+  const Eigen::Isometry3d turn = make_transform(0.02, 0.0, Eigen::Vector3d::Zero());
+  for (const auto& [id, x] : {std::pair{0, 1.0}, std::pair{1, 50.0}}) {
+    a.objects.push_back(described(id, x, 0.0, covariance));
+    b.objects.push_back(described(id + 10, x, 0.0, covariance));
+    b.objects.back().position = turn * b.objects.back().position;
+  }
+  lie::Matrix6d uncertain = lie::Matrix6d::Zero();
+  uncertain(5, 5) = 0.02 * 0.02;
+  const auto ids_of = [](const std::vector<Match>& matches) {
+    std::vector<std::pair<LandmarkId, LandmarkId>> ids;
+    for (const Match& match : matches) ids.emplace_back(match.id_a, match.id_b);
+    return ids;
+  };
+  using Ids = std::vector<std::pair<LandmarkId, LandmarkId>>;
+  EXPECT_EQ(
+      ids_of(match_with_transform(a, b, Eigen::Isometry3d::Identity(), false, test_options())),
+      (Ids{{0, 10}}));
+  EXPECT_EQ(ids_of(match_with_transform(a, b, Eigen::Isometry3d::Identity(), false, test_options(),
+                                        &uncertain)),
+            (Ids{{0, 10}, {1, 11}}));
+  // A certain transform is the same as none.
+  const lie::Matrix6d certain = lie::Matrix6d::Zero();
+  EXPECT_EQ(ids_of(match_with_transform(a, b, Eigen::Isometry3d::Identity(), false, test_options(),
+                                        &certain)),
+            (Ids{{0, 10}}));
+}
+
 TEST(PairwiseAssociationTest, MatchingUnderATransformFindsWhatAnExhaustiveSearchFinds) {
   // Two maps of one scene, b in a frame turned by a yaw of a radian (so that the order of its
   // objects along x is not a's), with object covariances of many sizes; the matches must be those
@@ -1346,6 +1382,81 @@ TEST(NegotiationTest, AWrongMergeIsSplitAndCounted) {
   // It stays split while they disagree.
   for (int k = 0; k < 4; ++k) step();
   EXPECT_EQ(zero.shared_objects(2).size(), 1u);
+}
+
+/// In-frame matching with and without in_frame_fit (NegotiationTest below): the neighbour's
+/// description of each object its owner holds (true, shared_objects of robot 0 with robot 2).
+std::vector<std::pair<LandmarkId, LandmarkId>> in_frame_links(bool in_frame_fit) {
+  // Robots 0 and 2 in one frame (robot 0 owns the pair). Robot 2's map is shifted 3 m along x
+  // against robot 0's, as after a move into the team frame with an error of that size, and each
+  // says so: marginal covariances of 1 m^2 an axis (the team frame's uncertainty), 5 cm
+  // relative to the robot (local). Nine objects on a 10 m grid are seen by both from the start.
+  // From round 3 on, robot 0 maps object T at (25, 5, 0) and robot 2 maps T (3 m off, as all of
+  // its map) and another object D, which its shift puts 10 cm from robot 0's T.
+  NegotiationOptions options;
+  options.description_interval = 1;
+  options.confirmations = 2;
+  options.association.distance_noise = 0.0;
+  options.in_frame_fit = in_frame_fit;
+  Negotiator zero(0, kWorldFrame, options), two(2, kWorldFrame, options);
+  const Eigen::Vector3d shift(3.0, 0.0, 0.0);
+  const auto object = [](LandmarkId id, const Eigen::Vector3d& position) {
+    ObjectDescription o;
+    o.id = id;
+    o.position = position;
+    o.covariance = Eigen::Matrix3d::Identity();
+    o.local_covariance = 0.0025 * Eigen::Matrix3d::Identity();
+    o.observations = 10;
+    return o;
+  };
+  const auto map_of = [&](int robot, int round) {
+    MapDescription map;
+    map.robot = robot;
+    map.frame = kWorldFrame;
+    const Eigen::Vector3d offset = robot == 2 ? shift : Eigen::Vector3d::Zero();
+    for (int i = 0; i < 3; ++i) {
+      for (int j = 0; j < 3; ++j) {
+        const Eigen::Vector3d grid(10.0 * i, 10.0 * j, 0.5 * ((i + j) % 2));
+        map.objects.push_back(object(3 * i + j, grid + offset));
+      }
+    }
+    if (round >= 3) {
+      map.objects.push_back(object(100, Eigen::Vector3d(25.0, 5.0, 0.0) + offset));         // T
+      if (robot == 2) map.objects.push_back(object(101, Eigen::Vector3d(25.1, 5.0, 0.0)));  // D
+    }
+    return map;
+  };
+  for (int round = 0; round < 8; ++round) {
+    zero.set_own_map(map_of(0, round), round);
+    two.set_own_map(map_of(2, round), round);
+    const auto to_two = zero.message_for(2, round);
+    const auto to_zero = two.message_for(0, round);
+    two.receive(to_two, round);
+    zero.receive(to_zero, round);
+    zero.finish_round(round);
+    two.finish_round(round);
+  }
+  return zero.shared_objects(2);
+}
+
+TEST(NegotiationTest, InOneFrameTheMapsAreMatchedUnderTheirFittedRelativePose) {
+  ASSERT_TRUE(owns_pair(0, 2));
+  using Link = std::pair<LandmarkId, LandmarkId>;
+  const auto holds = [](const std::vector<Link>& links, Link link) {
+    return std::find(links.begin(), links.end(), link) != links.end();
+  };
+  // With the fit, the grid's nine links give the 3 m shift, and T is linked with T.
+  const std::vector<Link> fitted = in_frame_links(true);
+  EXPECT_EQ(fitted.size(), 10u);
+  for (LandmarkId id = 0; id < 9; ++id) EXPECT_TRUE(holds(fitted, {id, id})) << id;
+  EXPECT_TRUE(holds(fitted, {100, 100}));
+  EXPECT_FALSE(holds(fitted, {100, 101}));
+  // As the maps stand in the common frame on their marginals, D is T's best partner by far (the
+  // true one is 4.5 further in squared distance, beyond the margin): a wrong link.
+  const std::vector<Link> as_they_stand = in_frame_links(false);
+  for (LandmarkId id = 0; id < 9; ++id) EXPECT_TRUE(holds(as_they_stand, {id, id})) << id;
+  EXPECT_TRUE(holds(as_they_stand, {100, 101}));
+  EXPECT_FALSE(holds(as_they_stand, {100, 100}));
 }
 
 TEST(NegotiationTest, OptionsAreValidatedNamingTheKey) {

@@ -374,17 +374,32 @@ double mahalanobis_squared(const ObjectDescription& a, const ObjectDescription& 
 
 std::vector<Match> match_with_transform(const MapDescription& a, const MapDescription& b,
                                         const Eigen::Isometry3d& T_a_b, bool local,
-                                        const AssociationOptions& options) {
+                                        const AssociationOptions& options,
+                                        const lie::Matrix6d* transform_covariance) {
   const double gate = UpdaterHelper::chi2_quantile(options.match_chi2_probability, 3);
   const std::size_t na = a.objects.size(), nb = b.objects.size();
   const Eigen::Matrix3d& R = T_a_b.linear();
   const double noise = options.distance_noise * options.distance_noise;
   // 1. Every pair within the gate (a trace bound rejects most pairs cheaply: d^2 >= |r|^2 / trace).
+  // b's side of every pair's covariance, in a's frame: R C_b R^T, plus J Sigma J^T for an
+  // uncertain transform (J = [I, -[T p_b]x] for T = exp(eps^) T_hat).
   std::vector<Eigen::Vector3d> transformed(nb);
+  std::vector<Eigen::Matrix3d> covariance_b(nb);
   std::vector<double> trace_b(nb);
   for (std::size_t j = 0; j < nb; ++j) {
     transformed[j] = T_a_b * b.objects[j].position;
-    trace_b[j] = (local ? b.objects[j].transform_covariance() : b.objects[j].covariance).trace();
+    const Eigen::Matrix3d& own =
+        local ? b.objects[j].transform_covariance() : b.objects[j].covariance;
+    trace_b[j] = own.trace();
+    covariance_b[j] = R * own * R.transpose();
+    if (transform_covariance != nullptr) {
+      Eigen::Matrix<double, 3, 6> J;
+      J.leftCols<3>().setIdentity();
+      J.rightCols<3>() = -lie::skew(transformed[j]);
+      const Eigen::Matrix3d from_transform = J * *transform_covariance * J.transpose();
+      covariance_b[j] += from_transform;
+      trace_b[j] += from_transform.trace();
+    }
   }
   struct Scored {
     int i, j;
@@ -415,8 +430,7 @@ std::vector<Match> match_with_transform(const MapDescription& a, const MapDescri
       const Eigen::Vector3d residual = x.position - transformed[j];
       if (residual.squaredNorm() > relevant * (trace_x + trace_b[j])) continue;
       const Eigen::Matrix3d covariance =
-          covariance_x + R * (local ? y.transform_covariance() : y.covariance) * R.transpose() +
-          noise * Eigen::Matrix3d::Identity();
+          covariance_x + covariance_b[j] + noise * Eigen::Matrix3d::Identity();
       const Eigen::LLT<Eigen::Matrix3d> llt(covariance);
       if (llt.info() != Eigen::Success) continue;
       const double d2 = residual.dot(llt.solve(residual));

@@ -59,6 +59,7 @@ void for_each_association_field(Negotiation& options, Visitor&& visit) {
   visit("revisit_ambiguity_ratio", options.revisit_ambiguity_ratio);
   visit("max_corrections", options.max_corrections);
   visit("relay_delay", options.relay_delay);
+  visit("in_frame_fit", options.in_frame_fit);
 }
 
 /// Calls visit(key, field) for every field of ConsensusOptions (const or not): the one list of

@@ -52,6 +52,7 @@
 #include <utility>
 #include <vector>
 
+#include "concord/association/alignment.h"
 #include "concord/association/map_description.h"
 #include "concord/association/options.h"
 #include "concord/association/pairwise_association.h"
@@ -248,6 +249,12 @@ class Negotiator {
   bool accept_frames(PairState& pair, const MapDescription& theirs, const PairAlignment& found,
                      int round);
   bool match_in_frame(PairState& pair, const MapDescription& theirs);
+  /// The pose of the neighbour's map relative to this robot's in their common frame, fitted to
+  /// the pair's accepted correspondences on the covariances relative to each robot
+  /// (NegotiationOptions::in_frame_fit); nullopt when off, with fewer than min_inliers of them
+  /// in both maps, or when their layout does not fix it.
+  std::optional<RigidAlignment> relative_pose(const PairState& pair,
+                                              const MapDescription& theirs) const;
   /// Accepts the matches (only those also in pair.last when also_in_last) that conflict with no
   /// accepted correspondence.
   void adopt_matches(PairState& pair, const std::vector<Match>& matches, bool also_in_last);

@@ -137,6 +137,14 @@ struct NegotiationOptions {
   int relay_delay = 2;
   /// max_corrections: corrections of one frame edge at most.
   int max_corrections = 2;
+  /// in_frame_fit: two robots in one frame match their maps under their relative pose fitted to
+  /// the pair's accepted correspondences, on the covariances relative to each robot (as a search
+  /// across frames fits and matches), once there are min_inliers of them; otherwise, and when
+  /// off, as the maps stand in the common frame on their marginal covariances. The marginals
+  /// carry each robot's uncertainty about the team frame (tenths of a metre to metres after a
+  /// move): a gate that wide lets unrelated objects match, and a robot whose map is shifted
+  /// against the other's misses its true partners. Off until 2026-11-30 (docs/association.md).
+  bool in_frame_fit = true;
 
   /// Every problem with the values (and with association's), naming the key; empty when valid.
   std::vector<std::string> validate() const;

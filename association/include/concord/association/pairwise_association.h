@@ -94,10 +94,13 @@ PairAlignment align_maps(const PreparedMap& a, const PreparedMap& b,
 /// Correspondences of two maps under a known transform T_a_b (identity for maps in one frame):
 /// pairs within the match gate, mutual best with the margin, compatible classes; residual
 /// covariance C_a + R C_b R^T + distance_noise^2 I with the marginal covariances (local: the
-/// local covariances). Sorted by id_a.
+/// local covariances), plus J Sigma J^T when the transform's covariance Sigma is given (a left
+/// perturbation in a's frame, J = [I, -[T_a_b p_b]x]: a fitted transform's error grows with
+/// the distance from where it was fitted). Sorted by id_a.
 std::vector<Match> match_with_transform(const MapDescription& a, const MapDescription& b,
                                         const Eigen::Isometry3d& T_a_b, bool local,
-                                        const AssociationOptions& options);
+                                        const AssociationOptions& options,
+                                        const lie::Matrix6d* transform_covariance = nullptr);
 
 /// The unit vector of an AssociationOptions::start_up_axis ("+x" ... "-z"); zero for "unknown"
 /// or anything else.
