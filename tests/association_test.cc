@@ -689,8 +689,10 @@ TEST(PairwiseAssociationTest, MatchingUnderATransformFindsWhatAnExhaustiveSearch
   MapDescription c, d;
   c.objects = {along_x(0, 0.0, 0.0), along_x(1, 0.0, 10.0)};
   d.objects = {along_x(5, 4.0, 0.0), along_x(6, 5.6, 10.0), along_x(7, -7.0, 10.0)};
-  AssociationOptions margin_nine = test_options();  // the figures above are for a margin of 9
+  // The figures above are for a margin of 9 and the 99.9 % gate.
+  AssociationOptions margin_nine = test_options();
   margin_nine.match_margin = 9.0;
+  margin_nine.match_chi2_probability = 0.999;
   const auto matches =
       match_with_transform(c, d, Eigen::Isometry3d::Identity(), false, margin_nine);
   ASSERT_EQ(matches.size(), 1u);

@@ -54,8 +54,11 @@ struct AssociationOptions {
   /// fraction of the best clique's size (and at least 3) makes the pair ambiguous.
   double ambiguity_ratio = 0.5;
   /// match_chi2_probability: gate of a correspondence under a known transform (3 degrees of
-  /// freedom).
-  double match_chi2_probability = 0.999;
+  /// freedom). 0.999 until 2026-11-30: true correspondences lie well inside it (their covariances
+  /// are conservative: at most 0.6 % of them beyond the 95 % bound on the development seeds),
+  /// while a fifth to two fifths of the wrong ones were accepted between the two bounds, where
+  /// the other map had nothing closer (docs/association.md).
+  double match_chi2_probability = 0.95;
   /// match_margin: the second-best partner of either object must be at least this much further
   /// (squared Mahalanobis distance; 4 is a likelihood ratio of about 7) than the best. 9 (about
   /// 90) until 2026-11-29: on the development seeds 11-13 it refused so many true matches of
