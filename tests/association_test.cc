@@ -1325,6 +1325,20 @@ TEST(NegotiationTest, AWrongEdgeIsCorrectedAndEveryRobotBehindItMoves) {
   EXPECT_GT(RevisitCase::error(unrevisited, off, 2).first, 0.15);
 }
 
+/// One synchronous round between two negotiators: each describes its map, sends the other its
+/// message, receives the other's and finishes the round.
+void exchange_round(Negotiator& x, Negotiator& y, MapDescription x_map, MapDescription y_map,
+                    int round) {
+  x.set_own_map(std::move(x_map), round);
+  y.set_own_map(std::move(y_map), round);
+  const auto to_y = x.message_for(y.robot(), round);
+  const auto to_x = y.message_for(x.robot(), round);
+  y.receive(to_y, round);
+  x.receive(to_x, round);
+  x.finish_round(round);
+  y.finish_round(round);
+}
+
 TEST(NegotiationTest, AWrongMergeIsSplitAndCounted) {
   // Two robots in one frame (known starts), 0 and 2 (robot 0 owns their pair). Robot 2's object 0
   // sits on robot 0's object 0 long enough to be linked, then its estimate moves 3 m away (new
@@ -1355,14 +1369,7 @@ TEST(NegotiationTest, AWrongMergeIsSplitAndCounted) {
   std::vector<Eigen::Vector3d> twos{{0.05, 0, 0}, {10, 0.05, 0}};
   int round = 0;
   const auto step = [&] {
-    zero.set_own_map(map_of(0, zeros), round);
-    two.set_own_map(map_of(2, twos), round);
-    const auto to_two = zero.message_for(2, round);
-    const auto to_zero = two.message_for(0, round);
-    two.receive(to_two, round);
-    zero.receive(to_zero, round);
-    zero.finish_round(round);
-    two.finish_round(round);
+    exchange_round(zero, two, map_of(0, zeros), map_of(2, twos), round);
     ++round;
   };
   for (int k = 0; k < 3; ++k) step();
@@ -1429,14 +1436,7 @@ std::vector<std::pair<LandmarkId, LandmarkId>> in_frame_links(bool in_frame_fit)
     return map;
   };
   for (int round = 0; round < 8; ++round) {
-    zero.set_own_map(map_of(0, round), round);
-    two.set_own_map(map_of(2, round), round);
-    const auto to_two = zero.message_for(2, round);
-    const auto to_zero = two.message_for(0, round);
-    two.receive(to_two, round);
-    zero.receive(to_zero, round);
-    zero.finish_round(round);
-    two.finish_round(round);
+    exchange_round(zero, two, map_of(0, round), map_of(2, round), round);
   }
   return zero.shared_objects(2);
 }
