@@ -488,18 +488,14 @@ std::optional<RigidAlignment> Negotiator::relative_pose(const PairState& pair,
                                                         const MapDescription& theirs) const {
   if (!options_.in_frame_fit) return std::nullopt;
   const MapDescription& own = *own_map_;
-  const double floor = options_.association.distance_noise * options_.association.distance_noise;
   std::vector<PointPair> points;
   points.reserve(pair.accepted.size());
   for (const auto& [ids, d2] : pair.accepted) {
     const ObjectDescription* mine = find_object(own, ids.first);
     const ObjectDescription* other = find_object(theirs, ids.second);
     if (mine == nullptr || other == nullptr) continue;
-    // As a search fits its transform (pair_of in pairwise_association.cc): the covariances
-    // relative to each robot's current pose, the model error once.
-    points.push_back({mine->position, other->position,
-                      mine->transform_covariance() + floor * Eigen::Matrix3d::Identity(),
-                      other->transform_covariance()});
+    // As a search fits its transform: the covariances relative to each robot's current pose.
+    points.push_back(point_pair(*mine, *other, true, options_.association.distance_noise));
   }
   if (static_cast<int>(points.size()) < options_.association.min_inliers) return std::nullopt;
   // One Gauss-Newton step from the weighted closed form: the fit only centres a gate. Five steps

@@ -234,13 +234,6 @@ ConsistencyGraph consistency_graph(const std::vector<Candidate>& candidates,
   return graph;
 }
 
-PointPair pair_of(const ObjectDescription& a, const ObjectDescription& b, bool local,
-                  double distance_noise) {
-  const Eigen::Matrix3d floor = distance_noise * distance_noise * Eigen::Matrix3d::Identity();
-  return {a.position, b.position, (local ? a.transform_covariance() : a.covariance) + floor,
-          local ? b.transform_covariance() : b.covariance};
-}
-
 /// Standard deviation of points along their second principal direction.
 double spread(const std::vector<Eigen::Vector3d>& points) {
   if (points.size() < 3) return 0.0;
@@ -261,7 +254,7 @@ std::optional<RigidAlignment> fit(const MapDescription& a, const MapDescription&
   std::vector<PointPair> points;
   std::vector<Eigen::Vector3d> positions;
   for (const auto& [i, j] : pairs) {
-    points.push_back(pair_of(a.objects[i], b.objects[j], true, options.distance_noise));
+    points.push_back(point_pair(a.objects[i], b.objects[j], true, options.distance_noise));
     positions.push_back(a.objects[i].position);
   }
   if (spread(positions) < options.min_spread) return std::nullopt;
@@ -359,6 +352,13 @@ bool keeps_level(const Eigen::Isometry3d& T_a_b, const lie::Matrix6d& covariance
                                                               Eigen::EigenvaluesOnly);
   const double sigma = std::sqrt(std::max(0.0, solver.eigenvalues()(2)));
   return std::acos(cosine) <= options.max_start_tilt * std::numbers::pi / 180.0 + 3.0 * sigma;
+}
+
+PointPair point_pair(const ObjectDescription& a, const ObjectDescription& b, bool local,
+                     double distance_noise) {
+  const Eigen::Matrix3d floor = distance_noise * distance_noise * Eigen::Matrix3d::Identity();
+  return {a.position, b.position, (local ? a.transform_covariance() : a.covariance) + floor,
+          local ? b.transform_covariance() : b.covariance};
 }
 
 double mahalanobis_squared(const ObjectDescription& a, const ObjectDescription& b,
@@ -519,7 +519,7 @@ PairAlignment align_maps(const PreparedMap& prepared_a, const PreparedMap& prepa
   const double gate = UpdaterHelper::chi2_quantile(options.match_chi2_probability, 3);
   const auto residual_within_gate = [&](const Candidate& candidate, const Eigen::Isometry3d& T) {
     const PointPair pair =
-        pair_of(a.objects[candidate.a], b.objects[candidate.b], true, options.distance_noise);
+        point_pair(a.objects[candidate.a], b.objects[candidate.b], true, options.distance_noise);
     const Eigen::Matrix3d& R = T.linear();
     const Eigen::Vector3d residual = pair.p_target - T * pair.p_source;
     const Eigen::LLT<Eigen::Matrix3d> llt(pair.covariance_target +

@@ -21,6 +21,7 @@
 #include <string>
 #include <vector>
 
+#include "concord/association/alignment.h"
 #include "concord/association/map_description.h"
 #include "concord/association/options.h"
 #include "concord/estimator/lie.h"
@@ -112,6 +113,13 @@ Eigen::Vector3d start_up_vector(const std::string& axis);
 /// when the axis is unknown.
 bool keeps_level(const Eigen::Isometry3d& T_a_b, const lie::Matrix6d& covariance,
                  const AssociationOptions& options);
+
+/// The correspondence of one object described by robot a and by robot b, as a transform's fit
+/// takes it: a's position is the target, b's the source; covariances relative to each robot's
+/// current pose when `local` (ObjectDescription::transform_covariance), the marginals otherwise;
+/// the model error distance_noise^2 I once, on a's side.
+PointPair point_pair(const ObjectDescription& a, const ObjectDescription& b, bool local,
+                     double distance_noise);
 
 /// Squared Mahalanobis distance of two descriptions of one object in one frame (marginal
 /// covariances plus distance_noise).
