@@ -1252,6 +1252,59 @@ TEST(NegotiationTest, ARightEdgeIsRevisitedAndLeftAsItIs) {
   EXPECT_EQ(corrections, 0);
 }
 
+TEST(NegotiationTest, EverySearchAndRevisitIsReportedToTheListenerWhichChangesNothing) {
+  // The revisit team: searches across frames, then revisits in one frame. What each robot's
+  // listener hears is each search it made as a pair's owner; the same team without listeners
+  // ends the same.
+  const RevisitCase revisit;
+  struct Heard {
+    int round, robot, neighbour, own_robot, their_robot;
+    bool revisit;
+    AlignmentStatus status;
+  };
+  SyntheticTeam heard_team = revisit.team();
+  std::vector<std::vector<Heard>> heard(heard_team.negotiators_.size());
+  for (std::size_t r = 0; r < heard.size(); ++r) {
+    heard_team.negotiators_[r].set_search_listener([&heard, r](const SearchTrace& trace) {
+      heard[r].push_back({trace.round, trace.robot, trace.neighbour, trace.own->robot,
+                          trace.theirs->robot, trace.revisit, trace.found->status});
+    });
+  }
+  heard_team.run(20);
+  SyntheticTeam quiet_team = revisit.team();
+  quiet_team.run(20);
+
+  long long revisits = 0;
+  for (std::size_t r = 0; r < heard.size(); ++r) {
+    const Negotiator& n = heard_team.negotiators_[r];
+    long long searches = 0, aligned = 0, revisits_heard = 0;
+    for (const Heard& h : heard[r]) {
+      EXPECT_EQ(h.robot, n.robot());
+      EXPECT_EQ(h.own_robot, n.robot());
+      EXPECT_EQ(h.their_robot, h.neighbour);
+      EXPECT_TRUE(owns_pair(h.robot, h.neighbour)) << h.robot << "-" << h.neighbour;
+      EXPECT_EQ(h.round % n.options().description_interval, 0);
+      if (h.revisit) {
+        ++revisits_heard;
+      } else {
+        ++searches;
+        aligned += h.status == AlignmentStatus::kAligned ? 1 : 0;
+      }
+    }
+    EXPECT_EQ(searches, n.counters().searches) << "robot " << r;
+    EXPECT_EQ(aligned, n.counters().aligned) << "robot " << r;
+    EXPECT_EQ(revisits_heard, n.counters().revisits) << "robot " << r;
+    revisits += revisits_heard;
+
+    const Negotiator& quiet = quiet_team.negotiators_[r];
+    EXPECT_EQ(n.frame(), quiet.frame()) << "robot " << r;
+    EXPECT_TRUE(n.T_frame_start().isApprox(quiet.T_frame_start(), 0.0)) << "robot " << r;
+    EXPECT_EQ(n.counters().links_accepted, quiet.counters().links_accepted) << "robot " << r;
+    EXPECT_EQ(n.team_ids().team_of, quiet.team_ids().team_of) << "robot " << r;
+  }
+  EXPECT_GT(revisits, 0);
+}
+
 TEST(NegotiationTest, ARevisitThatTheAcceptedAlignmentMatchesAsWellCorrectsNothing) {
   // The revisit team, right edges. Once robot 1 is in robot 0's frame, three in five of its
   // objects are turned 6 degrees about a point of its map (as if that part of its map had gone

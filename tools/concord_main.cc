@@ -2,7 +2,7 @@
 ///   concord replay --dataset DIR --out DIR [--separate] [--config FILE] [--graph G] [--loss R]
 ///                  [--range M] [--nearest K] [--max-degree D]
 ///                  [--seed S] [--frames N] [--no-point-features] [--set KEY=VALUE ...]
-///                  [--association given|negotiated]
+///                  [--association given|negotiated] [--search-log FILE] [--dump-descriptions DIR]
 ///   concord eval --dataset DIR --result DIR [--first-frames-from DIR]
 ///   concord slice --dataset DIR --out DIR --frames N [--robots R] [--private-ids]
 ///   [--unknown-start] concord convert --dataset DIR --out DIR [--private-ids] [--unknown-start]
@@ -219,11 +219,75 @@ dataset::AlignmentRecord alignment_record(const replay::RobotOutput& output) {
   return record;
 }
 
+/// Where a replay writes what its negotiators' searches saw (each empty: nothing).
+struct SearchDiagnostics {
+  /// One line a search: round, pair, map sizes, candidates, consistency edges, cliques, status
+  /// (and, for a revisit, how far from the accepted alignment it found the maps).
+  fs::path log;
+  /// Both descriptions of every search, one file a search (r<round>_<owner>_<neighbour>.txt):
+  /// one object a line, robot id observations x y z, then the local and the marginal covariance
+  /// (9 numbers each, row by row).
+  fs::path descriptions;
+};
+
+/// The listener that writes SearchDiagnostics (nullptr when both are empty). Throws
+/// std::runtime_error when the log cannot be opened.
+std::function<void(const association::SearchTrace&)> search_writer(
+    const SearchDiagnostics& diagnostics) {
+  if (diagnostics.log.empty() && diagnostics.descriptions.empty()) return nullptr;
+  std::shared_ptr<std::FILE> log;
+  if (!diagnostics.log.empty()) {
+    log.reset(std::fopen(diagnostics.log.c_str(), "w"), [](std::FILE* file) {
+      if (file != nullptr) std::fclose(file);
+    });
+    if (!log) throw std::runtime_error("cannot write the search log " + diagnostics.log.string());
+  }
+  if (!diagnostics.descriptions.empty()) fs::create_directories(diagnostics.descriptions);
+  return [log, folder = diagnostics.descriptions](const association::SearchTrace& trace) {
+    const association::PairAlignment& found = *trace.found;
+    if (log && !trace.revisit) {
+      std::fprintf(log.get(),
+                   "round %d pair %d-%d: %zu/%zu objects, %d candidates, %lld edges, clique %d "
+                   "rival %d (clique fit chi2 %.2f, largest %.2f): %s\n",
+                   trace.round, trace.robot, trace.neighbour, trace.own->objects.size(),
+                   trace.theirs->objects.size(), found.candidates, found.consistency_edges,
+                   found.clique_size, found.rival_clique_size, found.clique_fit_chi2,
+                   found.clique_fit_largest_residual, association::to_string(found.status).c_str());
+    } else if (log) {
+      std::fprintf(log.get(),
+                   "round %d pair %d-%d: revisit: %s, clique %d, %.2f deg off the accepted "
+                   "alignment, chi2 %.1f; %zu matches, %zu as they stand\n",
+                   trace.round, trace.robot, trace.neighbour,
+                   association::to_string(found.status).c_str(), found.clique_size,
+                   trace.revisit_degrees, trace.revisit_distance, found.matches.size(),
+                   trace.matched_as_they_stand);
+    }
+    if (folder.empty() || trace.revisit) return;
+    const fs::path file =
+        folder / ("r" + std::to_string(trace.round) + "_" + std::to_string(trace.robot) + "_" +
+                  std::to_string(trace.neighbour) + ".txt");
+    std::FILE* out = std::fopen(file.c_str(), "w");
+    if (out == nullptr) throw std::runtime_error("cannot write " + file.string());
+    for (const association::MapDescription* map : {trace.own, trace.theirs}) {
+      for (const association::ObjectDescription& o : map->objects) {
+        std::fprintf(out, "%d %lld %d %.6f %.6f %.6f", map->robot, static_cast<long long>(o.id),
+                     o.observations, o.position.x(), o.position.y(), o.position.z());
+        for (const Eigen::Matrix3d* c : {&o.local_covariance, &o.covariance}) {
+          for (int r = 0; r < 3; ++r)
+            for (int k = 0; k < 3; ++k) std::fprintf(out, " %.8g", (*c)(r, k));
+        }
+        std::fprintf(out, "\n");
+      }
+    }
+    std::fclose(out);
+  };
+}
+
 int run_replay(const fs::path& dataset_dir, const fs::path& out, bool separate,
                const std::string& config_file, const std::string& graph, double loss,
                std::uint64_t seed, int frames, bool no_point_features,
                const std::vector<std::string>& overrides, const std::string& association_mode,
-               replay::RadioLimits radio) {
+               replay::RadioLimits radio, const SearchDiagnostics& diagnostics) {
   dataset::ReadOptions read_options;
   if (frames > 0) read_options.max_frames = frames;
   read_options.load_features = !no_point_features;
@@ -265,6 +329,7 @@ int run_replay(const fs::path& dataset_dir, const fs::path& out, bool separate,
   }
   replay_options.radio = radio;
   replay_options.negotiation = negotiation;
+  replay_options.search_listener = search_writer(diagnostics);
   if (!association_mode.empty()) {
     replay_options.association = replay::parse_association_mode(association_mode);
   }
@@ -752,6 +817,12 @@ int main(int argc, char** argv) {
                    "given (the dataset's global ids, known starts) or negotiated (robots find "
                    "common objects and frames); default: given for global ids and known starts")
       ->check(CLI::IsMember({"given", "negotiated"}));
+  SearchDiagnostics search_diagnostics;
+  replay_command->add_option("--search-log", search_diagnostics.log,
+                             "Negotiated runs: write one line per search of a pair to this file");
+  replay_command->add_option("--dump-descriptions", search_diagnostics.descriptions,
+                             "Negotiated runs: write both map descriptions of every search into "
+                             "this folder (one file a search)");
   replay_command->add_option("--set", overrides,
                              "KEY=VALUE: an estimator option over the config (repeatable), e.g. "
                              "--set odometry_rotation_sigma=0.02 --set "
@@ -1191,7 +1262,7 @@ int main(int argc, char** argv) {
     }
     if (replay_command->parsed()) {
       return run_replay(dataset_dir, out_dir, separate, config_file, graph, loss, seed, frames,
-                        no_point_features, overrides, association_mode, radio);
+                        no_point_features, overrides, association_mode, radio, search_diagnostics);
     }
     if (eval_command->parsed()) return run_eval(dataset_dir, result_dir, first_frames_from);
     if (slice_command->parsed()) {

@@ -2,9 +2,8 @@
 
 #include <Eigen/Cholesky>
 #include <algorithm>
-#include <cstdio>
-#include <cstdlib>
 #include <deque>
+#include <numbers>
 #include <set>
 #include <stdexcept>
 
@@ -257,31 +256,15 @@ bool Negotiator::process_pair(int neighbour, const MapDescription& theirs, int r
     ++counters_.searches;
     const PairAlignment found =
         align_maps(own_prepared(), PreparedMap(theirs, options_.association), options_.association);
-    if (const char* dump = std::getenv("CONCORD_DUMP_DESCRIPTIONS")) {
-      const std::string file = std::string(dump) + "/r" + std::to_string(round) + "_" +
-                               std::to_string(robot_) + "_" + std::to_string(theirs.robot) + ".txt";
-      if (FILE* out = std::fopen(file.c_str(), "w")) {
-        for (const MapDescription* map : {&own, &theirs}) {
-          for (const ObjectDescription& o : map->objects) {
-            std::fprintf(out, "%d %lld %d %.6f %.6f %.6f", map->robot, static_cast<long long>(o.id),
-                         o.observations, o.position.x(), o.position.y(), o.position.z());
-            for (int r = 0; r < 3; ++r)
-              for (int c = 0; c < 3; ++c) std::fprintf(out, " %.8g", o.local_covariance(r, c));
-            for (int r = 0; r < 3; ++r)
-              for (int c = 0; c < 3; ++c) std::fprintf(out, " %.8g", o.covariance(r, c));
-            std::fprintf(out, "\n");
-          }
-        }
-        std::fclose(out);
-      }
-    }
-    if (std::getenv("CONCORD_DEBUG_ASSOCIATION")) {
-      std::fprintf(stderr,
-                   "round %d pair %d-%d: %zu/%zu objects, %d candidates, %lld edges, clique %d "
-                   "rival %d: %s\n",
-                   round, robot_, theirs.robot, own.objects.size(), theirs.objects.size(),
-                   found.candidates, found.consistency_edges, found.clique_size,
-                   found.rival_clique_size, to_string(found.status).c_str());
+    if (search_listener_) {
+      SearchTrace trace;
+      trace.round = round;
+      trace.robot = robot_;
+      trace.neighbour = neighbour;
+      trace.own = &own;
+      trace.theirs = &theirs;
+      trace.found = &found;
+      search_listener_(trace);
     }
     if (found.status == AlignmentStatus::kAmbiguous) ++counters_.ambiguous;
     if (found.status == AlignmentStatus::kTilted) ++counters_.tilted;
@@ -337,7 +320,18 @@ bool Negotiator::revisit_edge(PairState& pair, const MapDescription& theirs, int
     pair.revisit_last.reset();
     return false;
   };
-  if (found.status != AlignmentStatus::kAligned) return aligned_as_accepted();
+  SearchTrace trace;
+  trace.round = round;
+  trace.robot = robot_;
+  trace.neighbour = theirs.robot;
+  trace.revisit = true;
+  trace.own = &own;
+  trace.theirs = &theirs;
+  trace.found = &found;
+  if (found.status != AlignmentStatus::kAligned) {
+    if (search_listener_) search_listener_(trace);
+    return aligned_as_accepted();
+  }
   // 1. The maps are in one frame: a right edge leaves them aligned up to what the two robots know
   //    of their maps there. The same correspondences fitted on the marginal covariances (each
   //    object in the common frame, the moves' and the drift's uncertainty included) say how far
@@ -352,7 +346,10 @@ bool Negotiator::revisit_edge(PairState& pair, const MapDescription& theirs, int
     pairs.push_back({mine->position, other->position, mine->covariance, other->covariance});
   }
   const std::optional<RigidAlignment> in_frame = align_points(pairs);
-  if (!in_frame) return aligned_as_accepted();
+  if (!in_frame) {
+    if (search_listener_) search_listener_(trace);
+    return aligned_as_accepted();
+  }
   const lie::Vector6d offset = lie::se3_log(in_frame->T_target_source);
   const Eigen::LLT<lie::Matrix6d> llt(in_frame->covariance);
   const double distance = llt.info() == Eigen::Success ? offset.dot(llt.solve(offset)) : 0.0;
@@ -373,14 +370,11 @@ bool Negotiator::revisit_edge(PairState& pair, const MapDescription& theirs, int
       static_cast<double>(supported) >=
           options_.revisit_ambiguity_ratio * static_cast<double>(found.matches.size());
   if (rivalled) ++counters_.revisits_ambiguous;
-  if (std::getenv("CONCORD_DEBUG_ASSOCIATION")) {
-    const lie::Vector6d local = lie::se3_log(found.T_a_b);
-    std::fprintf(stderr,
-                 "round %d pair %d-%d: revisit: clique %d, %.2f deg %.2f m off (marginal fit "
-                 "%.2f deg), chi2 %.1f; %zu matches, %zu as accepted\n",
-                 round, robot_, theirs.robot, found.clique_size, local.tail<3>().norm() * 57.29578,
-                 local.head<3>().norm(), offset.tail<3>().norm() * 57.29578, distance,
-                 found.matches.size(), supported);
+  if (search_listener_) {
+    trace.revisit_distance = distance;
+    trace.revisit_degrees = offset.tail<3>().norm() * 180.0 / std::numbers::pi;
+    trace.matched_as_they_stand = supported;
+    search_listener_(trace);
   }
   if (distance <= revisit_bound_ || rivalled) return aligned_as_accepted();
   const bool agrees =

@@ -5,17 +5,14 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
-#include <cstdio>
-#include <cstdlib>
 #include <limits>
 #include <numbers>
 #include <optional>
 
 #include "concord/association/alignment.h"
 #include "concord/association/max_clique.h"
-#include "concord/estimator/updater_helper.h"
-
 #include "concord/estimator/options.h"
+#include "concord/estimator/updater_helper.h"
 
 namespace concord::association {
 
@@ -582,11 +579,8 @@ PairAlignment align_maps(const PreparedMap& prepared_a, const PreparedMap& prepa
       4, static_cast<int>(std::ceil(options.ambiguity_ratio * static_cast<double>(best->inliers))));
   const auto rival = find_hypothesis(rejected, rival_minimum);
   result.rival_clique_size = rival ? rival->inliers : 0;
-  if (std::getenv("CONCORD_DEBUG_ASSOCIATION")) {
-    std::fprintf(stderr, "  clique fit chi2 %.2f largest %.2f inliers %d rival %d\n",
-                 clique_fit->chi2, clique_fit->largest_residual, result.clique_size,
-                 result.rival_clique_size);
-  }
+  result.clique_fit_chi2 = clique_fit->chi2;
+  result.clique_fit_largest_residual = clique_fit->largest_residual;
   if (rival) {
     result.status = AlignmentStatus::kAmbiguous;
     return result;

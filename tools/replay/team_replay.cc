@@ -167,7 +167,10 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
     estimators.emplace_back(estimator_options, dataset.camera,
                             robot.T_world_body_start.value_or(Eigen::Isometry3d::Identity()), 0);
     const int start_frame = robot.T_world_body_start ? association::kWorldFrame : robot.index;
-    if (negotiated) negotiators.emplace_back(robot.index, start_frame, options.negotiation);
+    if (negotiated) {
+      negotiators.emplace_back(robot.index, start_frame, options.negotiation);
+      if (options.search_listener) negotiators.back().set_search_listener(options.search_listener);
+    }
     steps = std::max(steps, robot.num_frames());
   }
   // Event-triggered, compact sharing (consensus.share_*): one sender and one receiver state per

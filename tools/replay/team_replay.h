@@ -68,6 +68,9 @@ struct ReplayOptions {
   std::optional<AssociationMode> association;
   /// Options of the negotiation (negotiated runs).
   association::NegotiationOptions negotiation;
+  /// Given to every robot's negotiator (Negotiator::set_search_listener) when set: diagnostics of
+  /// the searches; it changes nothing in the run.
+  std::function<void(const association::SearchTrace&)> search_listener;
 };
 
 /// One robot's online output.

@@ -43,6 +43,7 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 #include <cstddef>
+#include <functional>
 #include <map>
 #include <memory>
 #include <optional>
@@ -163,6 +164,27 @@ struct NegotiationCounters {
   long long description_bytes = 0;  ///< of which map descriptions
 };
 
+/// One search of a pair by its owner, for diagnostics (Negotiator::set_search_listener): what
+/// the two descriptions were and what align_maps found. The pointers are valid during the call
+/// only.
+struct SearchTrace {
+  int round = 0;
+  int robot = 0;  ///< the pair's owner
+  int neighbour = 0;
+  /// A revisit of the pair's accepted frame edge (the maps in one frame), not a search across
+  /// frames.
+  bool revisit = false;
+  const MapDescription* own = nullptr;
+  const MapDescription* theirs = nullptr;
+  const PairAlignment* found = nullptr;
+  /// A revisit that found a transform, refitted on the marginal covariances: its squared
+  /// distance from the identity (6 dof), its angle (degrees), and how many of the found
+  /// transform's matches the maps match as they stand (counted only beyond the revisit gate).
+  double revisit_distance = 0.0;
+  double revisit_degrees = 0.0;
+  std::size_t matched_as_they_stand = 0;
+};
+
 /// Whether `robot` decides for its pair with `other` (robot != other): the lower index when
 /// robot + other is even, the higher one when it is odd. Exactly one of the two owns a pair, and on
 /// the complete graph of n robots each owns (n - 1) / 2 pairs (n odd) or n / 2 - 1 or n / 2
@@ -209,6 +231,12 @@ class Negotiator {
   std::optional<int> frame_of(int neighbour) const;
   const NegotiationCounters& counters() const { return counters_; }
   const NegotiationOptions& options() const { return options_; }
+  /// Called after every search and revisit this robot makes as a pair's owner (none by
+  /// default): for tools that log or dump what the searches saw. It must not call back into the
+  /// negotiator.
+  void set_search_listener(std::function<void(const SearchTrace&)> listener) {
+    search_listener_ = std::move(listener);
+  }
 
   /// T_frame_start: maps the robot's start frame into its current frame, with its covariance
   /// (left perturbation in the current frame; zero while it has not moved).
@@ -308,6 +336,7 @@ class Negotiator {
   /// shared_objects of every neighbour, rebuilt with the team ids.
   std::map<int, std::vector<std::pair<LandmarkId, LandmarkId>>> shared_;
   NegotiationCounters counters_;
+  std::function<void(const SearchTrace&)> search_listener_;
   Eigen::Isometry3d T_frame_start_ = Eigen::Isometry3d::Identity();
   lie::Matrix6d covariance_frame_start_ = lie::Matrix6d::Zero();
 };

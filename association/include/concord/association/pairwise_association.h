@@ -60,6 +60,10 @@ struct PairAlignment {
   long long consistency_edges = 0;
   int clique_size = 0;
   int rival_clique_size = 0;
+  /// The fit of the largest clique (alignment.h, RigidAlignment::chi2 and largest_residual), once
+  /// a level one was found.
+  double clique_fit_chi2 = 0.0;
+  double clique_fit_largest_residual = 0.0;
   /// Whether both clique searches finished within their budget.
   bool cliques_exact = true;
 };
