@@ -169,6 +169,63 @@ TEST(MapDescriptionTest, ArchivedObjectsAreDescribedRelativeToThePoseOfTheirArch
   }
 }
 
+TEST(MapDescriptionTest, AnObjectNotDetectedAgainWhereTheRobotStillLooksIsLeftOut) {
+  // A camera looking along the body's z axis (K the identity, baseline 0.5 m) that does not
+  // move. Four reference detections every frame span the view (corners of the image at 2, 8, 14
+  // and 20 m; not in the state). Object 1 is detected in every frame; object 2 only in the
+  // first 10 (a false detection, or one the detector dropped); object 3 too, but the state has
+  // it behind the camera, where no detection can be expected.
+  StereoCamera camera;
+  camera.T_cam0_cam1.translation() = Eigen::Vector3d(0.5, 0, 0);
+  State state;
+  state.poses.push_back({0, Eigen::Isometry3d::Identity()});
+  state.covariance = 0.01 * Eigen::MatrixXd::Identity(6, 6);
+  state.archived[1] = {1, Eigen::Vector3d(0, 0, 5), 0.01 * Eigen::Matrix3d::Identity()};
+  state.archived[2] = {2, Eigen::Vector3d(0.5, 0, 6), 0.01 * Eigen::Matrix3d::Identity()};
+  state.archived[3] = {3, Eigen::Vector3d(0, 0, -5), 0.01 * Eigen::Matrix3d::Identity()};
+  const auto seen = [](LandmarkId id, const Eigen::Vector3d& p) {
+    return StereoObservation{
+        id, Eigen::Vector4d(p.x() / p.z(), p.y() / p.z(), (p.x() - 0.5) / p.z(), p.y() / p.z())};
+  };
+  const std::vector<StereoObservation> corners = {
+      seen(10, Eigen::Vector3d(-1.4, -1.4, 2)), seen(11, Eigen::Vector3d(5.6, -5.6, 8)),
+      seen(12, Eigen::Vector3d(-9.8, 9.8, 14)), seen(13, Eigen::Vector3d(14, 14, 20))};
+  ObservationTally tally;
+  const auto frame = [&](bool with_2_and_3) {
+    std::vector<StereoObservation> detections = corners;
+    detections.push_back(seen(1, Eigen::Vector3d(0, 0, 5)));
+    if (with_2_and_3) {
+      detections.push_back(seen(2, Eigen::Vector3d(0.5, 0, 6)));
+      detections.push_back(seen(3, Eigen::Vector3d(0.5, 0, 6)));  // where it was detected
+    }
+    tally.add(detections, {});
+    tally.add_misses(state, camera);
+  };
+  const auto described = [&](double min_detection_ratio) {
+    std::vector<LandmarkId> ids;
+    for (const ObjectDescription& o :
+         describe_map(state, 0, 0, tally, 5, false, min_detection_ratio).objects) {
+      ids.push_back(o.id);
+    }
+    return ids;
+  };
+  for (int k = 0; k < 10; ++k) frame(true);
+  for (int k = 0; k < 10; ++k) frame(false);
+  EXPECT_EQ(tally.misses(1), 0);
+  EXPECT_EQ(tally.misses(2), 10);
+  EXPECT_EQ(tally.misses(3), 0);
+  // 10 detections in 20 frames in view: half, still described.
+  EXPECT_EQ(described(0.5), (std::vector<LandmarkId>{1, 2, 3}));
+  for (int k = 0; k < 20; ++k) frame(false);
+  EXPECT_EQ(tally.observations(2), 10);
+  EXPECT_EQ(tally.misses(2), 30);
+  EXPECT_EQ(tally.misses(1), 0);
+  EXPECT_EQ(tally.misses(3), 0);
+  EXPECT_EQ(described(0.5), (std::vector<LandmarkId>{1, 3}));
+  EXPECT_EQ(described(0.2), (std::vector<LandmarkId>{1, 2, 3}));
+  EXPECT_EQ(described(0.0), (std::vector<LandmarkId>{1, 2, 3}));
+}
+
 // ---- Maximum clique ----
 
 /// A graph on n vertices with each edge present with the given probability.

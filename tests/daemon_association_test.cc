@@ -345,7 +345,7 @@ TeamRun run_exchanges(const dataset::TeamInputs& inputs, const EstimatorOptions&
       for (int k = 0; k < robot.num_frames(); ++k) {
         const FrameInput input = robot.frame_input(k);
         estimator.process(input);
-        sessions[i]->observe(input.objects, robot.object_classes[k]);
+        sessions[i]->observe(input.objects, robot.object_classes[k], estimator);
         timed_out +=
             team.exchanges[i]->run_round(static_cast<std::uint64_t>(k), estimator).timed_out;
         run.trajectories[i].push_back(estimator.current_pose());
@@ -477,11 +477,12 @@ std::uint16_t association_port(int offset) {
 
 TEST(DaemonAssociation, AnObjectsClassIsTheMostFrequentOfItsDetectionsClasses) {
   AssociationSession session(1, 1, association::NegotiationOptions{});
+  const Estimator estimator(EstimatorOptions{}, StereoCamera{}, Eigen::Isometry3d::Identity(), 0);
   const auto at = [](LandmarkId id) { return StereoObservation{id, Eigen::Vector4d(1, 2, 0, 2)}; };
-  session.observe({at(4), at(8)}, {2, 5});
-  session.observe({at(4), at(8)}, {3, 5});
-  session.observe({at(4)}, {3});
-  session.observe({at(9)}, {});  // a frame whose detections carry no class
+  session.observe({at(4), at(8)}, {2, 5}, estimator);
+  session.observe({at(4), at(8)}, {3, 5}, estimator);
+  session.observe({at(4)}, {3}, estimator);
+  session.observe({at(9)}, {}, estimator);  // a frame whose detections carry no class
   std::vector<ObjectEstimate> objects(4);
   objects[0].id = 4;
   objects[1].id = 8;

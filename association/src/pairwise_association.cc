@@ -277,6 +277,8 @@ std::vector<std::string> AssociationOptions::validate() const {
     }
   };
   require(min_observations >= 1, "min_observations", min_observations, ">= 1");
+  require(min_detection_ratio >= 0.0 && min_detection_ratio <= 1.0, "min_detection_ratio",
+          min_detection_ratio, "in [0, 1]");
   require(std::isfinite(search_max_sigma) && search_max_sigma > 0.0, "search_max_sigma",
           search_max_sigma, "finite and > 0");
   require(descriptor_neighbours >= 2, "descriptor_neighbours", descriptor_neighbours, ">= 2");

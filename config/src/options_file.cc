@@ -27,6 +27,7 @@ template <typename Negotiation, typename Visitor>
 void for_each_association_field(Negotiation& options, Visitor&& visit) {
   auto& association = options.association;
   visit("min_observations", association.min_observations);
+  visit("min_detection_ratio", association.min_detection_ratio);
   visit("search_max_sigma", association.search_max_sigma);
   visit("archived_local_covariance", association.archived_local_covariance);
   visit("descriptor_neighbours", association.descriptor_neighbours);

@@ -16,8 +16,9 @@ AssociationSession::AssociationSession(int robot, int start_frame,
 }
 
 void AssociationSession::observe(const std::vector<StereoObservation>& objects,
-                                 const std::vector<int>& classes) {
+                                 const std::vector<int>& classes, const Estimator& estimator) {
   tally_.add(objects, classes);
+  tally_.add_misses(estimator.state(), estimator.camera());
 }
 
 void AssociationSession::begin_round(std::uint64_t round, const Estimator& estimator) {
@@ -26,7 +27,8 @@ void AssociationSession::begin_round(std::uint64_t round, const Estimator& estim
   negotiator_.set_own_map(
       association::describe_map(estimator.state(), negotiator_.robot(), negotiator_.frame(), tally_,
                                 negotiator_.options().association.min_observations,
-                                negotiator_.options().association.archived_local_covariance),
+                                negotiator_.options().association.archived_local_covariance,
+                                negotiator_.options().association.min_detection_ratio),
       k);
 }
 

@@ -866,7 +866,7 @@ bool Daemon::Impl::process(QueuedFrame& item) {
     spdlog::warn("frame {} rejected: {}", item.input.frame, error.what());
     return false;
   }
-  if (association_) association_->observe(item.input.objects, item.object_classes);
+  if (association_) association_->observe(item.input.objects, item.object_classes, *estimator_);
   const auto updated = Clock::now();
   RoundReport round;
   std::uint64_t bytes = 0;

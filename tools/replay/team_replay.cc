@@ -274,12 +274,14 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
         for (int i = 0; i < robots; ++i) {
           if (!active[i]) continue;
           tallies[i].add(dataset.robots[i].objects[step], dataset.robots[i].object_classes[step]);
+          tallies[i].add_misses(estimators[i].state(), estimators[i].camera());
           if (negotiators[i].describes(step)) {
             negotiators[i].set_own_map(
-                association::describe_map(
-                    estimators[i].state(), i, negotiators[i].frame(), tallies[i],
-                    options.negotiation.association.min_observations,
-                    options.negotiation.association.archived_local_covariance),
+                association::describe_map(estimators[i].state(), i, negotiators[i].frame(),
+                                          tallies[i],
+                                          options.negotiation.association.min_observations,
+                                          options.negotiation.association.archived_local_covariance,
+                                          options.negotiation.association.min_detection_ratio),
                 step);
           }
         }

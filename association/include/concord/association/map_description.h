@@ -74,29 +74,58 @@ struct MapDescription {
   std::size_t wire_size() const;
 };
 
-/// What a robot counts of its own detections, per private id: frames observed and the votes for
-/// each class (a detector may report different classes for one object).
+/// What a robot counts of its own detections, per private id: frames observed, the votes for
+/// each class (a detector may report different classes for one object), and misses: frames in
+/// which the object was in view and not detected.
+///
+/// In view means in front of the left camera at the state's newest pose, within the depth range
+/// (the 5 % to 95 % quantiles of the detections' depths) and the image region that the robot's
+/// own detections have covered so far, shrunk by a tenth of its size on every side: the view is
+/// learned from the detections themselves, with no image size or range to configure, and errs
+/// towards counting no miss. A real object is detected in most frames that show it; a false
+/// detection is not detected again where it was, though the robot still looks there (describe_map's
+/// min_detection_ratio).
 class ObservationTally {
  public:
   /// Adds one frame's detections; classes is parallel to observations or empty (no classes).
   void add(const std::vector<StereoObservation>& observations, const std::vector<int>& classes);
+  /// After add() of a frame and the filter's step on it: the detections of that frame extend the
+  /// view (through `camera`), then each object of `state` in view at its newest pose that the
+  /// frame did not detect counts a miss. Objects the robot never detected are not counted.
+  void add_misses(const State& state, const StereoCamera& camera);
   int observations(LandmarkId id) const;
+  int misses(LandmarkId id) const;
   /// The class with most votes (ties: the smallest), or kUnknownClass.
   int object_class(LandmarkId id) const;
 
  private:
   struct Entry {
     int frames = 0;
+    int misses = 0;
+    /// The add() call that last detected it (frames_added_ numbering).
+    int last_detected = -1;
     std::map<int, int> votes;
   };
   std::map<LandmarkId, Entry> entries_;
+  int frames_added_ = 0;
+  /// The last frame's detections (image units), for add_misses.
+  std::vector<Eigen::Vector4d> last_detections_;
+  /// The view so far: the extent of the detections in normalized left-image coordinates, and a
+  /// histogram of their depths (from the disparity; log-spaced bins, add_misses).
+  bool view_known_ = false;
+  Eigen::Vector2d view_min_ = Eigen::Vector2d::Zero(), view_max_ = Eigen::Vector2d::Zero();
+  std::vector<long long> depth_histogram_;
+  long long depths_ = 0;
 };
 
 /// The description of a robot's map: every object it holds with at least min_observations frames
 /// of detections, in the frame the state is in. archived_local: an archived object's
 /// local_covariance is the one the state recorded when it archived it (when there is one, and
-/// the marginal is not the smaller); otherwise its marginal.
+/// the marginal is not the smaller); otherwise its marginal. min_detection_ratio: an object
+/// detected in fewer than this fraction of the frames it was in view (detections / (detections
+/// + misses), ObservationTally) is left out as a likely false detection (0: none is).
 MapDescription describe_map(const State& state, int robot, int frame, const ObservationTally& tally,
-                            int min_observations, bool archived_local);
+                            int min_observations, bool archived_local,
+                            double min_detection_ratio = 0.0);
 
 }  // namespace concord::association

@@ -14,6 +14,11 @@ struct AssociationOptions {
   /// min_observations: objects detected in fewer frames are not described (a false detection is
   /// rarely tracked long, a briefly seen object is poorly placed).
   int min_observations = 5;
+  /// min_detection_ratio: objects detected in fewer than this fraction of the frames in which
+  /// they were in the robot's view are not described (ObservationTally: a false detection is not
+  /// seen again where it was while the robot still looks there; a real object is, but for
+  /// occlusion and the detector's misses). 0: every object is described.
+  double min_detection_ratio = 0.5;
   /// search_max_sigma: only objects whose position is known this well (metres, the largest
   /// standard deviation of the local covariance) take part in the search for a transform; the
   /// others can still be matched once it is known. A loosely placed object makes almost any

@@ -49,7 +49,10 @@ class AssociationSession {
   /// association::kWorldFrame for a known one). Throws std::invalid_argument on bad options.
   AssociationSession(int robot, int start_frame, association::NegotiationOptions options);
 
-  void observe(const std::vector<StereoObservation>& objects, const std::vector<int>& classes);
+  /// The frame's detections, after the estimator's step on the frame (the tally's misses are
+  /// counted at its newest pose).
+  void observe(const std::vector<StereoObservation>& objects, const std::vector<int>& classes,
+               const Estimator& estimator);
   void begin_round(std::uint64_t round, const Estimator& estimator);
   association::NegotiationMessage negotiation_for(int robot, std::uint64_t round);
   void receive(const association::NegotiationMessage& message, std::uint64_t round);

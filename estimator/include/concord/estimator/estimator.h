@@ -73,6 +73,7 @@ class Estimator {
   int frame() const { return state_.newest_pose().frame; }
   /// Latest pose estimate T_world_body and its 6x6 covariance on [rho; phi].
   Eigen::Isometry3d current_pose() const { return state_.newest_pose().T_world_body; }
+  const StereoCamera& camera() const { return camera_; }
   Eigen::Matrix<double, 6, 6> current_pose_covariance() const;
   std::vector<ObjectEstimate> objects() const { return state_.objects(); }
   const PendingObjects& pending_objects() const { return object_updater_.pending(); }
