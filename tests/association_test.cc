@@ -139,7 +139,7 @@ TEST(MapDescriptionTest, ArchivedObjectsAreDescribedRelativeToThePoseOfTheirArch
   state.archived[9] = {9, Eigen::Vector3d(8, 1, 0), 0.02 * Eigen::Matrix3d::Identity()};
   state.archived_local_covariance[9] = 0.05 * Eigen::Matrix3d::Identity();
   ObservationTally tally;
-  tally.add({{5}, {7}, {8}, {9}}, {});
+  tally.add({{5}, {7}, {8}, {9}}, {}, state, StereoCamera{});
   const MapDescription map = describe_map(state, 0, 0, tally, 1, true);
   ASSERT_EQ(map.objects.size(), 4u);
   const ObjectDescription& active = map.objects[0];
@@ -198,8 +198,7 @@ TEST(MapDescriptionTest, AnObjectNotDetectedAgainWhereTheRobotStillLooksIsLeftOu
       detections.push_back(seen(2, Eigen::Vector3d(0.5, 0, 6)));
       detections.push_back(seen(3, Eigen::Vector3d(0.5, 0, 6)));  // where it was detected
     }
-    tally.add(detections, {});
-    tally.add_misses(state, camera);
+    tally.add(detections, {}, state, camera);
   };
   const auto described = [&](double min_detection_ratio) {
     std::vector<LandmarkId> ids;

@@ -29,19 +29,6 @@ std::size_t MapDescription::wire_size() const {
   return kHeader + kPerObject * objects.size();
 }
 
-void ObservationTally::add(const std::vector<StereoObservation>& observations,
-                           const std::vector<int>& classes) {
-  ++frames_added_;
-  last_detections_.clear();
-  for (std::size_t n = 0; n < observations.size(); ++n) {
-    Entry& entry = entries_[observations[n].id];
-    ++entry.frames;
-    entry.last_detected = frames_added_;
-    if (n < classes.size()) ++entry.votes[classes[n]];
-    last_detections_.push_back(observations[n].uv);
-  }
-}
-
 namespace {
 
 /// The depth histogram's range and resolution: log-spaced bins from kDepthLow to kDepthHigh.
@@ -60,14 +47,24 @@ double bin_depth(int bin) {
 
 }  // namespace
 
-void ObservationTally::add_misses(const State& state, const StereoCamera& camera) {
+void ObservationTally::add(const std::vector<StereoObservation>& observations,
+                           const std::vector<int>& classes, const State& state,
+                           const StereoCamera& camera) {
+  ++frames_added_;
+  for (std::size_t n = 0; n < observations.size(); ++n) {
+    Entry& entry = entries_[observations[n].id];
+    ++entry.frames;
+    entry.last_detected = frames_added_;
+    if (n < classes.size()) ++entry.votes[classes[n]];
+  }
+
   // 1. The view: the detections' extent in the left image and their depths (a histogram: a
   //    depth from a far detection's small disparity is noisy, and the range is taken between its
   //    5 % and 95 % quantiles, the near one rounded up and the far one down to a bin edge).
   const double baseline = camera.baseline();
   if (depth_histogram_.empty()) depth_histogram_.assign(kDepthBins, 0);
-  for (const Eigen::Vector4d& uv : last_detections_) {
-    const Eigen::Vector4d xy = camera.normalize(uv);
+  for (const StereoObservation& observation : observations) {
+    const Eigen::Vector4d xy = camera.normalize(observation.uv);
     if (!xy.allFinite()) continue;
     if (!view_known_) {
       view_min_ = view_max_ = xy.head<2>();

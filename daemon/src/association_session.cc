@@ -17,8 +17,7 @@ AssociationSession::AssociationSession(int robot, int start_frame,
 
 void AssociationSession::observe(const std::vector<StereoObservation>& objects,
                                  const std::vector<int>& classes, const Estimator& estimator) {
-  tally_.add(objects, classes);
-  tally_.add_misses(estimator.state(), estimator.camera());
+  tally_.add(objects, classes, estimator.state(), estimator.camera());
 }
 
 void AssociationSession::begin_round(std::uint64_t round, const Estimator& estimator) {

@@ -273,8 +273,8 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
         phase_start = Clock::now();
         for (int i = 0; i < robots; ++i) {
           if (!active[i]) continue;
-          tallies[i].add(dataset.robots[i].objects[step], dataset.robots[i].object_classes[step]);
-          tallies[i].add_misses(estimators[i].state(), estimators[i].camera());
+          tallies[i].add(dataset.robots[i].objects[step], dataset.robots[i].object_classes[step],
+                         estimators[i].state(), estimators[i].camera());
           if (negotiators[i].describes(step)) {
             negotiators[i].set_own_map(
                 association::describe_map(estimators[i].state(), i, negotiators[i].frame(),

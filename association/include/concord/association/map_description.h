@@ -87,12 +87,12 @@ struct MapDescription {
 /// min_detection_ratio).
 class ObservationTally {
  public:
-  /// Adds one frame's detections; classes is parallel to observations or empty (no classes).
-  void add(const std::vector<StereoObservation>& observations, const std::vector<int>& classes);
-  /// After add() of a frame and the filter's step on it: the detections of that frame extend the
-  /// view (through `camera`), then each object of `state` in view at its newest pose that the
+  /// Adds one frame's detections, after the filter's step on that frame: classes is parallel to
+  /// observations or empty (no classes). The detections count for their objects and extend the
+  /// view (through `camera`); then each object of `state` in view at its newest pose that the
   /// frame did not detect counts a miss. Objects the robot never detected are not counted.
-  void add_misses(const State& state, const StereoCamera& camera);
+  void add(const std::vector<StereoObservation>& observations, const std::vector<int>& classes,
+           const State& state, const StereoCamera& camera);
   int observations(LandmarkId id) const;
   int misses(LandmarkId id) const;
   /// The class with most votes (ties: the smallest), or kUnknownClass.
@@ -108,10 +108,8 @@ class ObservationTally {
   };
   std::map<LandmarkId, Entry> entries_;
   int frames_added_ = 0;
-  /// The last frame's detections (image units), for add_misses.
-  std::vector<Eigen::Vector4d> last_detections_;
   /// The view so far: the extent of the detections in normalized left-image coordinates, and a
-  /// histogram of their depths (from the disparity; log-spaced bins, add_misses).
+  /// histogram of their depths (from the disparity; log-spaced bins).
   bool view_known_ = false;
   Eigen::Vector2d view_min_ = Eigen::Vector2d::Zero(), view_max_ = Eigen::Vector2d::Zero();
   std::vector<long long> depth_histogram_;
