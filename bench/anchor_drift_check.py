@@ -14,8 +14,13 @@ BENCH_OUT/separate-CASE; skipped when present) and prints, next to each other:
   - the given run's robot 0, the same;
   - the team's RMSE (mean over robots, from each robot's alignment frame on) negotiated and
     given, and their ratios to robot 0 alone.
+Then what one anchor costs by itself: every case replayed given (global ids, every start right)
+with `--unanchored-start SIGMA_M SIGMA_RAD` (every robot but robot 0 starts with that uncertainty
+about its start, written to BENCH_OUT/unanchored-SIGMA_M-CASE), for uncertainties from far below
+to about the size of a negotiated alignment's error, against the given run: no association and no
+alignment error, only robot 0's start as the team's anchor.
 Nothing in the filter or the negotiation changes; it reads the bench's outputs and runs
-`concord replay --separate` only.
+`concord replay` only.
 
 Usage: bench/anchor_drift_check.py [BENCH_OUT] [CONCORD] [CONFIG]
        (defaults bench/out/association, build/tools/concord, configs/sensors/sim.yaml)
@@ -103,6 +108,30 @@ def main():
               f"({min(ratios_given_alone):.2f}-{max(ratios_given_alone):.2f}). Negotiated robot "
               f"0's mean error after the first alignment above 1.5 times its error at it: "
               f"{grew} of {len(ratios_alone)}.")
+
+    print("\n| unanchored start sigma | trajectory RMSE / given, median (range) | within 10 % | "
+          "object error / given, median | pose NEES median | object NEES median |")
+    print("|---|---|---|---|---|---|")
+    for position, rotation in ((0.05, 0.005), (0.2, 0.02), (0.5, 0.05), (1.0, 0.1)):
+        trajectory, objects, pose_nees, object_nees = [], [], [], []
+        for case in cases:
+            folder = os.path.join(out, f"unanchored-{position}-{case}")
+            if not os.path.exists(os.path.join(folder, "metrics.json")):
+                subprocess.run([concord, "replay", "--dataset", os.path.join(out, "data-" + case),
+                                "--out", folder, "--config", config, "--association", "given",
+                                "--unanchored-start", str(position), str(rotation)],
+                               check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            run = json.load(open(os.path.join(folder, "metrics.json")))["average"]
+            given = json.load(open(os.path.join(out, f"sim-{case}-given", "metrics.json")))["average"]
+            trajectory.append(run["trajectory_rmse"] / given["trajectory_rmse"])
+            objects.append(run["object_error"] / given["object_error"])
+            pose_nees.append(run["pose_nees"]["mean"])
+            object_nees.append(run["object_nees"]["mean"])
+        print(f"| {position} m, {rotation} rad | {statistics.median(trajectory):.2f} "
+              f"({min(trajectory):.2f}-{max(trajectory):.2f}) | "
+              f"{sum(r <= 1.1 for r in trajectory)} of {len(trajectory)} | "
+              f"{statistics.median(objects):.2f} | {statistics.median(pose_nees):.1f} | "
+              f"{statistics.median(object_nees):.2f} |")
 
 
 if __name__ == "__main__":

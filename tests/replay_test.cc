@@ -102,6 +102,39 @@ TEST(TeamReplay, IsDeterministic) {
   }
 }
 
+TEST(TeamReplay, UnanchoredStartsLeaveRobotZeroTheOnlyAnchor) {
+  // Separate runs: robot 0 starts exactly where it is given, the others with the requested
+  // uncertainty about their (right) start; nothing else of the run changes.
+  const auto data = dataset::read_dataset(kData + "sim15-3x200", first_frames(20));
+  const auto options = config::load_estimator_options(kConfigs + "sim.yaml");
+  replay::ReplayOptions replay_options;
+  replay_options.consensus = false;
+  const auto anchored = replay::run_team(data, options, replay_options);
+  replay_options.unanchored_start_sigma = {{0.5, 0.05}};
+  const auto unanchored = replay::run_team(data, options, replay_options);
+  ASSERT_EQ(unanchored.robots.size(), 3u);
+  for (std::size_t i = 0; i < 3; ++i) {
+    const Eigen::Matrix<double, 6, 6>& first = unanchored.robots[i].pose_covariances.front();
+    const Eigen::Matrix<double, 6, 6>& given = anchored.robots[i].pose_covariances.front();
+    if (i == 0) {
+      EXPECT_EQ(first, given) << "robot 0 keeps its exact start";
+      EXPECT_EQ(unanchored.robots[0].trajectory.back().matrix(),
+                anchored.robots[0].trajectory.back().matrix());
+      continue;
+    }
+    // The start's rotation sigma stays through the first frame (no observation fixes a
+    // heading in the world); its position, turned into the body, at least the position sigma's.
+    for (int axis = 3; axis < 6; ++axis) {
+      EXPECT_NEAR(std::sqrt(first(axis, axis)), 0.05, 0.005) << "robot " << i;
+    }
+    const double position_trace = first.topLeftCorner<3, 3>().trace();
+    EXPECT_GT(position_trace, 3 * 0.5 * 0.5 * 0.9) << "robot " << i;
+    EXPECT_LT(given.trace(), 1e-3) << "robot " << i;
+  }
+  replay_options.unanchored_start_sigma = {{0.0, 0.05}};
+  EXPECT_THROW(replay::run_team(data, options, replay_options), std::invalid_argument);
+}
+
 TEST(TeamReplay, RejectsABadLossRate) {
   auto data = dataset::read_dataset(kData + "sim15-3x200", first_frames(5));
   replay::ReplayOptions replay_options;

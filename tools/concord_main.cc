@@ -3,6 +3,7 @@
 ///                  [--range M] [--nearest K] [--max-degree D]
 ///                  [--seed S] [--frames N] [--no-point-features] [--set KEY=VALUE ...]
 ///                  [--association given|negotiated] [--search-log FILE] [--dump-descriptions DIR]
+///                  [--unanchored-start SIGMA_M SIGMA_RAD]
 ///   concord eval --dataset DIR --result DIR [--first-frames-from DIR]
 ///   concord slice --dataset DIR --out DIR --frames N [--robots R] [--private-ids]
 ///   [--unknown-start] concord convert --dataset DIR --out DIR [--private-ids] [--unknown-start]
@@ -287,7 +288,8 @@ int run_replay(const fs::path& dataset_dir, const fs::path& out, bool separate,
                const std::string& config_file, const std::string& graph, double loss,
                std::uint64_t seed, int frames, bool no_point_features,
                const std::vector<std::string>& overrides, const std::string& association_mode,
-               replay::RadioLimits radio, const SearchDiagnostics& diagnostics) {
+               replay::RadioLimits radio, const SearchDiagnostics& diagnostics,
+               const std::vector<double>& unanchored_start) {
   dataset::ReadOptions read_options;
   if (frames > 0) read_options.max_frames = frames;
   read_options.load_features = !no_point_features;
@@ -330,6 +332,11 @@ int run_replay(const fs::path& dataset_dir, const fs::path& out, bool separate,
   replay_options.radio = radio;
   replay_options.negotiation = negotiation;
   replay_options.search_listener = search_writer(diagnostics);
+  if (unanchored_start.size() == 2) {
+    replay_options.unanchored_start_sigma = {unanchored_start[0], unanchored_start[1]};
+    std::cerr << "  every robot but robot 0 starts with sigma " << unanchored_start[0] << " m, "
+              << unanchored_start[1] << " rad (--unanchored-start)\n";
+  }
   if (!association_mode.empty()) {
     replay_options.association = replay::parse_association_mode(association_mode);
   }
@@ -379,6 +386,8 @@ int run_replay(const fs::path& dataset_dir, const fs::path& out, bool separate,
       {"edges_per_round", s.steps > 0 ? static_cast<double>(s.edge_rounds) / s.steps : 0.0},
       {"loss", loss},
       {"seed", seed},
+      {"unanchored_start_sigma",
+       unanchored_start.size() == 2 ? nlohmann::json(unanchored_start) : nlohmann::json(nullptr)},
       {"config", config_path.string()},
       {"steps", s.steps},
       {"robot_steps", s.robot_steps},
@@ -823,6 +832,12 @@ int main(int argc, char** argv) {
   replay_command->add_option("--dump-descriptions", search_diagnostics.descriptions,
                              "Negotiated runs: write both map descriptions of every search into "
                              "this folder (one file a search)");
+  std::vector<double> unanchored_start;
+  replay_command
+      ->add_option("--unanchored-start", unanchored_start,
+                   "SIGMA_M SIGMA_RAD: a diagnosis of one anchor: every robot but robot 0 starts "
+                   "at its given start with this standard deviation (metres, radians)")
+      ->expected(2);
   replay_command->add_option("--set", overrides,
                              "KEY=VALUE: an estimator option over the config (repeatable), e.g. "
                              "--set odometry_rotation_sigma=0.02 --set "
@@ -1262,7 +1277,8 @@ int main(int argc, char** argv) {
     }
     if (replay_command->parsed()) {
       return run_replay(dataset_dir, out_dir, separate, config_file, graph, loss, seed, frames,
-                        no_point_features, overrides, association_mode, radio, search_diagnostics);
+                        no_point_features, overrides, association_mode, radio, search_diagnostics,
+                        unanchored_start);
     }
     if (eval_command->parsed()) return run_eval(dataset_dir, result_dir, first_frames_from);
     if (slice_command->parsed()) {

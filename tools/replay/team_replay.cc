@@ -155,6 +155,19 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
         "association given: the robots' start poses are unknown, so their frames differ; use "
         "the negotiated association");
   }
+  if (const auto& sigma = options.unanchored_start_sigma) {
+    if (!(std::isfinite(sigma->first) && sigma->first > 0.0 && std::isfinite(sigma->second) &&
+          sigma->second > 0.0)) {
+      throw std::invalid_argument("unanchored start sigma: expected two positive numbers, got " +
+                                  std::to_string(sigma->first) + ", " +
+                                  std::to_string(sigma->second));
+    }
+    if (dataset.start_poses != dataset::StartPoses::kKnown) {
+      throw std::invalid_argument(
+          "unanchored start sigma: the robots' start poses are unknown (each starts in its own "
+          "frame), so there is no given start to be uncertain about");
+    }
+  }
   const auto run_start = Clock::now();
   const int robots = static_cast<int>(dataset.robots.size());
   std::vector<Estimator> estimators;
@@ -164,7 +177,12 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
   int steps = 0;
   for (const auto& robot : dataset.robots) {
     if (robot.num_frames() == 0) throw std::invalid_argument("robot without frames");
-    estimators.emplace_back(estimator_options, dataset.camera,
+    EstimatorOptions robot_options = estimator_options;
+    if (options.unanchored_start_sigma && robot.index != 0) {
+      robot_options.initial_position_sigma = options.unanchored_start_sigma->first;
+      robot_options.initial_rotation_sigma = options.unanchored_start_sigma->second;
+    }
+    estimators.emplace_back(robot_options, dataset.camera,
                             robot.T_world_body_start.value_or(Eigen::Isometry3d::Identity()), 0);
     const int start_frame = robot.T_world_body_start ? association::kWorldFrame : robot.index;
     if (negotiated) {

@@ -68,6 +68,12 @@ struct ReplayOptions {
   std::optional<AssociationMode> association;
   /// Options of the negotiation (negotiated runs).
   association::NegotiationOptions negotiation;
+  /// A diagnosis of what one anchor costs (docs/association.md, "The gap taken apart"): when
+  /// set, every robot but robot 0 starts at its given start pose with this standard deviation
+  /// ({metres, radians}: initial_position_sigma and initial_rotation_sigma for that robot only),
+  /// so that robot 0's start is the team's only anchor, as in a negotiated team, while the
+  /// others' starts are right and no association is needed. Both must be positive and finite.
+  std::optional<std::pair<double, double>> unanchored_start_sigma;
   /// Given to every robot's negotiator (Negotiator::set_search_listener) when set: diagnostics of
   /// the searches; it changes nothing in the run.
   std::function<void(const association::SearchTrace&)> search_listener;
