@@ -22,7 +22,7 @@ alignment error, only robot 0's start as the team's anchor.
 Nothing in the filter or the negotiation changes; it reads the bench's outputs and runs
 `concord replay` only.
 
-Usage: bench/anchor_drift_check.py [BENCH_OUT] [CONCORD] [CONFIG]
+Usage: bench/anchor_drift_check.py [BENCH_OUT] [CONCORD] [CONFIG] > docs/results-anchor.md
        (defaults bench/out/association, build/tools/concord, configs/sensors/sim.yaml)
 """
 import json
@@ -63,6 +63,11 @@ def main():
     config = sys.argv[3] if len(sys.argv) > 3 else "configs/sensors/sim.yaml"
     cases = sorted(d[len("sim-"):-len("-negotiated")] for d in os.listdir(out)
                    if d.startswith("sim-") and d.endswith("-negotiated"))
+    print("# What one anchor costs: negotiated and given teams against robot 0 alone (issue 11)\n")
+    print("Written by `bench/anchor_drift_check.py` from the outputs of "
+          "`bench/association_bench.sh` (see the script's header and docs/association.md, "
+          "Limits, \"The gap taken apart\"). Errors in metres; robot 0's errors are positions "
+          "at the team's first alignment frame, at the end, and the mean from that frame on.\n")
     print("| case | first alignment | robot 0 alone: RMSE / at alignment / end / mean after | "
           "robot 0 negotiated | robot 0 given | team RMSE negotiated / given | "
           "negotiated / robot 0 alone | given / robot 0 alone |")
