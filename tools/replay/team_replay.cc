@@ -155,18 +155,11 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
         "association given: the robots' start poses are unknown, so their frames differ; use "
         "the negotiated association");
   }
-  if (const auto& sigma = options.unanchored_start_sigma) {
-    if (!(std::isfinite(sigma->first) && sigma->first > 0.0 && std::isfinite(sigma->second) &&
-          sigma->second > 0.0)) {
-      throw std::invalid_argument("unanchored start sigma: expected two positive numbers, got " +
-                                  std::to_string(sigma->first) + ", " +
-                                  std::to_string(sigma->second));
-    }
-    if (dataset.start_poses != dataset::StartPoses::kKnown) {
-      throw std::invalid_argument(
-          "unanchored start sigma: the robots' start poses are unknown (each starts in its own "
-          "frame), so there is no given start to be uncertain about");
-    }
+  // The sigmas themselves are checked where every start sigma is (EstimatorOptions::validate).
+  if (options.unanchored_start_sigma && dataset.start_poses != dataset::StartPoses::kKnown) {
+    throw std::invalid_argument(
+        "unanchored start sigma: the robots' start poses are unknown (each starts in its own "
+        "frame), so there is no given start to be uncertain about");
   }
   const auto run_start = Clock::now();
   const int robots = static_cast<int>(dataset.robots.size());

@@ -72,7 +72,8 @@ struct ReplayOptions {
   /// set, every robot but robot 0 starts at its given start pose with this standard deviation
   /// ({metres, radians}: initial_position_sigma and initial_rotation_sigma for that robot only),
   /// so that robot 0's start is the team's only anchor, as in a negotiated team, while the
-  /// others' starts are right and no association is needed. Both must be positive and finite.
+  /// others' starts are right and no association is needed. Both must be positive and finite
+  /// (checked as every start sigma is: std::invalid_argument from the estimator).
   std::optional<std::pair<double, double>> unanchored_start_sigma;
   /// Given to every robot's negotiator (Negotiator::set_search_listener) when set: diagnostics of
   /// the searches; it changes nothing in the run.
