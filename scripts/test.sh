@@ -32,7 +32,7 @@ cmake -S . -B build-asan "${sanitizer_flags[@]}" -DCONCORD_SANITIZE=address,unde
   -DCONCORD_BUILD_FUZZERS=ON
 # The test suite, the daemon it starts and the fuzzers (not the `concord` tool: no test runs it).
 cmake --build build-asan --parallel 2 --target concord_tests concordd \
-  fuzz_frame_decoder fuzz_channel fuzz_marginal fuzz_negotiation fuzz_http_target
+  fuzz_frame_decoder fuzz_channel fuzz_marginal fuzz_negotiation fuzz_consensus fuzz_http_target
 stage "ASan+UBSan tests"
 # The Monte-Carlo consistency runs (the first-estimate term's 24 runs and the persistent
 # detection error's among them), the archive-mode comparison, the eight-world feature test and
@@ -45,9 +45,8 @@ ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1 \
   -E '^(MonteCarloNees\..*|Archiving\..*|FirstEstimateNoise\.MakesSeparateRunsLessOverconfidentAtNoCostInAccuracy|PersistentDetectionError\..*|DetectionOffset\.AStateForAnOffsetThatStaysAlongTheTrackKeepsTheObjectHonest|DetectionDisplacement\.AStateForADisplacementInSpaceKeepsTheObjectHonest|FeatureUpdate\.ReducesTheDriftOfBiasedOdometry|TeamReplay\.(Sim15|Kitti00)SliceConsensusAgreesBetterThanSeparate)$'
 
 # Two fuzzers at a time (one per core), each for FUZZ_SECONDS; their reports are printed in turn.
-# fuzz_negotiation (the negotiated association's decisions on a hostile member's messages) runs
-# searches on every input, the slowest: it has a slot of its own. (libFuzzer's -fork mode would
-# give it both cores, but exits 0 when a child finds a crash.)
+# (libFuzzer's -fork mode would let one fuzzer use both cores, but it exits 0 when a child finds
+# a crash.)
 fuzz_seconds="${FUZZ_SECONDS:-30}"
 fuzz() {  # target: runs one fuzzer on a copy of its seed corpus, its report in build-asan/fuzz
   local corpus
@@ -59,7 +58,7 @@ fuzz() {  # target: runs one fuzzer on a copy of its seed corpus, its report in 
   rm -rf "$corpus"
   return "$status"
 }
-for group in "frame_decoder channel" "marginal http_target" "negotiation"; do
+for group in "frame_decoder channel" "marginal http_target" "negotiation consensus"; do
   read -r -a targets <<< "$group"
   stage "fuzzing ${targets[*]} for ${fuzz_seconds} s"
   pids=()
