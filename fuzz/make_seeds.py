@@ -50,8 +50,9 @@ NEGOTIATION_SEEDS = {
                        "held { owner: 2 version: 3 }",
 }
 
-CONSENSUS_XYZ = {100: (4.0, 1.0, 0.5), 101: (5.5, -2.0, 1.0), 102: (7.0, 0.5, 0.2), 103: (6.0, 3.0, 1.5),
-       104: (2.0, -4.0, 0.3), 105: (9.0, 2.5, 0.8)}
+CONSENSUS_XYZ = {100: (4.0, 1.0, 0.5), 101: (5.5, -2.0, 1.0), 102: (7.0, 0.5, 0.2),
+                 103: (6.0, 3.0, 1.5),
+                 104: (2.0, -4.0, 0.3), 105: (9.0, 2.5, 0.8)}
 
 
 def upper(n, diagonal, off=0.0):
@@ -62,7 +63,8 @@ def marginal(ids, blocks, shift=None):
     shift = shift or {}
     mean = []
     for i in ids:
-        mean += [v + d for v, d in zip(CONSENSUS_XYZ.get(i, (1.0, 1.0, 1.0)), shift.get(i, (0.0, 0.0, 0.0)))]
+        position = CONSENSUS_XYZ.get(i, (1.0, 1.0, 1.0))
+        mean += [v + d for v, d in zip(position, shift.get(i, (0.0, 0.0, 0.0)))]
     packed = []
     for landmarks, diagonal, off in blocks:
         packed += upper(3 * landmarks, diagonal, off)
