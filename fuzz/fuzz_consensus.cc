@@ -6,6 +6,7 @@
 // neighbour sent: finite means, a finite symmetric covariance without negative directions beyond
 // round-off, finite archived marginals, and a marginal the robot can still send.
 #include <Eigen/Eigenvalues>
+#include <cmath>
 #include <cstddef>
 #include <cstdint>
 #include <cstdio>

@@ -15,6 +15,7 @@
 #include <cstdlib>
 #include <set>
 #include <string>
+#include <utility>
 
 #include "concord/association/negotiation.h"
 #include "concord/daemon/negotiation_wire.h"
