@@ -79,6 +79,9 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   std::vector<concord::WeightedMarginal> neighbours(1);
   neighbours[0].weight = 0.5;  // two robots (Metropolis-Hastings)
   neighbours[0].marginal = std::move(*marginal);
+  neighbours[0].sender = 2;  // its claims kept and tested against (claim_history_rounds)
+  (void)estimator.fuse(neighbours);
+  // The same claim a round later: tested against the first (and the robot's fused state).
   (void)estimator.fuse(neighbours);
 
   const State& fused = estimator.state();

@@ -5,11 +5,13 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/Eigenvalues>
+#include <cmath>
 #include <limits>
 #include <map>
 #include <random>
 
 #include "allocation_counter.h"
+#include "concord/estimator/estimator.h"
 #include "concord/estimator/lie.h"
 #include "concord/estimator/state_helper.h"
 #include "concord/estimator/updater_helper.h"
@@ -177,7 +179,7 @@ WorkspaceCase workspace_case() {
   some.mean += testing::random_vector(some.mean.size(), random, 0.05);
   Marginal far = Consensus::marginal(out.state, {100});
   far.mean += Eigen::Vector3d(100, 0, 0);
-  out.neighbours = {{0.25, everything}, {0.25, some}, {0.25, far}};
+  out.neighbours = {{0.25, everything, 1}, {0.25, some, 2}, {0.25, far, 3}};
   return out;
 }
 
@@ -728,6 +730,121 @@ TEST(ConsensusSafeguards, NeighboursBeyondTheChiSquareBoundAreRefusedAndCounted)
   // The near one is averaged with weight 1/4, the robot keeps 3/4 (the refused and the
   // non-holder's weights included): equal covariances, so the mean is 5.6 / 4.
   EXPECT_NEAR(state.landmarks[0].p_world.x(), 1.4, 1e-12);
+}
+
+// --- A neighbour's claims against its own earlier ones (ConsensusOptions::claim_history_rounds)
+// ---
+
+/// What one round of claims does: the robot (own landmark 5 at the origin, covariance `own`
+/// I) fuses one claim N(mean, covariance) of `sender` about landmark 5 through `workspace`.
+const ConsensusReport& fuse_claim(ConsensusWorkspace& workspace, const ConsensusOptions& options,
+                                  int sender, const Eigen::Vector3d& mean,
+                                  const Eigen::Matrix3d& covariance, double own = 1.0) {
+  State state = single_landmark_state();
+  state.covariance *= own;
+  std::vector<WeightedMarginal> claim{{0.25, Marginal{{5}, mean, covariance}, sender}};
+  return Consensus::fuse(state, claim, options, workspace);
+}
+
+TEST(ConsensusClaims, AClaimThatMovedBeyondTheNeighboursOwnEarlierClaimIsRefused) {
+  // The neighbour claims N(0.05 k e_x, 0.01 I) at round k: each claim alone is close to the
+  // robot's own N(0, I) (the chi-square test of the two passes up to 4 m), but two consistent
+  // estimates of one point differ by at most 2 (0.01 + 0.01) I in covariance, so from the
+  // first claim on a move beyond sqrt(0.04 chi2_3(99.9 %)) = 0.81 m is refused.
+  ConsensusOptions options;
+  const double bound = UpdaterHelper::chi2_quantile(options.neighbour_chi2_probability, 3);
+  const Eigen::Matrix3d claimed = 0.01 * Eigen::Matrix3d::Identity();
+  int first_beyond = 0;
+  while (std::pow(0.05 * first_beyond, 2) / 0.04 <= bound) ++first_beyond;
+  ASSERT_EQ(first_beyond, 17);
+  ConsensusWorkspace workspace;
+  for (int k = 0; k <= first_beyond + 3; ++k) {
+    const auto& report =
+        fuse_claim(workspace, options, 7, Eigen::Vector3d(0.05 * k, 0, 0), claimed);
+    const int refused = k >= first_beyond ? 1 : 0;
+    EXPECT_EQ(report.claims_refused, refused) << k;
+    EXPECT_EQ(report.landmarks_refused, refused) << k;
+    EXPECT_EQ(report.refused_per_neighbour, std::vector<int>{refused}) << k;
+    EXPECT_EQ(report.landmarks_fused, 1 - refused) << k;
+  }
+  // Without the neighbour's id, or with the test off, nothing is refused.
+  for (const auto& [sender, rounds] : {std::pair{-1, 200}, std::pair{7, 0}}) {
+    ConsensusOptions off = options;
+    off.claim_history_rounds = rounds;
+    ConsensusWorkspace fresh;
+    for (int k = 0; k <= first_beyond + 3; ++k) {
+      EXPECT_EQ(fuse_claim(fresh, off, sender, Eigen::Vector3d(0.05 * k, 0, 0), claimed)
+                    .landmarks_refused,
+                0)
+          << k;
+    }
+  }
+  // Claims older than the window are forgotten: with a window of 10 rounds no two claims it
+  // compares are more than 0.5 m apart.
+  ConsensusOptions window = options;
+  window.claim_history_rounds = 10;
+  ConsensusWorkspace windowed;
+  for (int k = 0; k <= 3 * first_beyond; ++k) {
+    EXPECT_EQ(
+        fuse_claim(windowed, window, 7, Eigen::Vector3d(0.05 * k, 0, 0), claimed).claims_refused, 0)
+        << k;
+  }
+  // Another neighbour's claims are kept apart: the same claim from robot 8 is its first.
+  EXPECT_EQ(fuse_claim(workspace, options, 8, Eigen::Vector3d(2.0, 0, 0), claimed).claims_refused,
+            0);
+}
+
+TEST(ConsensusClaims, AConsistentFiltersEstimatesPassAndAnOverconfidentOnesAreRefused) {
+  // A neighbour estimates a static point with a Kalman filter (prior N(x0, 4 I) with x0 drawn
+  // from it, one measurement of covariance 0.25 I a round) and claims its estimate every round.
+  // Claimed as they are, its claims agree with its earlier ones (the bound holds for any two
+  // consistent estimates); claimed with a hundredth of the covariance, the estimate moves by
+  // more than its claims allow.
+  std::mt19937 random(2026);
+  std::normal_distribution<double> normal;
+  const auto draw = [&](double sigma) -> Eigen::Vector3d {
+    return Eigen::Vector3d(normal(random), normal(random), normal(random)) * sigma;
+  };
+  const ConsensusOptions options;
+  int tests = 0, refused_honest = 0, refused_overconfident = 0;
+  for (int trial = 0; trial < 40; ++trial) {
+    const Eigen::Vector3d truth = draw(1.0);
+    Eigen::Vector3d mean = truth + draw(2.0);
+    Eigen::Matrix3d covariance = 4.0 * Eigen::Matrix3d::Identity();
+    ConsensusWorkspace honest, overconfident;
+    for (int round = 0; round < 100; ++round) {
+      const Eigen::Matrix3d noise = 0.25 * Eigen::Matrix3d::Identity();
+      const Eigen::Matrix3d gain = covariance * (covariance + noise).inverse();
+      mean += gain * (truth + draw(0.5) - mean);
+      covariance = (Eigen::Matrix3d::Identity() - gain) * covariance;
+      ++tests;
+      // The robot's own covariance is wide: the test against it never refuses here.
+      refused_honest += fuse_claim(honest, options, 3, mean, covariance, 1e4).claims_refused;
+      refused_overconfident +=
+          fuse_claim(overconfident, options, 3, mean, 0.01 * covariance, 1e4).claims_refused;
+    }
+  }
+  EXPECT_LE(refused_honest, tests / 1000);
+  EXPECT_GT(refused_overconfident, tests / 10);
+}
+
+TEST(ConsensusClaims, TheRobotsMoveForgetsTheClaims) {
+  // After Estimator::reanchor the neighbours' claims are in another frame: a claim 1 m from
+  // the one before, refused before the move, is taken after it.
+  EstimatorOptions options;
+  const Eigen::Matrix3d claimed = 0.01 * Eigen::Matrix3d::Identity();
+  const auto claim = [&](double x) {
+    return std::vector<WeightedMarginal>{
+        {0.25, Marginal{{5}, Eigen::Vector3d(x, 0, 0), claimed}, 4}};
+  };
+  for (const bool move : {false, true}) {
+    Estimator estimator(options, StereoCamera{}, single_landmark_state());
+    EXPECT_EQ(estimator.fuse(claim(0.0)).claims_refused, 0);
+    EXPECT_EQ(estimator.fuse(claim(1.0)).claims_refused, 1);
+    if (move)
+      estimator.reanchor(Eigen::Isometry3d::Identity(), Eigen::Matrix<double, 6, 6>::Zero());
+    EXPECT_EQ(estimator.fuse(claim(1.0)).claims_refused, move ? 0 : 1) << move;
+  }
 }
 
 TEST(ConsensusAverage, CorrelatedAxesGiveTheInformationAverageInAndOutOfTheState) {

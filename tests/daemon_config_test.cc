@@ -118,6 +118,14 @@ TEST(DaemonConfig, TrustAndBoundsAreChecked) {
   EXPECT_NE(problems_of("consensus: {mode: off, future_rounds: 0}\nsource: {dataset: d}\n")
                 .find("consensus.future_rounds"),
             std::string::npos);
+  for (const char* doublings : {"-1", "21"})
+    EXPECT_NE(problems_of("consensus: {mode: off, quarantine_doublings: " + std::string(doublings) +
+                          "}\nsource: {dataset: d}\n")
+                  .find("consensus.quarantine_doublings"),
+              std::string::npos)
+        << doublings;
+  EXPECT_EQ(problems_of("consensus: {mode: off, quarantine_doublings: 0}\nsource: {dataset: d}\n"),
+            "");
 }
 
 }  // namespace

@@ -69,6 +69,7 @@ EstimatorOptions unusual_options() {
   options.consensus.max_condition_number = 1e15 / 3.0;
   options.consensus.neighbour_chi2_probability = 0.9876;
   options.consensus.fuse_kl_threshold = 2.5e-3;
+  options.consensus.claim_history_rounds = 37;
   return options;
 }
 
@@ -110,6 +111,7 @@ void expect_same_options(const EstimatorOptions& actual, const EstimatorOptions&
   EXPECT_EQ(actual.consensus.neighbour_chi2_probability,
             expected.consensus.neighbour_chi2_probability);
   EXPECT_EQ(actual.consensus.fuse_kl_threshold, expected.consensus.fuse_kl_threshold);
+  EXPECT_EQ(actual.consensus.claim_history_rounds, expected.consensus.claim_history_rounds);
 }
 
 // --- YAML round trip and loading ---
@@ -315,7 +317,8 @@ TEST(OptionsValidateTest, EachRuleNamesTheKeyTheValueAndTheRange) {
       {"constant object noise", [&](auto& o) { o.object_noise_constant.disparity = kNan; },
        "object_noise_constant.disparity = nan: must be finite and >= 0"},
       {"object noise correlation", [](auto& o) { o.object_noise_correlation = 1.0; },
-       "object_noise_correlation = 1: must be in [0, 1) (a constant part is object_noise_constant)"},
+       "object_noise_correlation = 1: must be in [0, 1) (a constant part is "
+       "object_noise_constant)"},
       {"feature noise", [](auto& o) { o.feature_noise.vertical = -0.5; },
        "feature_noise.vertical = -0.5: must be finite and > 0"},
       {"object observations", [](auto& o) { o.object_min_observations = 1; },
@@ -352,6 +355,8 @@ TEST(OptionsValidateTest, EachRuleNamesTheKeyTheValueAndTheRange) {
        "consensus.neighbour_chi2_probability = 1.5: must be in [0, 1)"},
       {"fuse threshold", [](auto& o) { o.consensus.fuse_kl_threshold = -0.5; },
        "consensus.fuse_kl_threshold = -0.5: must be finite and >= 0"},
+      {"claim history", [](auto& o) { o.consensus.claim_history_rounds = -1; },
+       "consensus.claim_history_rounds = -1: must be >= 0 (0: off)"},
   };
   for (const ValidationCase& test_case : cases) {
     SCOPED_TRACE(test_case.description);

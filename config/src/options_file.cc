@@ -69,6 +69,7 @@ template <typename Consensus, typename Visitor>
 void for_each_consensus_field(Consensus& consensus, Visitor&& visit) {
   visit("max_condition_number", consensus.max_condition_number);
   visit("neighbour_chi2_probability", consensus.neighbour_chi2_probability);
+  visit("claim_history_rounds", consensus.claim_history_rounds);
   visit("fuse_kl_threshold", consensus.fuse_kl_threshold);
   visit("share_kl_threshold", consensus.share_kl_threshold);
   visit("share_max_landmarks", consensus.share_max_landmarks);

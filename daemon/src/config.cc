@@ -105,6 +105,9 @@ std::vector<std::string> DaemonConfig::validate() const {
   if (consensus.quarantine_after < 1)
     problems.push_back("consensus.quarantine_after: expected >= 1, got " +
                        std::to_string(consensus.quarantine_after));
+  if (consensus.quarantine_doublings < 0 || consensus.quarantine_doublings > 20)
+    problems.push_back("consensus.quarantine_doublings: expected 0 to 20, got " +
+                       std::to_string(consensus.quarantine_doublings));
   if (consensus.quarantine_rounds < 0)
     problems.push_back("consensus.quarantine_rounds: expected >= 0, got " +
                        std::to_string(consensus.quarantine_rounds));
@@ -302,6 +305,7 @@ DaemonConfig parse_daemon_config(const std::string& yaml_text, const std::string
   consensus.read("suspicious_refusal_fraction", config.consensus.suspicious_refusal_fraction);
   consensus.read("quarantine_after", config.consensus.quarantine_after);
   consensus.read("quarantine_rounds", config.consensus.quarantine_rounds);
+  consensus.read("quarantine_doublings", config.consensus.quarantine_doublings);
   consensus.read("max_marginal_landmarks", config.consensus.max_marginal_landmarks);
   consensus.read("link_budget_bytes_per_second", config.consensus.link_budget_bytes_per_second);
   std::string association = to_string(config.consensus.association);

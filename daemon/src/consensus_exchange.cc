@@ -732,7 +732,7 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
         it->second.marginal = std::move(*relabelled);
       }
       inbox.push_back({Consensus::metropolis_weight(degree, it->second.degree),
-                       std::move(it->second.marginal)});
+                       std::move(it->second.marginal), robot});
       senders.push_back(robot);
     }
     // Liveness bookkeeping: a waited-for peer that missed the deadline; a peer (waited for or
@@ -820,7 +820,7 @@ RoundReport ConsensusExchange::async_round(std::uint64_t round, Estimator& estim
       }
       if (!peer.latest->marginal.ids.empty() && !quarantined(robot, peer, round)) {
         inbox.push_back({Consensus::metropolis_weight(degree, peer.latest->degree),
-                         std::move(peer.latest->marginal)});
+                         std::move(peer.latest->marginal), robot});
         senders.push_back(robot);
       }
     }
@@ -866,21 +866,27 @@ void ConsensusExchange::judge(std::uint64_t round, const std::vector<int>& sende
     peer.suspicious_in_a_row = suspicious ? peer.suspicious_in_a_row + 1 : 0;
     if (suspicious) {
       warn_limited(*log_limiter_, senders[j], "refused",
-                   "consensus: round {}: {} of {} landmarks from robot {} refused (they disagree "
-                   "with this robot's beyond the chi-square bound)",
+                   "consensus: round {}: {} of {} landmarks from robot {} refused (beyond the "
+                   "chi-square bound of this robot's estimates or of its own earlier claims)",
                    round, refused, tested, senders[j]);
     }
     if (peer.suspicious_in_a_row >= config_.quarantine_after && config_.quarantine_rounds > 0 &&
         peer.quarantined_until < 0) {
-      peer.quarantined_until = static_cast<std::int64_t>(round) + config_.quarantine_rounds;
+      // A repeat offender stays out longer: each quarantine twice the one before, up to
+      // 2^quarantine_doublings times quarantine_rounds.
+      const auto doublings = std::min<std::uint64_t>(
+          peer.trust.quarantines, static_cast<std::uint64_t>(config_.quarantine_doublings));
+      peer.quarantined_until = static_cast<std::int64_t>(round) +
+                               (static_cast<std::int64_t>(config_.quarantine_rounds) << doublings);
       peer.suspicious_in_a_row = 0;
       peer.trust.quarantined = true;
       ++peer.trust.quarantines;
       ++counters_.quarantines;
       ++counters_.quarantined_peers;
-      spdlog::warn("consensus: robot {} quarantined until round {}: its marginals disagreed with "
-                   "this robot's in {} rounds in a row",
-                   senders[j], peer.quarantined_until, config_.quarantine_after);
+      spdlog::warn(
+          "consensus: robot {} quarantined until round {}: its marginals were refused "
+          "in {} rounds in a row",
+          senders[j], peer.quarantined_until, config_.quarantine_after);
     }
   }
 }

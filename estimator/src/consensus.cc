@@ -3,9 +3,12 @@
 #include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
 #include <algorithm>
+#include <array>
 #include <cassert>
 #include <cmath>
+#include <cstdint>
 #include <limits>
+#include <map>
 #include <optional>
 #include <span>
 
@@ -116,6 +119,7 @@ const Location* find_location(const Locations& locations, LandmarkId id) {
 /// own, as Consensus::marginal would give them), with its weight and where each id sits.
 struct Member {
   int index = -1;  ///< position in the neighbours given to fuse(), -1 for the robot itself
+  int sender = -1;  ///< a neighbour's robot id (WeightedMarginal::sender), -1 if not given
   double weight = 0.0;
   const Marginal* marginal = nullptr;  ///< a neighbour's
   const State* state = nullptr;        ///< the robot's
@@ -143,6 +147,7 @@ bool check(const Marginal& marginal, int index, double weight, Member& member, L
   if (!locate(marginal.ids, marginal.blocks, member.owned, spare)) return false;
   member.shared = nullptr;
   member.index = index;
+  member.sender = -1;
   member.weight = weight;
   member.marginal = &marginal;
   member.state = nullptr;
@@ -154,6 +159,7 @@ bool check(const Marginal& marginal, int index, double weight, Member& member, L
 void own_member(const State& state, double weight, std::vector<const ObjectEstimate*>& archived,
                 Member& member, Locations& spare) {
   member.index = -1;
+  member.sender = -1;
   member.weight = weight;
   member.marginal = nullptr;
   member.state = &state;
@@ -241,6 +247,81 @@ std::optional<double> inverse_quadratic3(const Eigen::Matrix3d& A, const Eigen::
   const double y0 = r(0), y1 = r(1) - l10 * y0, y2 = r(2) - l20 * y0 - l21 * y1;
   return y0 * y0 / p0 + y1 * y1 / p1 + y2 * y2 / p2;
 }
+
+/// What each neighbour claimed about each landmark in recent rounds
+/// (ConsensusOptions::claim_history_rounds). For one landmark and neighbour the claims kept are
+/// a ladder: each at least twice as certain (covariance trace at most half) as the one kept
+/// before it, none older than the window. Two consistent estimates a, b of one static
+/// landmark, whatever their correlation, differ by an error of covariance at most
+/// 2 (P_a + P_b) (since (a - b)(a - b)^T <= 2 a a^T + 2 b b^T): a new claim is tested against
+/// every claim kept under that bound. A claim more certain than it is shows once its mean
+/// moves by more than its covariance allows. Entries not claimed for a window are dropped, so
+/// the history holds at most (neighbours) x (landmarks claimed in a window) entries.
+class ClaimHistory {
+ public:
+  /// Starts a round (fuse call) with the given window; forgets what is older.
+  void begin_round(int window) {
+    ++round_;
+    if (window != window_) {
+      window_ = window;
+      entries_.clear();
+    }
+    if (round_ % static_cast<std::uint64_t>(window_) == 0) {
+      std::erase_if(entries_, [&](const auto& entry) { return expired(entry.second.last); });
+    }
+  }
+
+  /// Tests a claim of `sender` about landmark `id` against the sender's earlier ones and, if it
+  /// is consistent with them, keeps it. False: inconsistent (the claim is not kept).
+  bool consistent(int sender, LandmarkId id, const Eigen::Vector3d& mean,
+                  const Eigen::Matrix3d& covariance, double bound) {
+    Entry& entry = entries_[{sender, id}];
+    entry.last = round_;
+    // Claims that left the window go (the ladder is in the order kept: oldest first).
+    int first = 0;
+    while (first < entry.count && expired(entry.claims[first].round)) ++first;
+    if (first > 0) {
+      std::move(entry.claims.begin() + first, entry.claims.begin() + entry.count,
+                entry.claims.begin());
+      entry.count -= first;
+    }
+    for (int k = 0; k < entry.count; ++k) {
+      const Claim& earlier = entry.claims[k];
+      const auto distance =
+          inverse_quadratic3(2.0 * earlier.covariance, 2.0 * covariance, mean - earlier.mean);
+      if (!distance || !(*distance <= bound)) return false;
+    }
+    const double trace = covariance.trace();
+    if (entry.count == 0 || trace <= 0.5 * entry.claims[entry.count - 1].covariance.trace()) {
+      if (entry.count == kLadder) {  // the oldest, least certain claim gives way
+        std::move(entry.claims.begin() + 1, entry.claims.end(), entry.claims.begin());
+        --entry.count;
+      }
+      entry.claims[entry.count++] = {mean, covariance, round_};
+    }
+    return true;
+  }
+
+ private:
+  static constexpr int kLadder = 8;
+  struct Claim {
+    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+    Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero();
+    std::uint64_t round = 0;
+  };
+  struct Entry {
+    std::array<Claim, kLadder> claims;
+    int count = 0;
+    std::uint64_t last = 0;
+  };
+  bool expired(std::uint64_t round) const {
+    return round_ - round > static_cast<std::uint64_t>(window_);
+  }
+
+  std::uint64_t round_ = 0;
+  int window_ = 0;
+  std::map<std::pair<int, LandmarkId>, Entry> entries_;
+};
 
 /// Mean and covariance of the landmarks at `at` (all in one block) of a neighbour's
 /// block-diagonal marginal, into buffers of size 3k and 3k x 3k.
@@ -560,6 +641,7 @@ using namespace consensus_internal;
 /// Everything Consensus::fuse needs besides its inputs, kept from one round to the next.
 struct ConsensusWorkspace::Buffers {
   ConsensusReport report;
+  ClaimHistory claims;  // kept from round to round (the workspace's only state)
   // The members.
   std::vector<const ObjectEstimate*> own_archived;
   Locations spare_locations;  // sort_by_id's
@@ -798,6 +880,7 @@ ConsensusWorkspace::Buffers& begin_step(ConsensusWorkspace::Buffers& w, std::siz
   report.groups = 0;
   report.neighbours_skipped = 0;
   report.landmarks_refused = 0;
+  report.claims_refused = 0;
   report.refused_per_neighbour.assign(neighbours, 0);
   report.tested_per_neighbour.assign(neighbours, 0);
   report.landmarks_settled = 0;
@@ -862,6 +945,7 @@ const ConsensusReport& Consensus::fuse(State& state,
       ++w.report.neighbours_skipped;
       continue;
     }
+    w.neighbour_members[w.neighbour_count].sender = neighbours[j].sender;
     ++w.neighbour_count;
   }
   return fuse_members(state, options, w);
@@ -886,6 +970,7 @@ const ConsensusReport& Consensus::fuse(State& state, std::span<const WeightedSha
     member.state = nullptr;
     member.archived = nullptr;
     member.shared = &share.marginal->index_->locations;
+    member.sender = share.sender;
   }
   return fuse_members(state, options, w);
 }
@@ -907,6 +992,9 @@ const ConsensusReport& consensus_internal::fuse_members(State& state,
       options.neighbour_chi2_probability > 0.0
           ? UpdaterHelper::chi2_quantile(options.neighbour_chi2_probability, 3)
           : std::numeric_limits<double>::infinity();
+  const bool check_claims =
+      options.claim_history_rounds > 0 && options.neighbour_chi2_probability > 0.0;
+  if (check_claims) w.claims.begin_round(options.claim_history_rounds);
 
   // 2. For every landmark the robot holds, the neighbours that hold it and agree with the robot
   //    (a neighbour's mean beyond the chi-square bound under the sum of both covariances is
@@ -938,6 +1026,13 @@ const ConsensusReport& consensus_internal::fuse_members(State& state,
       ++report.tested_per_neighbour[neighbour.index];
       const Eigen::Vector3d their_mean = neighbour.mean(*found);
       const Eigen::Matrix3d their_covariance = neighbour.covariance(*found);
+      if (check_claims && neighbour.sender >= 0 &&
+          !w.claims.consistent(neighbour.sender, id, their_mean, their_covariance, refusal_bound)) {
+        ++report.landmarks_refused;
+        ++report.claims_refused;
+        ++report.refused_per_neighbour[neighbour.index];
+        continue;
+      }
       if (options.neighbour_chi2_probability > 0.0) {
         const auto distance =
             inverse_quadratic3(own_covariance, their_covariance, their_mean - own_mean);

@@ -252,6 +252,9 @@ std::vector<std::string> EstimatorOptions::validate() const {
   }
   problems.check_probability("consensus.neighbour_chi2_probability",
                              consensus.neighbour_chi2_probability);
+  if (consensus.claim_history_rounds < 0) {
+    problems.add("consensus.claim_history_rounds", consensus.claim_history_rounds, ">= 0 (0: off)");
+  }
   return problems.take();
 }
 

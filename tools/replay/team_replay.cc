@@ -343,7 +343,7 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
             const double weight =
                 Consensus::metropolis_weight(static_cast<int>(round_neighbours[i].size()),
                                              static_cast<int>(round_neighbours[j].size()));
-            next_in(i) = {weight, std::move(marginal)};
+            next_in(i) = {weight, std::move(marginal), j};
           }
         }
       }
@@ -372,7 +372,7 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
               Consensus::metropolis_weight(static_cast<int>(round_neighbours[i].size()),
                                            static_cast<int>(round_neighbours[j].size()));
           if (!held[j].usable()) {  // left out by fuse, and counted there
-            given_shares.push_back({weight, &held[j]});
+            given_shares.push_back({weight, &held[j], j});
             continue;
           }
           held[j].count_common(ids[i], common_per_block);
@@ -383,7 +383,7 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
           }
           if (common == 0) continue;
           count_bytes(j, landmark_bytes(common) + bytes);
-          given_shares.push_back({weight, &held[j]});
+          given_shares.push_back({weight, &held[j], j});
         }
       };
       // What robot i receives from its neighbours this round (given ids, compact), into `box`;
@@ -418,7 +418,7 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
           }
           sender.delivered(sent);
           Marginal fused = receivers[{i, j}].complete(sent, common);
-          if (!fused.ids.empty()) next() = {weight, std::move(fused)};
+          if (!fused.ids.empty()) next() = {weight, std::move(fused), j};
         }
         return size;
       };
@@ -441,6 +441,7 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
         statistics.landmarks_settled += report.landmarks_settled;
         statistics.neighbours_skipped += report.neighbours_skipped;
         statistics.landmarks_refused += report.landmarks_refused;
+        statistics.claims_refused += report.claims_refused;
       }
       for (int i = 0; i < robots; ++i) {
         if (active[i] && !round_neighbours[i].empty())

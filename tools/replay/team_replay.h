@@ -116,6 +116,9 @@ struct ReplayStatistics {
   long long landmarks_settled = 0;  ///< left out by consensus.fuse_kl_threshold
   long long neighbours_skipped = 0;
   long long landmarks_refused = 0;  ///< neighbours' landmarks refused by the chi-square test
+  /// Of those, refused as inconsistent with the neighbour's earlier claims
+  /// (consensus.claim_history_rounds).
+  long long claims_refused = 0;
   long long object_initializations_gated = 0;
   long long object_rejoins_refused = 0;  ///< archived objects not fused back (chi-square)
   long long objects_reactivated = 0;

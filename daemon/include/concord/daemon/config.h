@@ -190,6 +190,11 @@ struct ConsensusConfig {
   /// marginals are not fused (counted) for consensus.quarantine_rounds of the robot's rounds.
   int quarantine_after = 3;
   int quarantine_rounds = 50;
+  /// consensus.quarantine_doublings: each further quarantine of the same peer lasts twice as
+  /// long as the one before, up to 2^this times quarantine_rounds (0: every quarantine lasts
+  /// quarantine_rounds). A member whose lie is caught only now and then (a slow drift, see
+  /// docs/results-reliability.md) is kept out for longer after each time.
+  int quarantine_doublings = 4;
   /// consensus.link_budget_bytes_per_second: what consensus may send per second over all links
   /// together (0: unlimited). Set it below this robot's share of the radio: marginals that do
   /// not fit are trimmed on purpose (least valuable landmarks first) instead of queueing

@@ -33,6 +33,9 @@ struct ConsensusReport {
   /// neighbour (in the order the neighbours were given).
   int landmarks_refused = 0;
   std::vector<int> refused_per_neighbour;
+  /// Of landmarks_refused, those whose claim disagreed with the neighbour's own earlier claims
+  /// about the landmark (ConsensusOptions::claim_history_rounds).
+  int claims_refused = 0;
   /// Landmarks each neighbour's marginal offered that the robot holds (tested), per neighbour.
   std::vector<int> tested_per_neighbour;
   /// Landmarks held by a neighbour that were left out because their step was below
@@ -97,6 +100,7 @@ class SharedMarginal {
 struct WeightedShare {
   double weight = 0.0;
   const SharedMarginal* marginal = nullptr;
+  int sender = -1;  ///< as WeightedMarginal::sender
 };
 
 class Consensus {

@@ -24,6 +24,19 @@ struct ConsensusOptions {
   /// pass it with at least this probability (more when their errors are correlated, as
   /// neighbours' are after consensus). 0 disables the test.
   double neighbour_chi2_probability = 0.999;
+  /// consensus.claim_history_rounds: a neighbour's claim about a landmark (its 3x3 marginal) is
+  /// also tested against what the same neighbour claimed about it in the last this many rounds:
+  /// two consistent estimates a and b of one static object, however correlated, differ by an
+  /// error whose covariance is at most 2 (P_a + P_b), so a claim whose mean moved beyond the
+  /// chi-square bound (neighbour_chi2_probability) of that is refused like a disagreement,
+  /// and counted (ConsensusReport::claims_refused). It catches a neighbour that claims a
+  /// certainty it does not have whose estimate moves (a filter grown overconfident, a
+  /// covariance scaled down), which the test against the robot's own covariance cannot see
+  /// where the robot's own is wide. The claims kept are a ladder, each at least twice as
+  /// certain (trace) as the one before, up to 8 a landmark and neighbour. Needs the
+  /// neighbours' robot ids (WeightedMarginal::sender); the history is forgotten when the robot
+  /// moves its state into another frame (Estimator::reanchor). 0 disables the test.
+  int claim_history_rounds = 200;
   /// consensus.fuse_kl_threshold: event-triggered fusion. A landmark whose consensus step would
   /// move it by at most this Kullback-Leibler divergence KL(average || own) (nats, from the 3x3
   /// marginals of the robot and the neighbours that hold it) is left out of the round: not

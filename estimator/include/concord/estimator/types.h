@@ -157,6 +157,9 @@ struct Marginal {
 struct WeightedMarginal {
   double weight = 0.0;
   Marginal marginal;
+  /// The neighbour's robot id, under which its claims are remembered and tested against its
+  /// earlier ones (ConsensusOptions::claim_history_rounds); -1: not tested.
+  int sender = -1;
 };
 
 }  // namespace concord
