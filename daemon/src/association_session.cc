@@ -45,7 +45,10 @@ void AssociationSession::missed(int robot) { negotiator_.forget_sent(robot); }
 
 std::optional<association::Reanchoring> AssociationSession::finish_round(std::uint64_t round,
                                                                          Estimator& estimator) {
+  const std::size_t corrections = negotiator_.corrections_seen();
   auto move = negotiator_.finish_round(static_cast<int>(round));
+  // A correction moved some robots within the team frame: their claims jump.
+  if (negotiator_.corrections_seen() != corrections) estimator.forget_claims();
   if (move) {
     estimator.reanchor(move->T_new_old, move->covariance);
     // The first round in the final frame: a correction (a move within it) keeps it.

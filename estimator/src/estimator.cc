@@ -192,10 +192,11 @@ const ConsensusReport& Estimator::fuse(std::span<const WeightedShare> neighbours
 void Estimator::reanchor(const Eigen::Isometry3d& T_new_old,
                          const Eigen::Matrix<double, 6, 6>& covariance) {
   StateHelper::reanchor(state_, T_new_old, covariance);
-  // The neighbours' earlier claims were in the old frame: forgotten (ConsensusOptions::
-  // claim_history_rounds).
-  consensus_workspace_ = ConsensusWorkspace();
+  // The neighbours' earlier claims were in the old frame.
+  forget_claims();
 }
+
+void Estimator::forget_claims() { consensus_workspace_ = ConsensusWorkspace(); }
 
 Eigen::Matrix<double, 6, 6> Estimator::current_pose_covariance() const {
   const int index = state_.pose_index(state_.num_poses() - 1);

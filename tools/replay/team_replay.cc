@@ -305,7 +305,11 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
           if (!active[i]) continue;
           ++statistics.negotiation_robot_rounds;
           for (const auto& message : messages[i]) negotiators[i].receive(message, step);
-          if (const auto move = negotiators[i].finish_round(step)) {
+          const std::size_t corrections = negotiators[i].corrections_seen();
+          const auto move = negotiators[i].finish_round(step);
+          // A correction moved some robots within the team frame: their claims jump.
+          if (negotiators[i].corrections_seen() != corrections) estimators[i].forget_claims();
+          if (move) {
             estimators[i].reanchor(move->T_new_old, move->covariance);
             // The first frame in the final frame: a correction (a move within it) keeps it.
             if (move->from_frame != move->to_frame) result.robots[i].aligned_at_frame = step;

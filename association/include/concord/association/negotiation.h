@@ -229,6 +229,10 @@ class Negotiator {
   const TeamIds& team_ids() const { return team_ids_.ids(); }
   /// The frame a neighbour last said it is in (nullopt before its first message).
   std::optional<int> frame_of(int neighbour) const;
+  /// Corrections of frame edges seen so far, whether or not they moved this robot: when it
+  /// grows, some robots may have moved within the team frame (their claims about landmarks
+  /// jump; see Estimator::forget_claims).
+  std::size_t corrections_seen() const { return corrections_seen_.size(); }
   const NegotiationCounters& counters() const { return counters_; }
   const NegotiationOptions& options() const { return options_; }
   /// Called after every search and revisit this robot makes as a pair's owner (none by

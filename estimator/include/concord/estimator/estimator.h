@@ -67,6 +67,9 @@ class Estimator {
   /// Moves the state into another frame, p_new = T_new_old p_old, with the transform's covariance
   /// (left perturbation in the new frame) folded in (StateHelper::reanchor).
   void reanchor(const Eigen::Isometry3d& T_new_old, const Eigen::Matrix<double, 6, 6>& covariance);
+  /// Forgets the neighbours' earlier claims (ConsensusOptions::claim_history_rounds), as
+  /// reanchor does: for when neighbours moved into another frame, or within one.
+  void forget_claims();
 
   const State& state() const { return state_; }
   const EstimatorOptions& options() const { return options_; }
