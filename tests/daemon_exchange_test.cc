@@ -5,20 +5,21 @@
 
 #include <algorithm>
 #include <cmath>
+#include <functional>
 #include <optional>
 #include <set>
 #include <thread>
 
-#include "concord/daemon/consensus_exchange.h"
 #include "concord/config/options_file.h"
+#include "concord/daemon/consensus_exchange.h"
 #include "concord/daemon/wire.h"
 #include "concord/dataset/dataset.h"
 #include "concord/estimator/estimator.h"
 #include "concord/v1/concord.pb.h"
 #include "replay/team_replay.h"
 #include "sim/simulator.h"
-#include "test_support.h"
 #include "test_paths.h"
+#include "test_support.h"
 
 namespace concord::daemon {
 namespace {
@@ -396,6 +397,38 @@ TEST(DaemonExchange, ARadioGraphNeedsATrackPerMember) {
   EXPECT_TRUE(graph.neighbours(0, 1).empty());
 }
 
+/// Three daemons' exchanges in lockstep, all connected through the process, of which robot 2
+/// holds the team key but rewrites the x coordinate of every mean it sends:
+/// lie(marginal's round, x).
+struct TeamWithALiar {
+  std::vector<std::unique_ptr<ConsensusExchange>> exchanges;
+};
+
+std::unique_ptr<TeamWithALiar> team_with_a_liar(std::function<double(std::uint64_t, double)> lie) {
+  ConsensusConfig config;
+  config.mode = ConsensusMode::kLockstep;
+  config.round_deadline = std::chrono::seconds(20);
+  auto team = std::make_unique<TeamWithALiar>();
+  TeamWithALiar* members = team.get();
+  for (int i = 0; i < 3; ++i) {
+    team->exchanges.push_back(std::make_unique<ConsensusExchange>(
+        config, [members, i, lie](int robot, const v1::Envelope& envelope) {
+          v1::Envelope sent = envelope;
+          if (i == 2 && sent.has_marginal()) {
+            const std::uint64_t round = sent.marginal().round();
+            auto* mean = sent.mutable_marginal()->mutable_mean();
+            for (int k = 0; k < mean->size(); k += 3) mean->Set(k, lie(round, mean->Get(k)));
+          }
+          members->exchanges[robot]->on_message(i, sent);
+          return true;
+        }));
+  }
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j)
+      if (i != j) team->exchanges[i]->on_peer(j, true);
+  return team;
+}
+
 TEST(DaemonExchange, ALyingNeighbourIsRefusedAndQuarantined) {
   // Robot 2 holds the team key but sends every marginal 50 m off in x. Its landmarks disagree
   // with the others' beyond the chi-square bound: they are refused, robot 2 is quarantined, and
@@ -407,25 +440,8 @@ TEST(DaemonExchange, ALyingNeighbourIsRefusedAndQuarantined) {
   const dataset::Dataset data = sim::simulate(simulation);
   const EstimatorOptions options =
       config::load_estimator_options(kSource / "configs/sensors/sim.yaml");
-  ConsensusConfig config;
-  config.mode = ConsensusMode::kLockstep;
-  config.round_deadline = std::chrono::seconds(20);
-  std::vector<std::unique_ptr<ConsensusExchange>> exchanges;
-  for (int i = 0; i < 3; ++i) {
-    exchanges.push_back(std::make_unique<ConsensusExchange>(
-        config, [&exchanges, i](int robot, const v1::Envelope& envelope) {
-          v1::Envelope sent = envelope;
-          if (i == 2 && sent.has_marginal()) {
-            auto* mean = sent.mutable_marginal()->mutable_mean();
-            for (int k = 0; k < mean->size(); k += 3) mean->Set(k, mean->Get(k) + 50.0);
-          }
-          exchanges[robot]->on_message(i, sent);
-          return true;
-        }));
-  }
-  for (int i = 0; i < 3; ++i)
-    for (int j = 0; j < 3; ++j)
-      if (i != j) exchanges[i]->on_peer(j, true);
+  const auto team = team_with_a_liar([](std::uint64_t, double x) { return x + 50.0; });
+  auto& exchanges = team->exchanges;
   std::vector<double> worst_error(3, 0.0);
   std::vector<std::thread> robots;
   for (int i = 0; i < 3; ++i) {
@@ -466,26 +482,9 @@ double worst_honest_rmse_under_a_drifting_liar(unsigned seed, double drift,
   const dataset::Dataset data = sim::simulate(simulation);
   EstimatorOptions options = config::load_estimator_options(kSource / "configs/sensors/sim.yaml");
   options.consensus.claim_history_rounds = claim_history_rounds;
-  ConsensusConfig config;
-  config.mode = ConsensusMode::kLockstep;
-  config.round_deadline = std::chrono::seconds(20);
-  std::vector<std::unique_ptr<ConsensusExchange>> exchanges;
-  for (int i = 0; i < 3; ++i) {
-    exchanges.push_back(std::make_unique<ConsensusExchange>(
-        config, [&exchanges, i, drift](int robot, const v1::Envelope& envelope) {
-          v1::Envelope sent = envelope;
-          if (i == 2 && sent.has_marginal()) {
-            const double shift = drift * static_cast<double>(sent.marginal().round());
-            auto* mean = sent.mutable_marginal()->mutable_mean();
-            for (int k = 0; k < mean->size(); k += 3) mean->Set(k, mean->Get(k) + shift);
-          }
-          exchanges[robot]->on_message(i, sent);
-          return true;
-        }));
-  }
-  for (int i = 0; i < 3; ++i)
-    for (int j = 0; j < 3; ++j)
-      if (i != j) exchanges[i]->on_peer(j, true);
+  const auto team = team_with_a_liar(
+      [drift](std::uint64_t round, double x) { return x + drift * static_cast<double>(round); });
+  auto& exchanges = team->exchanges;
   std::vector<double> squared(3, 0.0);
   std::vector<std::thread> robots;
   for (int i = 0; i < 3; ++i) {
