@@ -402,6 +402,24 @@ TEST(DaemonExchange, ARadioGraphNeedsATrackPerMember) {
 /// lie(marginal's round, x).
 struct TeamWithALiar {
   std::vector<std::unique_ptr<ConsensusExchange>> exchanges;
+
+  /// Runs the robots on `data`, a thread each, and calls observe(robot, frame, its estimator)
+  /// after each of its rounds (from that robot's thread).
+  void run(const dataset::Dataset& data, const EstimatorOptions& options,
+           const std::function<void(int, int, const Estimator&)>& observe) {
+    std::vector<std::thread> robots;
+    for (int i = 0; i < 3; ++i) {
+      robots.emplace_back([&, i] {
+        Estimator estimator(options, data.camera, data.robots[i].groundtruth.front(), 0);
+        for (int k = 0; k < data.robots[i].num_frames(); ++k) {
+          estimator.process(data.robots[i].frame_input(k));
+          (void)exchanges[i]->run_round(static_cast<std::uint64_t>(k), estimator);
+          observe(i, k, estimator);
+        }
+      });
+    }
+    for (auto& robot : robots) robot.join();
+  }
 };
 
 std::unique_ptr<TeamWithALiar> team_with_a_liar(std::function<double(std::uint64_t, double)> lie) {
@@ -443,20 +461,11 @@ TEST(DaemonExchange, ALyingNeighbourIsRefusedAndQuarantined) {
   const auto team = team_with_a_liar([](std::uint64_t, double x) { return x + 50.0; });
   auto& exchanges = team->exchanges;
   std::vector<double> worst_error(3, 0.0);
-  std::vector<std::thread> robots;
-  for (int i = 0; i < 3; ++i) {
-    robots.emplace_back([&, i] {
-      Estimator estimator(options, data.camera, data.robots[i].groundtruth.front(), 0);
-      for (int k = 0; k < data.robots[i].num_frames(); ++k) {
-        estimator.process(data.robots[i].frame_input(k));
-        (void)exchanges[i]->run_round(static_cast<std::uint64_t>(k), estimator);
-        worst_error[i] = std::max(worst_error[i], (estimator.current_pose().translation() -
-                                                   data.robots[i].groundtruth[k].translation())
-                                                      .norm());
-      }
-    });
-  }
-  for (auto& robot : robots) robot.join();
+  team->run(data, options, [&](int i, int k, const Estimator& estimator) {
+    worst_error[i] = std::max(worst_error[i], (estimator.current_pose().translation() -
+                                               data.robots[i].groundtruth[k].translation())
+                                                  .norm());
+  });
   for (int honest : {0, 1}) {
     const PeerTrust liar = exchanges[honest]->peer_trust().at(2);
     EXPECT_GT(liar.landmarks_refused, 0u) << "robot " << honest;
@@ -484,22 +493,12 @@ double worst_honest_rmse_under_a_drifting_liar(unsigned seed, double drift,
   options.consensus.claim_history_rounds = claim_history_rounds;
   const auto team = team_with_a_liar(
       [drift](std::uint64_t round, double x) { return x + drift * static_cast<double>(round); });
-  auto& exchanges = team->exchanges;
   std::vector<double> squared(3, 0.0);
-  std::vector<std::thread> robots;
-  for (int i = 0; i < 3; ++i) {
-    robots.emplace_back([&, i] {
-      Estimator estimator(options, data.camera, data.robots[i].groundtruth.front(), 0);
-      for (int k = 0; k < data.robots[i].num_frames(); ++k) {
-        estimator.process(data.robots[i].frame_input(k));
-        (void)exchanges[i]->run_round(static_cast<std::uint64_t>(k), estimator);
-        squared[i] +=
-            (estimator.current_pose().translation() - data.robots[i].groundtruth[k].translation())
-                .squaredNorm();
-      }
-    });
-  }
-  for (auto& robot : robots) robot.join();
+  team->run(data, options, [&](int i, int k, const Estimator& estimator) {
+    squared[i] +=
+        (estimator.current_pose().translation() - data.robots[i].groundtruth[k].translation())
+            .squaredNorm();
+  });
   const double frames = static_cast<double>(data.robots[0].num_frames());
   return std::sqrt(std::max(squared[0], squared[1]) / frames);
 }
