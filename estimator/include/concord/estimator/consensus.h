@@ -47,7 +47,8 @@ struct ConsensusReport {
 /// The buffers of Consensus::fuse, kept from one round to the next by the robot that fuses
 /// (one per robot, used by one thread at a time). A round whose landmarks and neighbours are no
 /// more than those of an earlier round allocates nothing on the heap (issue 13); a copy is a
-/// fresh, empty workspace.
+/// fresh, empty workspace. Besides buffers it holds one piece of state: the neighbours' recent
+/// claims (ConsensusOptions::claim_history_rounds), which a copy does not carry over.
 class ConsensusWorkspace {
  public:
   ConsensusWorkspace();
