@@ -828,6 +828,70 @@ TEST(ConsensusClaims, AConsistentFiltersEstimatesPassAndAnOverconfidentOnesAreRe
   EXPECT_GT(refused_overconfident, tests / 10);
 }
 
+TEST(ConsensusClaims, EachNeighbourAndLandmarkKeepsItsOwnClaimsAsLandmarksComeAndGo) {
+  // 300 archived objects (ids 1000, 1007, ...), the robot's own covariance wide (its own test
+  // never refuses), three neighbours (robots 9, 2 and 4, in that inbox order) that start
+  // claiming each object at their own rounds (so the history gains entries all over the id
+  // range for 20 rounds), each claim N(x_k, 0.01 I). With a window of 25 rounds:
+  //  - from round 30 to 69 robot 9 claims every fifth object 1 m away (beyond the 0.81 m its
+  //    own claims allow): exactly those claims are refused, robot 9's only, for as long as it
+  //    makes them (longer than the window: a claim gives way only to a consistent one);
+  //  - from round 70 robot 9 claims as before: nothing refused (the moved claims were not kept);
+  //  - robot 2 stops claiming every fourth object after round 20 and claims it 1 m away from
+  //    round 47 on: it has not claimed it for longer than the window, so its earlier claims
+  //    are forgotten and nothing is refused (round 47 comes before the history's periodic
+  //    clean-up drops the entries: the forgetting must not wait for it).
+  constexpr int kObjects = 300;
+  const std::array<int, 3> senders{9, 2, 4};
+  const auto id_of = [](int k) { return LandmarkId{1000 + 7 * k}; };
+  const auto x_of = [](int k) { return Eigen::Vector3d(0.1 * k, 0.0, 1.0); };
+  const auto first_round = [](int k, int sender) { return (13 * k + 5 * sender) % 20; };
+  ConsensusOptions options;
+  options.claim_history_rounds = 25;
+  const Eigen::Matrix3d claimed = 0.01 * Eigen::Matrix3d::Identity();
+  ConsensusWorkspace workspace;
+  for (int round = 0; round < 80; ++round) {
+    State state;
+    state.poses.push_back({0, Eigen::Isometry3d::Identity()});
+    state.covariance = Eigen::MatrixXd::Identity(6, 6);
+    for (int k = 0; k < kObjects; ++k) {
+      state.archived[id_of(k)] = {id_of(k), x_of(k), 1e4 * Eigen::Matrix3d::Identity()};
+    }
+    std::vector<WeightedMarginal> inbox;
+    std::vector<int> expected(senders.size(), 0);
+    for (std::size_t j = 0; j < senders.size(); ++j) {
+      const int sender = senders[j];
+      std::vector<LandmarkId> ids;
+      std::vector<Eigen::Vector3d> means;
+      for (int k = 0; k < kObjects; ++k) {
+        if (round < first_round(k, sender)) continue;
+        Eigen::Vector3d mean = x_of(k);
+        if (sender == 9 && round >= 30 && round < 70 && k % 5 == 0) {
+          mean.x() += 1.0;
+          ++expected[j];
+        }
+        if (sender == 2 && k % 4 == 0) {
+          if (round > 20 && round < 47) continue;
+          if (round >= 47) mean.x() += 1.0;
+        }
+        ids.push_back(id_of(k));
+        means.push_back(mean);
+      }
+      Marginal marginal;
+      marginal.ids = ids;
+      marginal.mean.resize(3 * static_cast<Eigen::Index>(ids.size()));
+      for (std::size_t a = 0; a < ids.size(); ++a) {
+        marginal.mean.segment<3>(3 * static_cast<Eigen::Index>(a)) = means[a];
+        marginal.blocks.push_back(claimed);
+      }
+      inbox.push_back({0.25, marginal, sender});
+    }
+    const ConsensusReport& report = Consensus::fuse(state, inbox, options, workspace);
+    EXPECT_EQ(report.refused_per_neighbour, expected) << round;
+    EXPECT_EQ(report.claims_refused, expected[0]) << round;
+  }
+}
+
 TEST(ConsensusClaims, TheRobotsMoveForgetsTheClaims) {
   // After Estimator::reanchor the neighbours' claims are in another frame: a claim 1 m from
   // the one before, refused before the move, is taken after it.

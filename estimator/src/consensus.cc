@@ -7,10 +7,12 @@
 #include <cassert>
 #include <cmath>
 #include <cstdint>
+#include <iterator>
 #include <limits>
 #include <map>
 #include <optional>
 #include <span>
+#include <vector>
 
 #include "concord/estimator/marginal_sharing.h"
 #include "concord/estimator/state_helper.h"
@@ -229,13 +231,18 @@ std::optional<Eigen::Matrix3d> checked_inverse3(const Eigen::Matrix3d& covarianc
   return inverse;
 }
 
-/// r^T S^-1 r for S = A + B, two symmetric 3x3 matrices read from their lower triangles, through
-/// S = L diag(p) L^T in closed form; nullopt when a pivot p is not positive (S not positive
-/// definite, or NaN).
-std::optional<double> inverse_quadratic3(const Eigen::Matrix3d& A, const Eigen::Matrix3d& B,
-                                         const Eigen::Vector3d& r) {
-  const double s00 = A(0, 0) + B(0, 0), s10 = A(1, 0) + B(1, 0), s20 = A(2, 0) + B(2, 0);
-  const double s11 = A(1, 1) + B(1, 1), s21 = A(2, 1) + B(2, 1), s22 = A(2, 2) + B(2, 2);
+/// A symmetric 3x3 matrix by its lower triangle, row by row: (0,0), (1,0), (2,0), (1,1), (2,1),
+/// (2,2).
+using Lower3 = std::array<double, 6>;
+
+Lower3 lower_of(const Eigen::Matrix3d& M) {
+  return {M(0, 0), M(1, 0), M(2, 0), M(1, 1), M(2, 1), M(2, 2)};
+}
+
+/// r^T S^-1 r for a symmetric 3x3 S given by its lower triangle, through S = L diag(p) L^T in
+/// closed form; nullopt when a pivot p is not positive (S not positive definite, or NaN).
+std::optional<double> inverse_quadratic3(const Lower3& S, const Eigen::Vector3d& r) {
+  const auto [s00, s10, s20, s11, s21, s22] = S;
   const double p0 = s00;
   if (!(p0 > 0.0)) return std::nullopt;
   const double l10 = s10 / p0, l20 = s20 / p0;
@@ -246,6 +253,14 @@ std::optional<double> inverse_quadratic3(const Eigen::Matrix3d& A, const Eigen::
   if (!(p2 > 0.0)) return std::nullopt;
   const double y0 = r(0), y1 = r(1) - l10 * y0, y2 = r(2) - l20 * y0 - l21 * y1;
   return y0 * y0 / p0 + y1 * y1 / p1 + y2 * y2 / p2;
+}
+
+/// r^T S^-1 r for S = A + B, two symmetric 3x3 matrices read from their lower triangles.
+std::optional<double> inverse_quadratic3(const Eigen::Matrix3d& A, const Eigen::Matrix3d& B,
+                                         const Eigen::Vector3d& r) {
+  return inverse_quadratic3(Lower3{A(0, 0) + B(0, 0), A(1, 0) + B(1, 0), A(2, 0) + B(2, 0),
+                                   A(1, 1) + B(1, 1), A(2, 1) + B(2, 1), A(2, 2) + B(2, 2)},
+                            r);
 }
 
 /// What each neighbour claimed about each landmark in recent rounds
@@ -264,20 +279,40 @@ class ClaimHistory {
     ++round_;
     if (window != window_) {
       window_ = window;
+      keys_.clear();
       entries_.clear();
+      fresh_.clear();
     }
-    if (round_ % static_cast<std::uint64_t>(window_) == 0) {
-      std::erase_if(entries_, [&](const auto& entry) { return expired(entry.second.last); });
-    }
+    const bool sweep = round_ % static_cast<std::uint64_t>(window_) == 0;
+    // New keys wait in a tree until they are an eighth of the rest (each entry then moves a
+    // bounded number of times on average); all at once before a sweep.
+    if (sweep || fresh_.size() > std::max<std::size_t>(64, keys_.size() / 8)) merge(sweep);
+    cursor_ = 0;
   }
 
   /// Tests a claim of `sender` about landmark `id` against the sender's earlier ones and, if it
   /// is consistent with them, keeps it. False: inconsistent (the claim is not kept).
   bool consistent(int sender, LandmarkId id, const Eigen::Vector3d& mean,
                   const Eigen::Matrix3d& covariance, double bound) {
-    Entry& entry = entries_[{sender, id}];
+    Entry& entry = find({id, sender});
+    // Not claimed within the window: forgotten (the neighbour may have lost and found it again).
+    if (expired(entry.last)) entry.count = 0;
     entry.last = round_;
-    // Claims that left the window go (the ladder is in the order kept: oldest first).
+    const Lower3 claimed = lower_of(covariance);
+    for (int k = 0; k < entry.count; ++k) {
+      const Claim& earlier = entry.claims[k];
+      Lower3 sum;  // 2 (P_earlier + P): the factor 2 is exact in floating point
+      for (std::size_t e = 0; e < sum.size(); ++e) {
+        sum[e] = 2.0 * earlier.covariance[e] + 2.0 * claimed[e];
+      }
+      const Eigen::Vector3d difference(mean(0) - earlier.mean[0], mean(1) - earlier.mean[1],
+                                       mean(2) - earlier.mean[2]);
+      const auto distance = inverse_quadratic3(sum, difference);
+      if (!distance || !(*distance <= bound)) return false;
+    }
+    // Consistent: claims older than the window give way (only now, so that a neighbour that
+    // keeps making an inconsistent claim is tested against the last consistent ones for as
+    // long as it does; the ladder is in the order kept, oldest first).
     int first = 0;
     while (first < entry.count && expired(entry.claims[first].round)) ++first;
     if (first > 0) {
@@ -285,19 +320,13 @@ class ClaimHistory {
                 entry.claims.begin());
       entry.count -= first;
     }
-    for (int k = 0; k < entry.count; ++k) {
-      const Claim& earlier = entry.claims[k];
-      const auto distance =
-          inverse_quadratic3(2.0 * earlier.covariance, 2.0 * covariance, mean - earlier.mean);
-      if (!distance || !(*distance <= bound)) return false;
-    }
-    const double trace = covariance.trace();
-    if (entry.count == 0 || trace <= 0.5 * entry.claims[entry.count - 1].covariance.trace()) {
+    const double trace = claimed[0] + claimed[3] + claimed[5];
+    if (entry.count == 0 || trace <= 0.5 * entry.claims[entry.count - 1].trace()) {
       if (entry.count == kLadder) {  // the oldest, least certain claim gives way
         std::move(entry.claims.begin() + 1, entry.claims.end(), entry.claims.begin());
         --entry.count;
       }
-      entry.claims[entry.count++] = {mean, covariance, round_};
+      entry.claims[entry.count++] = {{mean(0), mean(1), mean(2)}, claimed, round_};
     }
     return true;
   }
@@ -305,22 +334,76 @@ class ClaimHistory {
  private:
   static constexpr int kLadder = 8;
   struct Claim {
-    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
-    Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero();
+    std::array<double, 3> mean{};
+    Lower3 covariance{};
     std::uint64_t round = 0;
+    double trace() const { return covariance[0] + covariance[3] + covariance[5]; }
   };
   struct Entry {
-    std::array<Claim, kLadder> claims;
-    int count = 0;
     std::uint64_t last = 0;
+    int count = 0;
+    std::array<Claim, kLadder> claims;
   };
+  using Key = std::pair<LandmarkId, int>;  // (landmark, sender)
+
   bool expired(std::uint64_t round) const {
     return round_ - round > static_cast<std::uint64_t>(window_);
   }
 
+  /// The entry of (landmark, sender). A round asks in ascending landmark order (the fuse walks
+  /// the robot's landmarks by id, each landmark's neighbours in turn), and the entries are
+  /// sorted the same way, so a cursor finds each reading the history once, front to back: the
+  /// history is larger than the caches, and a sequential read is what keeps it cheap. New keys
+  /// wait in `fresh_` until the next merge.
+  Entry& find(const Key& key) {
+    if (cursor_ > 0 && keys_[cursor_ - 1].first > key.first) cursor_ = 0;  // out of order
+    while (cursor_ < keys_.size() && keys_[cursor_].first < key.first) ++cursor_;
+    for (std::size_t k = cursor_; k < keys_.size() && keys_[k].first == key.first; ++k) {
+      if (keys_[k].second == key.second) return entries_[k];
+    }
+    return fresh_[key];
+  }
+
+  /// Merges the waiting keys in, from the back (few entries move where the new keys are the
+  /// highest); with `sweep`, drops the entries not claimed within the window.
+  void merge(bool sweep) {
+    std::size_t old = keys_.size();
+    keys_.resize(old + fresh_.size());
+    entries_.resize(old + fresh_.size());
+    auto next = fresh_.rbegin();
+    for (std::size_t to = keys_.size(); next != fresh_.rend();) {
+      --to;
+      if (old > 0 && keys_[old - 1] > next->first) {
+        --old;
+        keys_[to] = keys_[old];
+        entries_[to] = entries_[old];
+      } else {
+        keys_[to] = next->first;
+        entries_[to] = next->second;
+        ++next;
+      }
+    }
+    fresh_.clear();
+    if (!sweep) return;
+    std::size_t kept = 0;
+    for (std::size_t k = 0; k < keys_.size(); ++k) {
+      if (expired(entries_[k].last)) continue;
+      if (kept != k) {
+        keys_[kept] = keys_[k];
+        entries_[kept] = entries_[k];
+      }
+      ++kept;
+    }
+    keys_.resize(kept);
+    entries_.resize(kept);
+  }
+
   std::uint64_t round_ = 0;
   int window_ = 0;
-  std::map<std::pair<int, LandmarkId>, Entry> entries_;
+  std::vector<Key> keys_;       // sorted
+  std::vector<Entry> entries_;  // entries_[k] is keys_[k]'s
+  std::map<Key, Entry> fresh_;  // new keys, not merged yet
+  std::size_t cursor_ = 0;
 };
 
 /// Mean and covariance of the landmarks at `at` (all in one block) of a neighbour's
