@@ -684,7 +684,6 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
 
   // Phase 2: every waited-for neighbour's Marginal(k) (a rejected one is its answer too).
   std::vector<WeightedMarginal> inbox;
-  std::vector<int> senders;  // robot of each inbox entry
   {
     std::unique_lock lock(mutex_);
     auto settled = [&](int robot) {
@@ -733,7 +732,6 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
       }
       inbox.push_back({Consensus::metropolis_weight(degree, it->second.degree),
                        std::move(it->second.marginal), robot});
-      senders.push_back(robot);
     }
     // Liveness bookkeeping: a waited-for peer that missed the deadline; a peer (waited for or
     // not) whose LandmarkSet and Marginal were both there in time answered.
@@ -755,7 +753,7 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
     report.consensus = estimator.fuse(inbox);
     report.fuse_cpu_seconds = thread_cpu_seconds() - fuse_start;
     report.fused = static_cast<int>(inbox.size());
-    judge(round, senders, report.consensus);
+    judge(round, inbox, report.consensus);
     recycle(inbox);
   }
   forget_rounds_up_to(round);
@@ -800,7 +798,6 @@ RoundReport ConsensusExchange::async_round(std::uint64_t round, Estimator& estim
   }
   report.send_cpu_seconds = thread_cpu_seconds() - send_start;
   std::vector<WeightedMarginal> inbox;
-  std::vector<int> senders;
   {
     std::lock_guard lock(mutex_);
     for (int robot : live) {
@@ -821,7 +818,6 @@ RoundReport ConsensusExchange::async_round(std::uint64_t round, Estimator& estim
       if (!peer.latest->marginal.ids.empty() && !quarantined(robot, peer, round)) {
         inbox.push_back({Consensus::metropolis_weight(degree, peer.latest->degree),
                          std::move(peer.latest->marginal), robot});
-        senders.push_back(robot);
       }
     }
   }
@@ -830,7 +826,7 @@ RoundReport ConsensusExchange::async_round(std::uint64_t round, Estimator& estim
     report.consensus = estimator.fuse(inbox);
     report.fuse_cpu_seconds = thread_cpu_seconds() - fuse_start;
     report.fused = static_cast<int>(inbox.size());
-    judge(round, senders, report.consensus);
+    judge(round, inbox, report.consensus);
     recycle(inbox);
   }
   return report;
@@ -849,11 +845,12 @@ bool ConsensusExchange::quarantined(int robot, Peer& peer, std::uint64_t round) 
   return true;
 }
 
-void ConsensusExchange::judge(std::uint64_t round, const std::vector<int>& senders,
+void ConsensusExchange::judge(std::uint64_t round, const std::vector<WeightedMarginal>& inbox,
                               const ConsensusReport& report) {
   std::lock_guard lock(mutex_);
-  for (std::size_t j = 0; j < senders.size(); ++j) {
-    const auto found = peers_.find(senders[j]);
+  for (std::size_t j = 0; j < inbox.size(); ++j) {
+    const int sender = inbox[j].sender;
+    const auto found = peers_.find(sender);
     if (found == peers_.end() || j >= report.refused_per_neighbour.size()) continue;
     Peer& peer = *found->second;
     const int refused = report.refused_per_neighbour[j];
@@ -865,10 +862,10 @@ void ConsensusExchange::judge(std::uint64_t round, const std::vector<int>& sende
         refused >= 2 && refused > config_.suspicious_refusal_fraction * tested;
     peer.suspicious_in_a_row = suspicious ? peer.suspicious_in_a_row + 1 : 0;
     if (suspicious) {
-      warn_limited(*log_limiter_, senders[j], "refused",
+      warn_limited(*log_limiter_, sender, "refused",
                    "consensus: round {}: {} of {} landmarks from robot {} refused (beyond the "
                    "chi-square bound of this robot's estimates or of its own earlier claims)",
-                   round, refused, tested, senders[j]);
+                   round, refused, tested, sender);
     }
     if (peer.suspicious_in_a_row >= config_.quarantine_after && config_.quarantine_rounds > 0 &&
         peer.quarantined_until < 0) {
@@ -886,7 +883,7 @@ void ConsensusExchange::judge(std::uint64_t round, const std::vector<int>& sende
       spdlog::warn(
           "consensus: robot {} quarantined until round {}: its marginals were refused "
           "in {} rounds in a row",
-          senders[j], peer.quarantined_until, config_.quarantine_after);
+          sender, peer.quarantined_until, config_.quarantine_after);
     }
   }
 }

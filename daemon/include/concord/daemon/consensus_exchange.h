@@ -230,9 +230,10 @@ class ConsensusExchange {
   void count_answer(int robot, Peer& peer, std::uint64_t round);
   /// Whether `robot` is in quarantine at `round` (mutex held); counts the dropped marginal.
   bool quarantined(int robot, Peer& peer, std::uint64_t round);
-  /// After a fuse: the estimator's refusals of each sender's landmarks (inbox order), towards
-  /// quarantine.
-  void judge(std::uint64_t round, const std::vector<int>& senders, const ConsensusReport& report);
+  /// After a fuse: the estimator's refusals of each inbox entry's landmarks (by its sender),
+  /// towards quarantine.
+  void judge(std::uint64_t round, const std::vector<WeightedMarginal>& inbox,
+             const ConsensusReport& report);
 
   /// Negotiated rounds: phase 1's negotiation messages in, the move into the team frame.
   void negotiate(std::uint64_t round, Estimator& estimator, const std::vector<int>& candidates,
