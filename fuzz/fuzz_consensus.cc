@@ -83,6 +83,8 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   (void)estimator.fuse(neighbours);
   // The same claim a round later: tested against the first (and the robot's fused state).
   (void)estimator.fuse(neighbours);
+  // And as a quarantined peer's: tested, not fused (Estimator::witness).
+  (void)estimator.witness(neighbours);
 
   const State& fused = estimator.state();
   for (const auto& landmark : fused.landmarks) check(landmark.p_world.allFinite(), "finite means");

@@ -892,6 +892,39 @@ TEST(ConsensusClaims, EachNeighbourAndLandmarkKeepsItsOwnClaimsAsLandmarksComeAn
   }
 }
 
+TEST(ConsensusClaims, AWitnessedNeighbourKeepsItsHistoryWhileItIsNotFused) {
+  // Robot 7 claims landmark 5 at the origin, then 1 m away (beyond the 0.81 m its own claims
+  // allow; within the robot's own unit covariance), and is then left out of the fuse for 250
+  // rounds (longer than the 200-round window; robot 8 keeps the rounds going). Witnessed
+  // meanwhile, its lie is still refused when it is fused again; not witnessed, its history is
+  // forgotten and the lie comes back as a first claim.
+  const ConsensusOptions options;
+  ASSERT_GT(250, options.claim_history_rounds);
+  const Eigen::Matrix3d claimed = 0.01 * Eigen::Matrix3d::Identity();
+  const auto claim = [&](int sender, double x) {
+    return WeightedMarginal{0.25, Marginal{{5}, Eigen::Vector3d(x, 0, 0), claimed}, sender};
+  };
+  for (const bool witnessed : {true, false}) {
+    ConsensusWorkspace workspace;
+    const auto round = [&](std::vector<WeightedMarginal> inbox) {
+      State state = single_landmark_state();
+      return Consensus::fuse(state, inbox, options, workspace).claims_refused;
+    };
+    for (int k = 0; k < 10; ++k) EXPECT_EQ(round({claim(7, 0.0), claim(8, 0.0)}), 0);
+    EXPECT_EQ(round({claim(7, 1.0), claim(8, 0.0)}), 1);
+    int refused_while_out = 0;
+    for (int k = 0; k < 250; ++k) {
+      EXPECT_EQ(round({claim(8, 0.0)}), 0);
+      if (witnessed) {
+        refused_while_out +=
+            Consensus::witness(single_landmark_state(), {claim(7, 1.0)}, options, workspace);
+      }
+    }
+    EXPECT_EQ(refused_while_out, witnessed ? 250 : 0);
+    EXPECT_EQ(round({claim(7, 1.0), claim(8, 0.0)}), witnessed ? 1 : 0) << witnessed;
+  }
+}
+
 TEST(ConsensusClaims, TheRobotsMoveForgetsTheClaims) {
   // After Estimator::reanchor the neighbours' claims are in another frame: a claim 1 m from
   // the one before, refused before the move, is taken after it.

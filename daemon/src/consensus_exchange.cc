@@ -684,6 +684,7 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
 
   // Phase 2: every waited-for neighbour's Marginal(k) (a rejected one is its answer too).
   std::vector<WeightedMarginal> inbox;
+  std::vector<WeightedMarginal> witnessed;  // a quarantined sender's: tested, not fused
   {
     std::unique_lock lock(mutex_);
     auto settled = [&](int robot) {
@@ -720,7 +721,8 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
         it->second.marginal =
             peer.receiver.build(it->second.marginal, intersection(ids, neighbour_ids[robot]));
       }
-      if (it->second.marginal.ids.empty() || quarantined(robot, peer, round)) continue;
+      if (it->second.marginal.ids.empty()) continue;
+      const bool out = quarantined(robot, peer, round);
       if (association_) {
         // Negotiated: the pairs both robots' views agree on, in this robot's ids, one frame.
         if (!it->second.relabelling) continue;
@@ -730,8 +732,9 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
         if (!relabelled) continue;
         it->second.marginal = std::move(*relabelled);
       }
-      inbox.push_back({Consensus::metropolis_weight(degree, it->second.degree),
-                       std::move(it->second.marginal), robot});
+      (out ? witnessed : inbox)
+          .push_back({Consensus::metropolis_weight(degree, it->second.degree),
+                      std::move(it->second.marginal), robot});
     }
     // Liveness bookkeeping: a waited-for peer that missed the deadline; a peer (waited for or
     // not) whose LandmarkSet and Marginal were both there in time answered.
@@ -756,6 +759,7 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
     judge(round, inbox, report.consensus);
     recycle(inbox);
   }
+  witness(estimator, witnessed);
   forget_rounds_up_to(round);
   return report;
 }
@@ -798,6 +802,7 @@ RoundReport ConsensusExchange::async_round(std::uint64_t round, Estimator& estim
   }
   report.send_cpu_seconds = thread_cpu_seconds() - send_start;
   std::vector<WeightedMarginal> inbox;
+  std::vector<WeightedMarginal> witnessed;  // a quarantined sender's: tested, not fused
   {
     std::lock_guard lock(mutex_);
     for (int robot : live) {
@@ -815,9 +820,10 @@ RoundReport ConsensusExchange::async_round(std::uint64_t round, Estimator& estim
             peer.latest->marginal,
             known != known_ids.end() ? intersection(ids, known->second) : std::vector<LandmarkId>{});
       }
-      if (!peer.latest->marginal.ids.empty() && !quarantined(robot, peer, round)) {
-        inbox.push_back({Consensus::metropolis_weight(degree, peer.latest->degree),
-                         std::move(peer.latest->marginal), robot});
+      if (!peer.latest->marginal.ids.empty()) {
+        (quarantined(robot, peer, round) ? witnessed : inbox)
+            .push_back({Consensus::metropolis_weight(degree, peer.latest->degree),
+                        std::move(peer.latest->marginal), robot});
       }
     }
   }
@@ -829,7 +835,15 @@ RoundReport ConsensusExchange::async_round(std::uint64_t round, Estimator& estim
     judge(round, inbox, report.consensus);
     recycle(inbox);
   }
+  witness(estimator, witnessed);
   return report;
+}
+
+void ConsensusExchange::witness(Estimator& estimator, const std::vector<WeightedMarginal>& out) {
+  if (out.empty()) return;
+  const int refused = estimator.witness(out);
+  std::lock_guard lock(mutex_);
+  counters_.quarantined_refused += static_cast<std::uint64_t>(refused);
 }
 
 bool ConsensusExchange::quarantined(int robot, Peer& peer, std::uint64_t round) {

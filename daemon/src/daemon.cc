@@ -1183,6 +1183,7 @@ json Daemon::Impl::stats_json() const {
                           {"landmarks_refused", c.landmarks_refused},
                           {"quarantines", c.quarantines},
                           {"quarantined_dropped", c.quarantined_dropped},
+                          {"quarantined_refused", c.quarantined_refused},
                           {"bytes_sent", c.bytes_sent},
                           {"budget_marginals_trimmed", c.budget_marginals_trimmed},
                           {"budget_marginals_empty", c.budget_marginals_empty},
@@ -1468,6 +1469,10 @@ void Daemon::Impl::register_routes() {
       text.counter("concord_consensus_quarantined_dropped_total",
                    "Marginals not fused because their sender was in quarantine", robot,
                    static_cast<double>(c.quarantined_dropped));
+      text.counter("concord_consensus_quarantined_refused_total",
+                   "Claims of a quarantined sender refused against its own earlier claims "
+                   "(tested, not fused)",
+                   robot, static_cast<double>(c.quarantined_refused));
       text.gauge("concord_consensus_quarantined_peers", "Peers in quarantine", robot,
                  static_cast<double>(c.quarantined_peers));
       text.counter("concord_consensus_bytes_sent_total",

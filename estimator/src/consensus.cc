@@ -1033,6 +1033,36 @@ const ConsensusReport& Consensus::fuse(State& state,
   return fuse_members(state, options, w);
 }
 
+int Consensus::witness(const State& state, const std::vector<WeightedMarginal>& neighbours,
+                       const ConsensusOptions& options, ConsensusWorkspace& workspace) {
+  if (options.claim_history_rounds <= 0 || !(options.neighbour_chi2_probability > 0.0)) return 0;
+  if (state.landmarks.empty() && state.archived.empty()) return 0;
+  ConsensusWorkspace::Buffers& w = *workspace.buffers_;
+  // The robot's own landmarks: only claims about those are kept (as in fuse).
+  own_member(state, 1.0, w.own_archived, w.own, w.spare_locations);
+  const double bound = UpdaterHelper::chi2_quantile(options.neighbour_chi2_probability, 3);
+  int refused = 0;
+  Member member;
+  Locations spare;
+  for (const WeightedMarginal& neighbour : neighbours) {
+    if (neighbour.sender < 0 || neighbour.marginal.ids.empty()) continue;
+    if (!check(neighbour.marginal, 0, 0.0, member, spare)) continue;
+    const Locations& theirs = member.locations();
+    std::size_t cursor = 0;  // both sorted by id: a merge
+    for (const auto& [id, own_at] : w.own.locations()) {
+      while (cursor < theirs.size() && theirs[cursor].first < id) ++cursor;
+      if (cursor == theirs.size()) break;
+      if (theirs[cursor].first != id) continue;
+      const Location& at = theirs[cursor].second;
+      if (!w.claims.consistent(neighbour.sender, id, member.mean(at), member.covariance(at),
+                               bound)) {
+        ++refused;
+      }
+    }
+  }
+  return refused;
+}
+
 const ConsensusReport& Consensus::fuse(State& state, std::span<const WeightedShare> neighbours,
                                        const ConsensusOptions& options,
                                        ConsensusWorkspace& workspace) {

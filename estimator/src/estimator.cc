@@ -189,6 +189,10 @@ const ConsensusReport& Estimator::fuse(std::span<const WeightedShare> neighbours
   return Consensus::fuse(state_, neighbours, options_.consensus, consensus_workspace_);
 }
 
+int Estimator::witness(const std::vector<WeightedMarginal>& neighbours) {
+  return Consensus::witness(state_, neighbours, options_.consensus, consensus_workspace_);
+}
+
 void Estimator::reanchor(const Eigen::Isometry3d& T_new_old,
                          const Eigen::Matrix<double, 6, 6>& covariance) {
   StateHelper::reanchor(state_, T_new_old, covariance);

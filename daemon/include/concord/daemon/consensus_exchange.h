@@ -85,11 +85,13 @@ struct ExchangeCounters {
   std::uint64_t excluded_peers = 0;   ///< peers out of the lockstep waits now (a gauge)
   std::uint64_t log_lines_suppressed = 0;
   /// Poisoning defence: neighbours' landmarks refused by the estimator's chi-square test,
-  /// quarantines started, marginals not fused because their sender was in quarantine, and the
-  /// peers in quarantine now (a gauge).
+  /// quarantines started, marginals not fused because their sender was in quarantine, the claims
+  /// of those marginals refused against the sender's own earlier ones (tested, not fused: the
+  /// estimator keeps the sender's history meanwhile), and the peers in quarantine now (a gauge).
   std::uint64_t landmarks_refused = 0;
   std::uint64_t quarantines = 0;
   std::uint64_t quarantined_dropped = 0;
+  std::uint64_t quarantined_refused = 0;
   std::uint64_t quarantined_peers = 0;
   /// Link budget (consensus.link_budget_bytes_per_second): marginals trimmed to fit, marginals
   /// sent empty (nothing fitted), landmarks left out, and the bytes consensus sent.
@@ -230,6 +232,9 @@ class ConsensusExchange {
   void count_answer(int robot, Peer& peer, std::uint64_t round);
   /// Whether `robot` is in quarantine at `round` (mutex held); counts the dropped marginal.
   bool quarantined(int robot, Peer& peer, std::uint64_t round);
+  /// After a fuse: a quarantined sender's marginals tested against its own earlier claims
+  /// without fusing them (Estimator::witness), so that its history outlasts the quarantine.
+  void witness(Estimator& estimator, const std::vector<WeightedMarginal>& out);
   /// After a fuse: the estimator's refusals of each inbox entry's landmarks (by its sender),
   /// towards quarantine.
   void judge(std::uint64_t round, const std::vector<WeightedMarginal>& inbox,

@@ -141,6 +141,13 @@ class Consensus {
   static const ConsensusReport& fuse(State& state, std::span<const WeightedShare> neighbours,
                                      const ConsensusOptions& options,
                                      ConsensusWorkspace& workspace);
+  /// Tests the neighbours' claims against their own earlier ones
+  /// (ConsensusOptions::claim_history_rounds) without fusing anything, and keeps the consistent
+  /// ones as fuse() does: for a neighbour whose marginals are not fused for a while (a daemon's
+  /// quarantine), so that its history is not forgotten meanwhile and a lie it still tells is
+  /// still refused when it is heard again. Returns how many claims were refused.
+  static int witness(const State& state, const std::vector<WeightedMarginal>& neighbours,
+                     const ConsensusOptions& options, ConsensusWorkspace& workspace);
 
   /// Proposition 2: replaces the marginal of in-state landmarks (slots) by N(mean, covariance),
   /// keeping the conditional of the rest of the state, and corrects poses by eq. (21).

@@ -64,6 +64,8 @@ class Estimator {
   const ConsensusReport& fuse(const std::vector<WeightedMarginal>& neighbours);
   /// The same with shared marginals (Consensus::fuse on SharedMarginal).
   const ConsensusReport& fuse(std::span<const WeightedShare> neighbours);
+  /// Tests neighbours' claims without fusing them (Consensus::witness); how many were refused.
+  int witness(const std::vector<WeightedMarginal>& neighbours);
   /// Moves the state into another frame, p_new = T_new_old p_old, with the transform's covariance
   /// (left perturbation in the new frame) folded in (StateHelper::reanchor).
   void reanchor(const Eigen::Isometry3d& T_new_old, const Eigen::Matrix<double, 6, 6>& covariance);
