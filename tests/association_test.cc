@@ -979,6 +979,81 @@ TEST(TeamIdsTest, AnIndexKeptUpToDateOneSourceAtATimeAgreesWithTheWholeUnionFind
   EXPECT_GT(robot_parts_smaller, 100);
 }
 
+TEST(TeamIdsTest, AnIndexOfGrowingRecordsMergesTeamsAndStillAgreesWithTheWholeUnionFind) {
+  // Owners' records as a negotiation makes them: each grows by a few links a round, most of
+  // them between two robots' views of one physical object, some wrong (two objects of one robot
+  // would end in one team: a conflict). After every commit both indexes (the whole graph's and
+  // robot 1's) must give what the union-find over every link gives; the commits that only add
+  // links are worked in by merging teams.
+  std::mt19937 random(41);
+  constexpr int kRobots = 6, kObjects = 14, kRobot = 1;
+  std::uniform_int_distribution<int> robot(0, kRobots - 1), object(0, kObjects - 1);
+  std::uniform_int_distribution<int> strength(0, 40), percent(0, 99);
+  // Robot r's private id of physical object o (a permutation per robot).
+  std::vector<std::vector<int>> private_id(kRobots, std::vector<int>(kObjects));
+  for (auto& ids : private_id) {
+    std::iota(ids.begin(), ids.end(), 0);
+    std::shuffle(ids.begin(), ids.end(), random);
+  }
+  TeamIdIndex index, robot_index(kRobot);
+  std::map<int, std::vector<ObjectLink>> sources;
+  for (int step = 0; step < 300; ++step) {
+    for (int staged = 1 + percent(random) % 2; staged > 0; --staged) {
+      const int source = robot(random);
+      std::vector<ObjectLink>& links = sources[source];
+      for (int n = 1 + percent(random) % 3; n > 0; --n) {
+        const int r = robot(random);
+        int t = robot(random);
+        if (t == r) t = (t + 1) % kRobots;
+        const int o = object(random);
+        const int p = percent(random) < 4 ? object(random) : o;  // a wrong link now and then
+        links.push_back(ObjectLink::make(object_key(r, private_id[r][o]),
+                                         object_key(t, private_id[t][p]), 0.25 * strength(random)));
+      }
+      index.stage(source, links);
+      robot_index.stage(source, links);
+    }
+    const bool changed = index.commit();
+    ASSERT_EQ(robot_index.commit(), changed) << "step " << step;
+    std::vector<ObjectLink> all;
+    for (const auto& [owner, own] : sources) all.insert(all.end(), own.begin(), own.end());
+    const TeamIds expected = reference_team_ids(all);
+    ASSERT_EQ(index.ids().team_of, expected.team_of) << "step " << step;
+    ASSERT_EQ(index.ids().members, expected.members) << "step " << step;
+    ASSERT_EQ(index.ids().conflicts, expected.conflicts) << "step " << step;
+    // Robot 1's: the parts of the link graph that hold one of its objects.
+    std::set<ObjectKey> reached;
+    for (const ObjectLink& link : all) {
+      for (const ObjectKey key : {link.a, link.b})
+        if (robot_of(key) == kRobot) reached.insert(key);
+    }
+    for (bool grown = true; grown;) {
+      grown = false;
+      for (const ObjectLink& link : all) {
+        if (reached.contains(link.a) != reached.contains(link.b)) {
+          reached.insert(link.a);
+          reached.insert(link.b);
+          grown = true;
+        }
+      }
+    }
+    std::vector<ObjectLink> robot_links;
+    for (const ObjectLink& link : all)
+      if (reached.contains(link.a)) robot_links.push_back(link);
+    const TeamIds robot_expected = reference_team_ids(robot_links);
+    ASSERT_EQ(robot_index.ids().team_of, robot_expected.team_of) << "step " << step;
+    ASSERT_EQ(robot_index.ids().members, robot_expected.members) << "step " << step;
+    ASSERT_EQ(robot_index.ids().conflicts, robot_expected.conflicts) << "step " << step;
+  }
+  // Both ways were taken: merges alone, and parts worked out again (conflicts, links that came
+  // again with another strength, keys of parts robot 1's index had left out).
+  for (const TeamIdIndex* each : {&index, &robot_index}) {
+    EXPECT_GT(each->merge_only_commits(), 20);
+    EXPECT_GT(each->commits() - each->merge_only_commits(), 20);
+  }
+  EXPECT_GT(index.ids().conflicts, 3);
+}
+
 // ---- Negotiation ----
 
 /// Robots of a synthetic team exchanging messages round by round (on a complete graph, or over

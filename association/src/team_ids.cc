@@ -111,6 +111,9 @@ void TeamIdIndex::add(int source, const ObjectLink& link) {
   if (forward == nullptr) {
     adjacent_[link.b].push_back({link.a, link.mahalanobis_squared, false, {}});
     forward = &adjacent_[link.a].emplace_back(Edge{link.b, link.mahalanobis_squared, false, {}});
+    added_.push_back(link);
+  } else {
+    only_added_ = false;
   }
   auto& sources = forward->sources;
   const auto it = std::find_if(sources.begin(), sources.end(),
@@ -128,6 +131,7 @@ void TeamIdIndex::add(int source, const ObjectLink& link) {
 void TeamIdIndex::remove(int source, const ObjectLink& link) {
   Edge* forward = edge(link.a, link.b);
   if (forward == nullptr) return;
+  only_added_ = false;
   auto& sources = forward->sources;
   std::erase_if(sources, [&](const auto& entry) { return entry.first == source; });
   if (sources.empty()) {
@@ -146,13 +150,114 @@ void TeamIdIndex::remove(int source, const ObjectLink& link) {
   touched_.push_back(link.b);
 }
 
+bool TeamIdIndex::part_holds_robot(ObjectKey start) const {
+  std::vector<ObjectKey> part{start};
+  for (std::size_t next = 0; next < part.size(); ++next) {
+    if (robot_of(part[next]) == robot_) return true;
+    const auto edges = adjacent_.find(part[next]);
+    if (edges == adjacent_.end()) continue;
+    for (const Edge& e : edges->second) {
+      if (std::find(part.begin(), part.end(), e.other) == part.end()) part.push_back(e.other);
+    }
+  }
+  return false;
+}
+
+std::vector<ObjectKey>* TeamIdIndex::members_of(ObjectKey key) {
+  const auto team = ids_.team_of.find(key);
+  return team == ids_.team_of.end() ? nullptr : &ids_.members.at(team->second);
+}
+
+void TeamIdIndex::merge_added(std::vector<ObjectKey>& unresolved) {
+  // Links of each key among those not merged in yet: a key in no team whose links are all
+  // among them is new to the link graph (a team of its own).
+  std::unordered_map<ObjectKey, int> pending;
+  for (const ObjectLink& link : added_) {
+    ++pending[link.a];
+    ++pending[link.b];
+  }
+  const auto is_new = [&](ObjectKey key) {
+    const auto edges = adjacent_.find(key);
+    return edges != adjacent_.end() &&
+           edges->second.size() == static_cast<std::size_t>(pending[key]);
+  };
+  std::vector<ObjectKey> merged;
+  for (const ObjectLink& link : added_) {
+    std::vector<ObjectKey>* team_a = members_of(link.a);
+    std::vector<ObjectKey>* team_b = members_of(link.b);
+    // Neither key in a team, for a robot's index: a link within a part that holds none of the
+    // robot's objects (the part as the link graph stands now, every added link in it) is
+    // nothing to this index, whatever the links decide there.
+    if (team_a == nullptr && team_b == nullptr && robot_ >= 0 && !part_holds_robot(link.a)) {
+      --pending[link.a];
+      --pending[link.b];
+      continue;
+    }
+    // A key in no team that is not new: a key of a part left out (robot_) or one whose links
+    // were all conflicts. Worked out in full.
+    if ((team_a == nullptr && !is_new(link.a)) || (team_b == nullptr && !is_new(link.b))) {
+      unresolved.push_back(link.a);
+      unresolved.push_back(link.b);
+      continue;
+    }
+    --pending[link.a];
+    --pending[link.b];
+    if (team_a != nullptr && team_a == team_b) continue;  // one team already
+    std::vector<ObjectKey> alone_a{link.a}, alone_b{link.b};
+    const std::vector<ObjectKey>& keys_a = team_a != nullptr ? *team_a : alone_a;
+    const std::vector<ObjectKey>& keys_b = team_b != nullptr ? *team_b : alone_b;
+    // The robots of each team are ascending with its keys (a key's robot is its high bits).
+    bool conflict = false;
+    for (auto i = keys_a.begin(), j = keys_b.begin(); i != keys_a.end() && j != keys_b.end();) {
+      const int ri = robot_of(*i), rj = robot_of(*j);
+      if (ri == rj) {
+        conflict = true;
+        break;
+      }
+      if (ri < rj) {
+        ++i;
+      } else {
+        ++j;
+      }
+    }
+    if (conflict) {
+      unresolved.push_back(link.a);
+      unresolved.push_back(link.b);
+      continue;
+    }
+    merged.clear();
+    std::merge(keys_a.begin(), keys_a.end(), keys_b.begin(), keys_b.end(),
+               std::back_inserter(merged));
+    const ObjectKey team = merged.front();  // the smallest key
+    for (const ObjectKey old_team : {keys_a.front(), keys_b.front()}) {
+      if (old_team != team) ids_.members.erase(old_team);
+    }
+    for (const ObjectKey key : merged) ids_.team_of[key] = team;
+    ids_.members[team] = merged;
+  }
+}
+
 bool TeamIdIndex::commit() {
   if (touched_.empty()) return false;
-  // The connected parts of the link graph that hold the touched keys, as they are now. They hold
-  // every old team of their keys too: a key of an old part reaches a touched key without a
-  // removed link.
+  ++commits_;
+  // The connected parts of the link graph to work out again, from the keys that start them: the
+  // parts of the touched keys, or when links were only added, of those merge_added() left.
   std::vector<ObjectKey> starts;
-  starts.swap(touched_);
+  if (only_added_) {
+    merge_added(starts);
+    touched_.clear();
+  } else {
+    starts.swap(touched_);
+  }
+  added_.clear();
+  only_added_ = true;
+  if (starts.empty()) {
+    ++merge_only_commits_;
+    ids_.conflicts = conflicts_;
+    return true;
+  }
+  // The parts as they are now. They hold every old team of their keys too: a key of an old part
+  // reaches a start without a removed link.
   std::unordered_set<ObjectKey> seen;
   // Part by part (breadth first from each touched key not reached yet); with a robot, the keys of
   // parts without its objects lose their old teams and get none.

@@ -68,6 +68,10 @@ class TeamIdIndex {
   /// stage() and commit().
   bool set_links(int source, std::vector<ObjectLink> links);
   const TeamIds& ids() const { return ids_; }
+  /// Commits that changed something, and of those the ones that merged teams over added links
+  /// only (no part worked out again).
+  long long commits() const { return commits_; }
+  long long merge_only_commits() const { return merge_only_commits_; }
 
  private:
   /// A link as seen from one of its keys.
@@ -81,6 +85,18 @@ class TeamIdIndex {
   };
   void add(int source, const ObjectLink& link);
   void remove(int source, const ObjectLink& link);
+  /// commit()'s shortcut when links were only added (none removed or re-weighed): each added
+  /// link that joins two teams (or a new key and a team, or two new keys) without putting two
+  /// objects of one robot together is worked in by merging them. Exact: such a link would have
+  /// been taken by the union-find over all links, whatever its strength, and it leaves every
+  /// other decision as it was (the teams it merges only grow within conflict-free final teams,
+  /// and a conflict stays one). The keys of the other added links go to `unresolved`: their
+  /// parts are worked out again (which also redoes whatever was merged in them).
+  void merge_added(std::vector<ObjectKey>& unresolved);
+  /// The members of `key`'s team, or nullptr for a key in no team.
+  std::vector<ObjectKey>* members_of(ObjectKey key);
+  /// Whether the connected part of the link graph that holds `start` holds an object of robot_.
+  bool part_holds_robot(ObjectKey start) const;
   /// The link's edge on key `from`'s side, or nullptr.
   Edge* edge(ObjectKey from, ObjectKey to);
 
@@ -92,6 +108,12 @@ class TeamIdIndex {
   std::unordered_map<ObjectKey, std::vector<Edge>> adjacent_;
   /// Keys of links changed since the last commit.
   std::vector<ObjectKey> touched_;
+  /// Links new to the union since the last commit (in the order added), and whether every
+  /// change since then was one of them (else commit() works the touched parts out again).
+  std::vector<ObjectLink> added_;
+  bool only_added_ = true;
+  long long commits_ = 0;
+  long long merge_only_commits_ = 0;
   int conflicts_ = 0;
   TeamIds ids_;
 };
