@@ -1054,6 +1054,45 @@ TEST(TeamIdsTest, AnIndexOfGrowingRecordsMergesTeamsAndStillAgreesWithTheWholeUn
   EXPECT_GT(index.ids().conflicts, 3);
 }
 
+TEST(TeamIdsTest, ALongChainOfAddedLinksGivesTheUnionFindsIdsWithoutMergingLinkByLink) {
+  // One record chaining an object of each of 3,000 robots into one team, as a peer could send:
+  // merging the growing team link by link would copy it 3,000 times; the index leaves such a
+  // change to the union-find of the part, with the same ids. Robot 5's index holds the chain
+  // (robot 5's object is in it); robot 4,000's does not (no object of it anywhere).
+  constexpr int kRobots = 3000;
+  std::vector<ObjectLink> chain;
+  for (int r = 0; r + 1 < kRobots; ++r) {
+    chain.push_back(ObjectLink::make(object_key(r, 7), object_key(r + 1, 7), 1.0 + r % 5));
+  }
+  TeamIdIndex index, holder(5), outsider(4000);
+  for (TeamIdIndex* each : {&index, &holder, &outsider}) {
+    each->stage(0, chain);
+    EXPECT_TRUE(each->commit());
+  }
+  const TeamIds expected = reference_team_ids(chain);
+  ASSERT_EQ(expected.members.size(), 1u);
+  EXPECT_EQ(index.ids().team_of, expected.team_of);
+  EXPECT_EQ(index.ids().members, expected.members);
+  EXPECT_EQ(holder.ids().team_of, expected.team_of);
+  EXPECT_EQ(holder.ids().members, expected.members);
+  EXPECT_TRUE(outsider.ids().team_of.empty());
+  // The whole index and robot 5's worked the part out; robot 4,000's passed over it.
+  EXPECT_EQ(index.merge_only_commits(), 0);
+  EXPECT_EQ(holder.merge_only_commits(), 0);
+  EXPECT_EQ(outsider.merge_only_commits(), 1);
+  // A short branch added to it afterwards is merged in.
+  const std::vector<ObjectLink> branch{
+      ObjectLink::make(object_key(2, 7), object_key(kRobots, 3), 2.0)};
+  std::vector<ObjectLink> all = chain;
+  all.insert(all.end(), branch.begin(), branch.end());
+  for (TeamIdIndex* each : {&index, &holder}) {
+    each->stage(1, branch);
+    EXPECT_TRUE(each->commit());
+    EXPECT_EQ(each->merge_only_commits(), 1);
+    EXPECT_EQ(each->ids().members, reference_team_ids(all).members);
+  }
+}
+
 // ---- Negotiation ----
 
 /// Robots of a synthetic team exchanging messages round by round (on a complete graph, or over

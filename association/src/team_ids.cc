@@ -150,17 +150,22 @@ void TeamIdIndex::remove(int source, const ObjectLink& link) {
   touched_.push_back(link.b);
 }
 
-bool TeamIdIndex::part_holds_robot(ObjectKey start) const {
+bool TeamIdIndex::part_holds_robot(ObjectKey start,
+                                   std::unordered_map<ObjectKey, bool>& known) const {
+  if (const auto it = known.find(start); it != known.end()) return it->second;
   std::vector<ObjectKey> part{start};
+  std::unordered_set<ObjectKey> seen{start};
+  bool holds = false;
   for (std::size_t next = 0; next < part.size(); ++next) {
-    if (robot_of(part[next]) == robot_) return true;
+    holds = holds || robot_of(part[next]) == robot_;
     const auto edges = adjacent_.find(part[next]);
     if (edges == adjacent_.end()) continue;
     for (const Edge& e : edges->second) {
-      if (std::find(part.begin(), part.end(), e.other) == part.end()) part.push_back(e.other);
+      if (seen.insert(e.other).second) part.push_back(e.other);
     }
   }
-  return false;
+  for (const ObjectKey key : part) known.emplace(key, holds);
+  return holds;
 }
 
 std::vector<ObjectKey>* TeamIdIndex::members_of(ObjectKey key) {
@@ -181,14 +186,31 @@ void TeamIdIndex::merge_added(std::vector<ObjectKey>& unresolved) {
     return edges != adjacent_.end() &&
            edges->second.size() == static_cast<std::size_t>(pending[key]);
   };
+  // Whether each part (as the link graph stands now) holds the robot's objects, found once a
+  // part.
+  std::unordered_map<ObjectKey, bool> holds_robot;
+  // Merging copies the two teams: work in proportion to their sizes. A change that would cost
+  // much more than the links it adds (a long chain of links into one team, as a peer could
+  // send) leaves the rest of its links to the union-find of their parts, which is O(n log n).
+  const std::size_t budget = 8 * added_.size() + 4096;
+  std::size_t work = 0;
   std::vector<ObjectKey> merged;
-  for (const ObjectLink& link : added_) {
+  for (auto link_it = added_.begin(); link_it != added_.end(); ++link_it) {
+    const ObjectLink& link = *link_it;
+    if (work > budget) {
+      for (; link_it != added_.end(); ++link_it) {
+        unresolved.push_back(link_it->a);
+        unresolved.push_back(link_it->b);
+      }
+      return;
+    }
     std::vector<ObjectKey>* team_a = members_of(link.a);
     std::vector<ObjectKey>* team_b = members_of(link.b);
     // Neither key in a team, for a robot's index: a link within a part that holds none of the
     // robot's objects (the part as the link graph stands now, every added link in it) is
     // nothing to this index, whatever the links decide there.
-    if (team_a == nullptr && team_b == nullptr && robot_ >= 0 && !part_holds_robot(link.a)) {
+    if (team_a == nullptr && team_b == nullptr && robot_ >= 0 &&
+        !part_holds_robot(link.a, holds_robot)) {
       --pending[link.a];
       --pending[link.b];
       continue;
@@ -225,6 +247,7 @@ void TeamIdIndex::merge_added(std::vector<ObjectKey>& unresolved) {
       unresolved.push_back(link.b);
       continue;
     }
+    work += keys_a.size() + keys_b.size();
     merged.clear();
     std::merge(keys_a.begin(), keys_a.end(), keys_b.begin(), keys_b.end(),
                std::back_inserter(merged));

@@ -95,8 +95,9 @@ class TeamIdIndex {
   void merge_added(std::vector<ObjectKey>& unresolved);
   /// The members of `key`'s team, or nullptr for a key in no team.
   std::vector<ObjectKey>* members_of(ObjectKey key);
-  /// Whether the connected part of the link graph that holds `start` holds an object of robot_.
-  bool part_holds_robot(ObjectKey start) const;
+  /// Whether the connected part of the link graph that holds `start` holds an object of robot_;
+  /// `known` keeps the answer for every key of each part looked at.
+  bool part_holds_robot(ObjectKey start, std::unordered_map<ObjectKey, bool>& known) const;
   /// The link's edge on key `from`'s side, or nullptr.
   Edge* edge(ObjectKey from, ObjectKey to);
 
