@@ -846,6 +846,41 @@ TeamIds reference_team_ids(std::vector<ObjectLink> links) {
   return ids;
 }
 
+/// Whether two sets of team ids are the same (teams, members and conflicts).
+::testing::AssertionResult same_ids(const TeamIds& actual, const TeamIds& expected) {
+  if (actual.team_of != expected.team_of) return ::testing::AssertionFailure() << "team_of differs";
+  if (actual.members != expected.members) return ::testing::AssertionFailure() << "members differ";
+  if (actual.conflicts != expected.conflicts) {
+    return ::testing::AssertionFailure()
+           << "conflicts " << actual.conflicts << " against " << expected.conflicts;
+  }
+  return ::testing::AssertionSuccess();
+}
+
+/// What a robot's index must give: the plain union-find over the links of the connected parts
+/// of the link graph (every link counts for connection) that hold one of the robot's objects.
+TeamIds reference_team_ids_of_robot(const std::vector<ObjectLink>& all, int robot) {
+  std::set<ObjectKey> reached;
+  for (const ObjectLink& link : all) {
+    for (const ObjectKey key : {link.a, link.b})
+      if (robot_of(key) == robot) reached.insert(key);
+  }
+  for (bool grown = true; grown;) {
+    grown = false;
+    for (const ObjectLink& link : all) {
+      if (reached.contains(link.a) != reached.contains(link.b)) {
+        reached.insert(link.a);
+        reached.insert(link.b);
+        grown = true;
+      }
+    }
+  }
+  std::vector<ObjectLink> robot_links;
+  for (const ObjectLink& link : all)
+    if (reached.contains(link.a)) robot_links.push_back(link);
+  return reference_team_ids(robot_links);
+}
+
 TEST(TeamIdsTest, AgreesWithAPlainUnionFindOnRandomLinksWithDuplicatesAndConflicts) {
   std::mt19937 random(17);
   std::uniform_int_distribution<int> robot(0, 5), object(0, 11);
@@ -927,34 +962,11 @@ TEST(TeamIdsTest, AnIndexKeptUpToDateOneSourceAtATimeAgreesWithTheWholeUnionFind
     std::vector<ObjectLink> all;
     for (const auto& [owner, own] : sources) all.insert(all.end(), own.begin(), own.end());
     const TeamIds expected = reference_team_ids(all);
-    ASSERT_EQ(index.ids().team_of, expected.team_of) << "step " << step;
-    ASSERT_EQ(index.ids().members, expected.members) << "step " << step;
-    ASSERT_EQ(index.ids().conflicts, expected.conflicts) << "step " << step;
-    // Robot 2's index: the union-find over the links of the connected parts (every link counts
-    // for connection) that hold one of robot 2's objects.
+    ASSERT_TRUE(same_ids(index.ids(), expected)) << "step " << step;
+    // Robot 2's index: the parts of the link graph that hold one of its objects.
     ASSERT_EQ(robot_index.commit(), changed) << "step " << step;
-    std::set<ObjectKey> reached;
-    for (const ObjectLink& link : all) {
-      for (const ObjectKey key : {link.a, link.b})
-        if (robot_of(key) == kRobot) reached.insert(key);
-    }
-    for (bool grown = true; grown;) {
-      grown = false;
-      for (const ObjectLink& link : all) {
-        if (reached.contains(link.a) != reached.contains(link.b)) {
-          reached.insert(link.a);
-          reached.insert(link.b);
-          grown = true;
-        }
-      }
-    }
-    std::vector<ObjectLink> robot_links;
-    for (const ObjectLink& link : all)
-      if (reached.contains(link.a)) robot_links.push_back(link);
-    const TeamIds robot_expected = reference_team_ids(robot_links);
-    ASSERT_EQ(robot_index.ids().team_of, robot_expected.team_of) << "step " << step;
-    ASSERT_EQ(robot_index.ids().members, robot_expected.members) << "step " << step;
-    ASSERT_EQ(robot_index.ids().conflicts, robot_expected.conflicts) << "step " << step;
+    const TeamIds robot_expected = reference_team_ids_of_robot(all, kRobot);
+    ASSERT_TRUE(same_ids(robot_index.ids(), robot_expected)) << "step " << step;
     robot_parts_smaller += robot_expected.team_of.size() < expected.team_of.size();
     if (!changed) {
       // Nothing changed: every source holds the same links as before.
@@ -1018,32 +1030,10 @@ TEST(TeamIdsTest, AnIndexOfGrowingRecordsMergesTeamsAndStillAgreesWithTheWholeUn
     std::vector<ObjectLink> all;
     for (const auto& [owner, own] : sources) all.insert(all.end(), own.begin(), own.end());
     const TeamIds expected = reference_team_ids(all);
-    ASSERT_EQ(index.ids().team_of, expected.team_of) << "step " << step;
-    ASSERT_EQ(index.ids().members, expected.members) << "step " << step;
-    ASSERT_EQ(index.ids().conflicts, expected.conflicts) << "step " << step;
+    ASSERT_TRUE(same_ids(index.ids(), expected)) << "step " << step;
     // Robot 1's: the parts of the link graph that hold one of its objects.
-    std::set<ObjectKey> reached;
-    for (const ObjectLink& link : all) {
-      for (const ObjectKey key : {link.a, link.b})
-        if (robot_of(key) == kRobot) reached.insert(key);
-    }
-    for (bool grown = true; grown;) {
-      grown = false;
-      for (const ObjectLink& link : all) {
-        if (reached.contains(link.a) != reached.contains(link.b)) {
-          reached.insert(link.a);
-          reached.insert(link.b);
-          grown = true;
-        }
-      }
-    }
-    std::vector<ObjectLink> robot_links;
-    for (const ObjectLink& link : all)
-      if (reached.contains(link.a)) robot_links.push_back(link);
-    const TeamIds robot_expected = reference_team_ids(robot_links);
-    ASSERT_EQ(robot_index.ids().team_of, robot_expected.team_of) << "step " << step;
-    ASSERT_EQ(robot_index.ids().members, robot_expected.members) << "step " << step;
-    ASSERT_EQ(robot_index.ids().conflicts, robot_expected.conflicts) << "step " << step;
+    const TeamIds robot_expected = reference_team_ids_of_robot(all, kRobot);
+    ASSERT_TRUE(same_ids(robot_index.ids(), robot_expected)) << "step " << step;
   }
   // Both ways were taken: merges alone, and parts worked out again (conflicts, links that came
   // again with another strength, keys of parts robot 1's index had left out).
