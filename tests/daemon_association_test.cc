@@ -161,6 +161,28 @@ TEST(NegotiationWire, RoundTripIsExact) {
   EXPECT_EQ(decoded->held, message.held);
 }
 
+TEST(NegotiationWire, AMapDescriptionWrittenOnceGoesIntoEveryMessageThatCarriesIt) {
+  // A daemon writes a round's description once and copies it into each neighbour's message.
+  auto message = sample_message();
+  v1::MapDescription map;
+  to_wire(*message.map, map);
+  v1::Negotiation direct, copied;
+  to_wire(message, direct);
+  to_wire(message, map, copied);
+  EXPECT_EQ(copied.SerializeAsString(), direct.SerializeAsString());
+  // A message without a description (not a describing round) carries none, whatever was written.
+  message.map.reset();
+  v1::Negotiation without;
+  to_wire(message, map, without);
+  EXPECT_FALSE(without.has_map());
+  EXPECT_EQ(without.records_size(), 1);
+  // Writing another description into the same object replaces the old one whole.
+  association::MapDescription smaller = *sample_message().map;
+  smaller.objects.resize(1);
+  to_wire(smaller, map);
+  EXPECT_EQ(map.objects_size(), 1);
+}
+
 TEST(NegotiationWire, MalformedDescriptionsAreRefusedNamingTheProblem) {
   const auto message = sample_message();
   v1::Negotiation good;

@@ -489,7 +489,14 @@ void ConsensusExchange::send_landmark_set(int robot, std::uint64_t round,
   message->mutable_ids()->Assign(ids.begin(), ids.end());
   if (association_) {
     const double negotiation_start = thread_cpu_seconds();
-    to_wire(association_->negotiation_for(robot, round), *message->mutable_negotiation());
+    const association::NegotiationMessage negotiation = association_->negotiation_for(robot, round);
+    if (negotiation.map && negotiation.map != wired_map_source_) {
+      if (!wired_map_) wired_map_ = std::make_unique<v1::MapDescription>();
+      to_wire(*negotiation.map, *wired_map_);
+      wired_map_source_ = negotiation.map;
+    }
+    to_wire(negotiation, negotiation.map ? *wired_map_ : v1::MapDescription::default_instance(),
+            *message->mutable_negotiation());
     const std::size_t bytes = message->negotiation().ByteSizeLong();
     const double seconds = thread_cpu_seconds() - negotiation_start;
     std::lock_guard lock(mutex_);

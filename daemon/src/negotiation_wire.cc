@@ -190,22 +190,36 @@ bool read_record(const v1::OwnerRecord& message, const NegotiationLimits& limits
 
 }  // namespace
 
-void to_wire(const association::NegotiationMessage& message, v1::Negotiation& out) {
-  out.set_frame(message.frame);
-  if (message.map) {
-    v1::MapDescription* map = out.mutable_map();
-    map->set_frame(message.map->frame);
-    for (const association::ObjectDescription& object : message.map->objects) {
-      v1::ObjectDescription* entry = map->add_objects();
-      entry->set_id(object.id);
-      entry->set_object_class(object.object_class);
-      entry->set_observations(static_cast<std::uint32_t>(std::max(object.observations, 0)));
-      entry->mutable_position()->Add(object.position.data(), object.position.data() + 3);
-      add_upper<3>(object.covariance, *entry->mutable_covariance());
-      add_upper<3>(object.local_covariance, *entry->mutable_local_covariance());
-      entry->set_archived(object.archived);
-    }
+void to_wire(const association::MapDescription& map, v1::MapDescription& out) {
+  out.Clear();
+  out.set_frame(map.frame);
+  out.mutable_objects()->Reserve(static_cast<int>(map.objects.size()));
+  for (const association::ObjectDescription& object : map.objects) {
+    v1::ObjectDescription* entry = out.add_objects();
+    entry->set_id(object.id);
+    entry->set_object_class(object.object_class);
+    entry->set_observations(static_cast<std::uint32_t>(std::max(object.observations, 0)));
+    entry->mutable_position()->Add(object.position.data(), object.position.data() + 3);
+    add_upper<3>(object.covariance, *entry->mutable_covariance());
+    add_upper<3>(object.local_covariance, *entry->mutable_local_covariance());
+    entry->set_archived(object.archived);
   }
+}
+
+void to_wire(const association::NegotiationMessage& message, v1::Negotiation& out) {
+  if (!message.map) {
+    to_wire(message, v1::MapDescription::default_instance(), out);
+    return;
+  }
+  v1::MapDescription map;
+  to_wire(*message.map, map);
+  to_wire(message, map, out);
+}
+
+void to_wire(const association::NegotiationMessage& message, const v1::MapDescription& map,
+             v1::Negotiation& out) {
+  out.set_frame(message.frame);
+  if (message.map) *out.mutable_map() = map;
   for (const auto& [owner, version] : message.held) {
     v1::RecordVersion* entry = out.add_held();
     entry->set_owner(static_cast<std::uint32_t>(owner));

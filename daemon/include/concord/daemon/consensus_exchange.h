@@ -43,8 +43,13 @@ namespace concord {
 class Estimator;
 }  // namespace concord
 
+namespace concord::association {
+struct MapDescription;
+}  // namespace concord::association
+
 namespace concord::v1 {
 class Envelope;
+class MapDescription;
 }  // namespace concord::v1
 
 namespace concord::net {
@@ -294,6 +299,10 @@ class ConsensusExchange {
   /// The round's marginal of every object the robot holds (given ids), built once before the
   /// marginals go out; each neighbour's is cut out of it (Consensus::select).
   Marginal held_;
+  /// Estimator thread only: the last map description the negotiation sent, written for the wire
+  /// once and copied into each neighbour's message.
+  std::shared_ptr<const association::MapDescription> wired_map_source_;
+  std::unique_ptr<v1::MapDescription> wired_map_;
 };
 
 }  // namespace concord::daemon

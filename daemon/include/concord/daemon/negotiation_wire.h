@@ -14,6 +14,7 @@
 #include "concord/daemon/config.h"
 
 namespace concord::v1 {
+class MapDescription;
 class Negotiation;
 }  // namespace concord::v1
 
@@ -21,6 +22,12 @@ namespace concord::daemon {
 
 /// Writes `message` (its sender is the envelope's) into `out`.
 void to_wire(const association::NegotiationMessage& message, v1::Negotiation& out);
+/// The same with the message's map description already written into `map` (to_wire below):
+/// a round's description goes to every neighbour, and is written once.
+void to_wire(const association::NegotiationMessage& message, const v1::MapDescription& map,
+             v1::Negotiation& out);
+/// Writes a map description into `out` (cleared first).
+void to_wire(const association::MapDescription& map, v1::MapDescription& out);
 
 /// The NegotiationMessage that `sender`'s Negotiation carries, or std::nullopt with `error`
 /// naming the first problem.
