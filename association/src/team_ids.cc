@@ -225,9 +225,11 @@ void TeamIdIndex::merge_added(std::vector<ObjectKey>& unresolved) {
     --pending[link.a];
     --pending[link.b];
     if (team_a != nullptr && team_a == team_b) continue;  // one team already
-    std::vector<ObjectKey> alone_a{link.a}, alone_b{link.b};
-    const std::vector<ObjectKey>& keys_a = team_a != nullptr ? *team_a : alone_a;
-    const std::vector<ObjectKey>& keys_b = team_b != nullptr ? *team_b : alone_b;
+    // A new key is a team of its own.
+    const std::span<const ObjectKey> keys_a =
+        team_a != nullptr ? std::span<const ObjectKey>(*team_a) : std::span(&link.a, 1);
+    const std::span<const ObjectKey> keys_b =
+        team_b != nullptr ? std::span<const ObjectKey>(*team_b) : std::span(&link.b, 1);
     // The robots of each team are ascending with its keys (a key's robot is its high bits).
     bool conflict = false;
     for (auto i = keys_a.begin(), j = keys_b.begin(); i != keys_a.end() && j != keys_b.end();) {

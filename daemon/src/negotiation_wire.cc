@@ -206,20 +206,11 @@ void to_wire(const association::MapDescription& map, v1::MapDescription& out) {
   }
 }
 
-void to_wire(const association::NegotiationMessage& message, v1::Negotiation& out) {
-  if (!message.map) {
-    to_wire(message, v1::MapDescription::default_instance(), out);
-    return;
-  }
-  v1::MapDescription map;
-  to_wire(*message.map, map);
-  to_wire(message, map, out);
-}
+namespace {
 
-void to_wire(const association::NegotiationMessage& message, const v1::MapDescription& map,
-             v1::Negotiation& out) {
+/// Everything of `message` but its map description: the frame, the held versions, the records.
+void write_all_but_map(const association::NegotiationMessage& message, v1::Negotiation& out) {
   out.set_frame(message.frame);
-  if (message.map) *out.mutable_map() = map;
   for (const auto& [owner, version] : message.held) {
     v1::RecordVersion* entry = out.add_held();
     entry->set_owner(static_cast<std::uint32_t>(owner));
@@ -255,6 +246,19 @@ void to_wire(const association::NegotiationMessage& message, const v1::MapDescri
       }
     }
   }
+}
+
+}  // namespace
+
+void to_wire(const association::NegotiationMessage& message, v1::Negotiation& out) {
+  if (message.map) to_wire(*message.map, *out.mutable_map());
+  write_all_but_map(message, out);
+}
+
+void to_wire(const association::NegotiationMessage& message, const v1::MapDescription& map,
+             v1::Negotiation& out) {
+  if (message.map) *out.mutable_map() = map;
+  write_all_but_map(message, out);
 }
 
 std::optional<association::NegotiationMessage> from_wire(const v1::Negotiation& message, int sender,
