@@ -1747,5 +1747,50 @@ TEST(RelabellingTest, OnlyPairsBothViewsHoldAreRelabelledWithTheReceiversIds) {
   EXPECT_EQ(none.mean.size(), 0);
 }
 
+TEST(RelabellingTest, AReceiversKeptViewAndATakenMarginalGiveWhatTheCopyingFormsGive) {
+  // The receiver's view by sender id: of two entries for sender id 2 the later (22) counts.
+  const std::vector<std::pair<LandmarkId, LandmarkId>> received{
+      {10, 1}, {21, 2}, {22, 2}, {40, 4}, {30, 3}};
+  const Labels view = receiver_view(received);
+  const Labels expected_view{{1, 10}, {2, 22}, {3, 30}, {4, 40}};
+  EXPECT_EQ(view, expected_view);
+  const std::vector<std::pair<LandmarkId, LandmarkId>> sent{{4, 40}, {2, 21}, {1, 10}, {3, 31}};
+  EXPECT_EQ(agreed_labels_in_view(sent, view), (Labels{{1, 10}, {4, 40}}));
+  EXPECT_EQ(agreed_labels_in_view(sent, view), agreed_labels(sent, received));
+
+  std::mt19937 random(7);
+  std::normal_distribution<double> normal;
+  const auto covariance = [&](int size) {
+    Eigen::MatrixXd A(size, size);
+    for (int r = 0; r < size; ++r)
+      for (int c = 0; c < size; ++c) A(r, c) = normal(random);
+    return Eigen::MatrixXd(A * A.transpose() + Eigen::MatrixXd::Identity(size, size));
+  };
+  Marginal marginal;
+  marginal.ids = {4, 2, 1, 3};
+  marginal.mean = Eigen::VectorXd::LinSpaced(12, 1.0, 12.0);
+  marginal.blocks = {covariance(6), covariance(3), covariance(3)};
+  ASSERT_TRUE(marginal.well_formed());
+  const auto same = [](const Marginal& a, const Marginal& b) {
+    if (a.ids != b.ids || a.mean != b.mean || a.blocks.size() != b.blocks.size()) return false;
+    for (std::size_t k = 0; k < a.blocks.size(); ++k)
+      if (a.blocks[k] != b.blocks[k]) return false;
+    return true;
+  };
+  // Every landmark kept (relabelled in place), some kept (cut), none kept: as the copying form.
+  for (const Labels& labels : {Labels{{1, 10}, {2, 20}, {3, 30}, {4, 40}}, Labels{{1, 10}, {4, 40}},
+                               Labels{{2, 20}}, Labels{}}) {
+    const Marginal copied = relabel_marginal(marginal, labels);
+    Marginal taken = marginal;
+    const Marginal out = relabel_marginal(std::move(taken), labels);
+    EXPECT_TRUE(same(out, copied)) << labels.size() << " labels";
+    EXPECT_TRUE(out.well_formed());
+  }
+  const Marginal all =
+      relabel_marginal(Marginal(marginal), Labels{{1, 10}, {2, 20}, {3, 30}, {4, 40}});
+  EXPECT_EQ(all.ids, (std::vector<LandmarkId>{40, 20, 10, 30}));
+  EXPECT_EQ(all.blocks[0], marginal.blocks[0]);
+}
+
 }  // namespace
 }  // namespace concord::association

@@ -8,6 +8,7 @@
 #include <stdexcept>
 
 #include "concord/association/alignment.h"
+#include "concord/association/relabelling.h"
 #include "concord/estimator/updater_helper.h"
 
 namespace concord::association {
@@ -193,7 +194,11 @@ std::optional<Reanchoring> Negotiator::finish_round(int round) {
         if (key != own) shared_[robot_of(key)].emplace_back(id_of(own), id_of(key));
       }
     }
-    for (auto& [neighbour, pairs] : shared_) std::sort(pairs.begin(), pairs.end());
+    shared_views_.clear();
+    for (auto& [neighbour, pairs] : shared_) {
+      std::sort(pairs.begin(), pairs.end());
+      shared_views_.emplace(neighbour, receiver_view(pairs));
+    }
   }
 
   // 3. Corrections of the edges the robot's state came through, then the team frame.
@@ -674,9 +679,19 @@ bool Negotiator::frames_connected(int a, int b) const {
   return a == b || component_of(a).contains(b);
 }
 
-std::vector<std::pair<LandmarkId, LandmarkId>> Negotiator::shared_objects(int neighbour) const {
+namespace {
+const std::vector<std::pair<LandmarkId, LandmarkId>> kNoPairs;
+}  // namespace
+
+const std::vector<std::pair<LandmarkId, LandmarkId>>& Negotiator::shared_objects(
+    int neighbour) const {
   const auto it = shared_.find(neighbour);
-  return it == shared_.end() ? std::vector<std::pair<LandmarkId, LandmarkId>>() : it->second;
+  return it == shared_.end() ? kNoPairs : it->second;
+}
+
+const std::vector<std::pair<LandmarkId, LandmarkId>>& Negotiator::shared_view(int neighbour) const {
+  const auto it = shared_views_.find(neighbour);
+  return it == shared_views_.end() ? kNoPairs : it->second;
 }
 
 std::optional<int> Negotiator::frame_of(int neighbour) const {

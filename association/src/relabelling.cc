@@ -1,6 +1,7 @@
 #include "concord/association/relabelling.h"
 
 #include <algorithm>
+#include <utility>
 
 namespace concord::association {
 
@@ -20,29 +21,37 @@ const LandmarkId* find_second(const Labels& labels, LandmarkId key) {
 
 }  // namespace
 
-Labels agreed_labels(const std::vector<std::pair<LandmarkId, LandmarkId>>& sent,
-                     const std::vector<std::pair<LandmarkId, LandmarkId>>& received) {
-  // The receiver's view by sender id (sender id -> receiver id); of repeated sender ids the last
-  // one counts.
-  Labels receiver_view;
-  receiver_view.reserve(received.size());
-  for (const auto& [own, theirs] : received) receiver_view.emplace_back(theirs, own);
-  std::stable_sort(receiver_view.begin(), receiver_view.end(), first_less);
+Labels receiver_view(const std::vector<std::pair<LandmarkId, LandmarkId>>& received) {
+  Labels view;
+  view.reserve(received.size());
+  for (const auto& [own, theirs] : received) view.emplace_back(theirs, own);
+  std::stable_sort(view.begin(), view.end(), first_less);
   // Keep the last of each run of equal sender ids (unique keeps the first: run it backwards).
-  receiver_view.erase(receiver_view.begin(),
-                      std::unique(receiver_view.rbegin(), receiver_view.rend(),
-                                  [](const auto& x, const auto& y) { return x.first == y.first; })
-                          .base());
+  view.erase(view.begin(),
+             std::unique(view.rbegin(), view.rend(), [](const auto& x, const auto& y) {
+               return x.first == y.first;
+             }).base());
+  return view;
+}
+
+Labels agreed_labels_in_view(const std::vector<std::pair<LandmarkId, LandmarkId>>& sent,
+                             const Labels& view) {
   Labels labels;
   labels.reserve(sent.size());
   for (const auto& [own, theirs] : sent) {
-    const LandmarkId* view = find_second(receiver_view, own);
-    if (view != nullptr && *view == theirs) labels.emplace_back(own, theirs);
+    const LandmarkId* receiver = find_second(view, own);
+    if (receiver != nullptr && *receiver == theirs) labels.emplace_back(own, theirs);
   }
   // A sender id agrees with one receiver id at most, so equal firsts are equal entries.
-  std::sort(labels.begin(), labels.end(), first_less);
+  if (!std::is_sorted(labels.begin(), labels.end(), first_less))
+    std::sort(labels.begin(), labels.end(), first_less);
   labels.erase(std::unique(labels.begin(), labels.end()), labels.end());
   return labels;
+}
+
+Labels agreed_labels(const std::vector<std::pair<LandmarkId, LandmarkId>>& sent,
+                     const std::vector<std::pair<LandmarkId, LandmarkId>>& received) {
+  return agreed_labels_in_view(sent, receiver_view(received));
 }
 
 Marginal relabel_marginal(const Marginal& marginal, const Labels& labels) {
@@ -80,6 +89,19 @@ Marginal relabel_marginal(const Marginal& marginal, const Labels& labels) {
     first += landmarks;
   }
   return out;
+}
+
+Marginal relabel_marginal(Marginal&& marginal, const Labels& labels) {
+  std::vector<LandmarkId> ids;
+  ids.reserve(marginal.ids.size());
+  for (const LandmarkId id : marginal.ids) {
+    const LandmarkId* label = find_second(labels, id);
+    if (label == nullptr) return relabel_marginal(std::as_const(marginal), labels);
+    ids.push_back(*label);
+  }
+  marginal.ids = std::move(ids);
+  std::erase_if(marginal.blocks, [](const Eigen::MatrixXd& block) { return block.rows() == 0; });
+  return std::move(marginal);
 }
 
 }  // namespace concord::association

@@ -113,16 +113,26 @@ long long marginal_bytes(const Marginal& marginal) {
 
 /// Marginal of robot j's objects that robot i (the receiver) shares with it, relabelled with i's
 /// ids: only pairs both robots' views agree on (what a daemon receiving j's marginal keeps). Cut
-/// out of `held`, j's marginal of all it holds, into `cut` (its storage reused).
+/// out of `held`, j's marginal of all it holds, into `cut` (moved on). The cut is what
+/// a run with given ids does too; the rest (both views' shared objects, the pairs they agree on,
+/// the relabelled copy) is there because the ids are private, so its time is added to
+/// `relabel_seconds`, which the run counts as negotiation.
 Marginal relabelled_marginal(const Marginal& held, const association::Negotiator& sender_view,
-                             const association::Negotiator& receiver_view, Marginal& cut) {
-  const auto sent = sender_view.shared_objects(receiver_view.robot());      // (j id, i id)
-  const auto received = receiver_view.shared_objects(sender_view.robot());  // (i id, j id)
+                             const association::Negotiator& receiver_view, Marginal& cut,
+                             double& relabel_seconds) {
+  auto start = Clock::now();
+  const auto& sent = sender_view.shared_objects(receiver_view.robot());  // (j id, i id)
   std::vector<LandmarkId> ids;
   ids.reserve(sent.size());
   for (const auto& [own, theirs] : sent) ids.push_back(own);
+  relabel_seconds += seconds_since(start);
   Consensus::select(held, ids, cut);
-  return association::relabel_marginal(cut, association::agreed_labels(sent, received));
+  start = Clock::now();
+  Marginal relabelled = association::relabel_marginal(
+      std::move(cut),
+      association::agreed_labels_in_view(sent, receiver_view.shared_view(sender_view.robot())));
+  relabel_seconds += seconds_since(start);
+  return relabelled;
 }
 
 }  // namespace
@@ -225,7 +235,7 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
   std::vector<WeightedShare> given_shares;    // with given ids, each robot's in turn
   std::vector<WeightedMarginal> given_inbox;  // the same, cut and sent in compact form
   std::vector<int> common_per_block;
-  Marginal cut;  // a negotiated marginal before its relabelling (storage kept)
+  Marginal cut;  // a negotiated marginal before its relabelling
   const auto next_in = [&](int i) -> WeightedMarginal& {
     auto& box = inbox[static_cast<std::size_t>(i)];
     std::size_t& size = inbox_size[static_cast<std::size_t>(i)];
@@ -321,6 +331,7 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
       }
 
       phase_start = Clock::now();
+      double relabel_seconds = 0.0;  // negotiation work within this phase (relabelled_marginal)
       // 3. All marginals are taken before anyone fuses.
       std::fill(inbox_size.begin(), inbox_size.end(), 0);
       std::vector<long long> sent_bytes(robots, 0);  // by sender, this round
@@ -340,8 +351,8 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
         for (int i = 0; i < robots; ++i) {
           for (int j : round_neighbours[i]) {
             if (frame_of[i] != frame_of[j]) continue;  // not aligned yet: separate
-            Marginal marginal =
-                relabelled_marginal(held[j].marginal(), negotiators[j], negotiators[i], cut);
+            Marginal marginal = relabelled_marginal(held[j].marginal(), negotiators[j],
+                                                    negotiators[i], cut, relabel_seconds);
             if (marginal.ids.empty()) continue;
             count_bytes(j, marginal_bytes(marginal));
             const double weight =
@@ -451,7 +462,8 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
         if (active[i] && !round_neighbours[i].empty())
           statistics.marginal_bytes_per_robot_round.push_back(sent_bytes[i]);
       }
-      statistics.consensus_seconds += seconds_since(phase_start);
+      statistics.consensus_seconds += seconds_since(phase_start) - relabel_seconds;
+      statistics.negotiation_seconds += relabel_seconds;
     }
 
     // 5. Record the online estimate of frame `step`.

@@ -218,8 +218,11 @@ class Negotiator {
   std::optional<Reanchoring> finish_round(int round);
 
   /// Objects of this robot and of `neighbour` that share a team id: (own id, neighbour's id),
-  /// sorted by own id.
-  std::vector<std::pair<LandmarkId, LandmarkId>> shared_objects(int neighbour) const;
+  /// sorted by own id (valid until the next finish_round).
+  const std::vector<std::pair<LandmarkId, LandmarkId>>& shared_objects(int neighbour) const;
+  /// receiver_view(shared_objects(neighbour)) (relabelling.h), kept with it: what this robot, as
+  /// the receiver, agrees a neighbour's marginal against.
+  const std::vector<std::pair<LandmarkId, LandmarkId>>& shared_view(int neighbour) const;
   /// Team id of one of the robot's objects, or -1 while unshared.
   ObjectKey team_id(LandmarkId own_id) const {
     return team_ids_.ids().team_id(object_key(robot_, own_id));
@@ -337,8 +340,9 @@ class Negotiator {
   /// Team ids over the links of every record in records_, of the parts of the link graph that
   /// hold this robot's objects (TeamIdIndex(robot)).
   TeamIdIndex team_ids_;
-  /// shared_objects of every neighbour, rebuilt with the team ids.
+  /// shared_objects of every neighbour, rebuilt with the team ids, and their receiver views.
   std::map<int, std::vector<std::pair<LandmarkId, LandmarkId>>> shared_;
+  std::map<int, std::vector<std::pair<LandmarkId, LandmarkId>>> shared_views_;
   NegotiationCounters counters_;
   std::function<void(const SearchTrace&)> search_listener_;
   Eigen::Isometry3d T_frame_start_ = Eigen::Isometry3d::Identity();

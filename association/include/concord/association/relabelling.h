@@ -22,9 +22,21 @@ Labels agreed_labels(
     const std::vector<std::pair<LandmarkId, LandmarkId>>& sent,
     const std::vector<std::pair<LandmarkId, LandmarkId>>& received);
 
+/// The receiver's view of `received` (as agreed_labels takes it) by sender id: sender id ->
+/// receiver id, ascending, one a sender id (of two entries for one sender id, the later in
+/// `received` counts). A receiver keeps it from one change of its shared objects to the next.
+Labels receiver_view(const std::vector<std::pair<LandmarkId, LandmarkId>>& received);
+
+/// agreed_labels(sent, received) from receiver_view(received).
+Labels agreed_labels_in_view(const std::vector<std::pair<LandmarkId, LandmarkId>>& sent,
+                             const Labels& view);
+
 /// The part of `marginal` (the sender's ids) whose ids `labels` holds, relabelled with the
 /// receiver's ids; order and covariance entries kept exactly (a marginal of a subset is the
 /// submatrix of the marginal of a superset), blocks left empty dropped.
 Marginal relabel_marginal(const Marginal& marginal, const Labels& labels);
+/// The same, taking the marginal: when every landmark is kept (the usual case) only its ids
+/// change, with no copy of its means and covariances.
+Marginal relabel_marginal(Marginal&& marginal, const Labels& labels);
 
 }  // namespace concord::association

@@ -9,9 +9,9 @@
 ///   - receive() each neighbour's message (ascending robot id), missed() for a peer that did not
 ///     take part (the owner records it may not have are sent again);
 ///   - finish_round(): pairs, team ids, and the move of the state into the team frame;
-///   - marginal_for() each neighbour: the marginal of the objects shared with it, with the
-///     neighbour's ids; accept_marginal() of a neighbour's: the pairs both views agree on,
-///     relabelled with this robot's ids, when both are in one frame.
+///   - shared_cut() each neighbour: the objects shared with it (the cut of the marginal it is
+///     sent), with the neighbour's ids; accept_marginal() of a neighbour's: the pairs both views
+///     agree on, relabelled with this robot's ids, when both are in one frame.
 /// Estimator thread only; pure apart from the estimator it is handed.
 
 #include <cstdint>
@@ -60,13 +60,16 @@ class AssociationSession {
   /// The move applied to `estimator`, if any.
   std::optional<association::Reanchoring> finish_round(std::uint64_t round, Estimator& estimator);
 
-  /// The marginal for `robot` (this robot's ids) and the neighbour's id of each of its landmarks
-  /// (parallel to the marginal's ids), cut out of `held`, the marginal of every object the robot
-  /// holds (built once a round for all neighbours, Estimator::marginal of object_ids()).
-  std::pair<Marginal, std::vector<LandmarkId>> marginal_for(int robot, const Marginal& held) const;
+  /// The objects shared with `robot`: this robot's ids, ascending (what Consensus::select cuts
+  /// out of `held` for it), and the neighbour's id of each landmark that cut keeps, in the cut's
+  /// order (held's). `held`: the marginal of every object the robot holds (built once a round
+  /// for all neighbours, Estimator::marginal of object_ids()).
+  std::pair<std::vector<LandmarkId>, std::vector<LandmarkId>> shared_cut(
+      int robot, const Marginal& held) const;
   /// What this robot fuses of `robot`'s marginal sent in `frame` with `receiver_ids` (parallel to
-  /// its ids): nullopt when the frames differ or no pair is agreed.
-  std::optional<Marginal> accept_marginal(int robot, const Marginal& marginal,
+  /// its ids): nullopt when the frames differ or no pair is agreed. Takes the marginal (moved
+  /// from only when the frames and sizes match).
+  std::optional<Marginal> accept_marginal(int robot, Marginal&& marginal,
                                           const std::vector<LandmarkId>& receiver_ids,
                                           int frame) const;
 

@@ -299,6 +299,9 @@ class ConsensusExchange {
   /// The round's marginal of every object the robot holds (given ids), built once before the
   /// marginals go out; each neighbour's is cut out of it (Consensus::select).
   Marginal held_;
+  /// Negotiated, estimator thread only: per neighbour this round, the own ids its marginal is cut
+  /// by and the neighbour's id of each landmark kept (AssociationSession::shared_cut).
+  std::map<int, std::pair<std::vector<LandmarkId>, std::vector<LandmarkId>>> shared_cuts_;
   /// Estimator thread only: the last map description the negotiation sent, written for the wire
   /// once and copied into each neighbour's message.
   std::shared_ptr<const association::MapDescription> wired_map_source_;
