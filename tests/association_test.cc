@@ -10,6 +10,7 @@
 #include <iterator>
 #include <map>
 #include <numbers>
+#include <numeric>
 #include <random>
 #include <set>
 
@@ -20,6 +21,7 @@
 #include "concord/association/pairwise_association.h"
 #include "concord/association/relabelling.h"
 #include "concord/association/team_ids.h"
+#include "concord/estimator/consensus.h"
 #include "concord/estimator/lie.h"
 #include "concord/estimator/updater_helper.h"
 
@@ -1745,6 +1747,84 @@ TEST(RelabellingTest, OnlyPairsBothViewsHoldAreRelabelledWithTheReceiversIds) {
   EXPECT_TRUE(none.ids.empty());
   EXPECT_TRUE(none.blocks.empty());
   EXPECT_EQ(none.mean.size(), 0);
+}
+
+TEST(RelabellingTest, TheOnePassCutAndRelabellingAgreeWithTheLabelsFormsOnRandomViews) {
+  std::mt19937 random(11);
+  std::normal_distribution<double> normal;
+  const auto covariance = [&](int size) {
+    Eigen::MatrixXd A(size, size);
+    for (int r = 0; r < size; ++r)
+      for (int c = 0; c < size; ++c) A(r, c) = normal(random);
+    return Eigen::MatrixXd(A * A.transpose() + Eigen::MatrixXd::Identity(size, size));
+  };
+  const auto same = [](const Marginal& a, const Marginal& b) {
+    if (a.ids != b.ids || a.mean != b.mean || a.blocks.size() != b.blocks.size()) return false;
+    for (std::size_t k = 0; k < a.blocks.size(); ++k)
+      if (a.blocks[k] != b.blocks[k]) return false;
+    return true;
+  };
+  int in_place = 0, cut = 0;
+  for (int trial = 0; trial < 200; ++trial) {
+    // A sender's marginal of distinct ids, its blocks ascending inside and the blocks in any
+    // order (as a state's), and its shared objects with a receiver.
+    std::vector<LandmarkId> pool(40);
+    std::iota(pool.begin(), pool.end(), 1);
+    std::shuffle(pool.begin(), pool.end(), random);
+    const int count = 1 + static_cast<int>(random() % 20);
+    Marginal marginal;
+    std::vector<Eigen::MatrixXd> blocks;
+    for (int taken = 0; taken < count;) {
+      const int size = std::min(count - taken, 1 + static_cast<int>(random() % 4));
+      std::vector<LandmarkId> block(pool.begin() + taken, pool.begin() + taken + size);
+      std::sort(block.begin(), block.end());
+      marginal.ids.insert(marginal.ids.end(), block.begin(), block.end());
+      marginal.blocks.push_back(covariance(3 * size));
+      taken += size;
+    }
+    marginal.mean = Eigen::VectorXd::Random(3 * count);
+    ASSERT_TRUE(marginal.well_formed());
+    std::vector<std::pair<LandmarkId, LandmarkId>> shared;  // (sender id, receiver id)
+    for (const LandmarkId id : pool) {
+      if (random() % 4 != 0) shared.emplace_back(id, 100 + id);
+    }
+    std::sort(shared.begin(), shared.end());
+    // The cut: the shared ids, and the receiver id of each kept landmark in the marginal's order.
+    const SharedCut shared_ids = shared_cut(shared, marginal.ids);
+    std::vector<LandmarkId> expected_ids, expected_receivers;
+    for (const auto& [own, theirs] : shared) expected_ids.push_back(own);
+    for (const LandmarkId id : marginal.ids) {
+      const auto it = std::lower_bound(shared.begin(), shared.end(), std::pair{id, LandmarkId{}});
+      if (it != shared.end() && it->first == id) expected_receivers.push_back(it->second);
+    }
+    EXPECT_EQ(shared_ids.ids, expected_ids);
+    ASSERT_EQ(shared_ids.receiver_ids, expected_receivers);
+    Marginal sent;
+    Consensus::select(marginal, shared_ids.ids, sent);
+    ASSERT_EQ(sent.ids.size(), shared_ids.receiver_ids.size());
+    // The receiver's view: most pairs agree, some name another id, some are missing.
+    std::vector<std::pair<LandmarkId, LandmarkId>> received;  // (receiver id, sender id)
+    for (const auto& [own, theirs] : shared) {
+      const auto roll = random() % 8;
+      if (roll == 0) continue;
+      received.emplace_back(roll == 1 ? theirs + 1000 : theirs, own);
+    }
+    if (trial % 3 == 0) {  // every pair agreed: relabelled in place
+      received.clear();
+      for (const auto& [own, theirs] : shared) received.emplace_back(theirs, own);
+    }
+    std::vector<std::pair<LandmarkId, LandmarkId>> pairs;  // (sender id, receiver id) sent
+    for (std::size_t i = 0; i < sent.ids.size(); ++i)
+      pairs.emplace_back(sent.ids[i], shared_ids.receiver_ids[i]);
+    const Labels view = receiver_view(received);
+    const Marginal expected = relabel_marginal(sent, agreed_labels_in_view(pairs, view));
+    const Marginal out = relabel_agreed(Marginal(sent), shared_ids.receiver_ids, view);
+    EXPECT_TRUE(same(out, expected)) << "trial " << trial;
+    EXPECT_TRUE(out.well_formed());
+    (out.ids.size() == sent.ids.size() ? in_place : cut) += 1;
+  }
+  EXPECT_GT(in_place, 20);
+  EXPECT_GT(cut, 20);
 }
 
 TEST(RelabellingTest, AReceiversKeptViewAndATakenMarginalGiveWhatTheCopyingFormsGive) {

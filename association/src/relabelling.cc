@@ -1,6 +1,7 @@
 #include "concord/association/relabelling.h"
 
 #include <algorithm>
+#include <cassert>
 #include <utility>
 
 namespace concord::association {
@@ -54,17 +55,14 @@ Labels agreed_labels(const std::vector<std::pair<LandmarkId, LandmarkId>>& sent,
   return agreed_labels_in_view(sent, receiver_view(received));
 }
 
-Marginal relabel_marginal(const Marginal& marginal, const Labels& labels) {
+namespace {
+
+/// The landmarks of `marginal` at `kept` (ascending positions) under `ids` (parallel to kept):
+/// means and covariance entries copied exactly, blocks left empty dropped.
+Marginal cut_relabelled(const Marginal& marginal, const std::vector<Eigen::Index>& kept,
+                        std::vector<LandmarkId> ids) {
   Marginal out;
-  std::vector<Eigen::Index> kept;  // landmark positions in `marginal`
-  kept.reserve(marginal.ids.size());
-  out.ids.reserve(marginal.ids.size());
-  for (std::size_t i = 0; i < marginal.ids.size(); ++i) {
-    const LandmarkId* label = find_second(labels, marginal.ids[i]);
-    if (label == nullptr) continue;
-    out.ids.push_back(*label);
-    kept.push_back(static_cast<Eigen::Index>(i));
-  }
+  out.ids = std::move(ids);
   out.mean.resize(3 * static_cast<Eigen::Index>(kept.size()));
   for (std::size_t n = 0; n < kept.size(); ++n)
     out.mean.segment<3>(3 * static_cast<Eigen::Index>(n)) = marginal.mean.segment<3>(3 * kept[n]);
@@ -91,6 +89,29 @@ Marginal relabel_marginal(const Marginal& marginal, const Labels& labels) {
   return out;
 }
 
+/// `marginal` with `ids` (one a landmark) in place of its own: nothing copied.
+Marginal renamed(Marginal&& marginal, std::vector<LandmarkId> ids) {
+  marginal.ids = std::move(ids);
+  std::erase_if(marginal.blocks, [](const Eigen::MatrixXd& block) { return block.rows() == 0; });
+  return std::move(marginal);
+}
+
+}  // namespace
+
+Marginal relabel_marginal(const Marginal& marginal, const Labels& labels) {
+  std::vector<Eigen::Index> kept;  // landmark positions in `marginal`
+  std::vector<LandmarkId> ids;
+  kept.reserve(marginal.ids.size());
+  ids.reserve(marginal.ids.size());
+  for (std::size_t i = 0; i < marginal.ids.size(); ++i) {
+    const LandmarkId* label = find_second(labels, marginal.ids[i]);
+    if (label == nullptr) continue;
+    ids.push_back(*label);
+    kept.push_back(static_cast<Eigen::Index>(i));
+  }
+  return cut_relabelled(marginal, kept, std::move(ids));
+}
+
 Marginal relabel_marginal(Marginal&& marginal, const Labels& labels) {
   std::vector<LandmarkId> ids;
   ids.reserve(marginal.ids.size());
@@ -99,9 +120,50 @@ Marginal relabel_marginal(Marginal&& marginal, const Labels& labels) {
     if (label == nullptr) return relabel_marginal(std::as_const(marginal), labels);
     ids.push_back(*label);
   }
-  marginal.ids = std::move(ids);
-  std::erase_if(marginal.blocks, [](const Eigen::MatrixXd& block) { return block.rows() == 0; });
-  return std::move(marginal);
+  return renamed(std::move(marginal), std::move(ids));
+}
+
+const LandmarkId* AscendingLookup::find(LandmarkId key) {
+  if (!started_ || key < previous_) {
+    cursor_ =
+        std::lower_bound(sorted_.begin(), sorted_.end(), std::pair{key, LandmarkId{}}, first_less);
+  } else {
+    while (cursor_ != sorted_.end() && cursor_->first < key) ++cursor_;
+  }
+  started_ = true;
+  previous_ = key;
+  return cursor_ != sorted_.end() && cursor_->first == key ? &cursor_->second : nullptr;
+}
+
+SharedCut shared_cut(const std::vector<std::pair<LandmarkId, LandmarkId>>& shared,
+                     const std::vector<LandmarkId>& held_ids) {
+  SharedCut cut;
+  cut.ids.reserve(shared.size());
+  for (const auto& [own, other] : shared) cut.ids.push_back(own);
+  cut.receiver_ids.reserve(shared.size());
+  AscendingLookup lookup(shared);
+  for (const LandmarkId id : held_ids) {
+    if (const LandmarkId* receiver = lookup.find(id)) cut.receiver_ids.push_back(*receiver);
+  }
+  return cut;
+}
+
+Marginal relabel_agreed(Marginal&& marginal, const std::vector<LandmarkId>& receiver_ids,
+                        const Labels& view) {
+  assert(receiver_ids.size() == marginal.ids.size());
+  AscendingLookup lookup(view);
+  std::vector<LandmarkId> ids;
+  std::vector<Eigen::Index> kept;
+  ids.reserve(marginal.ids.size());
+  kept.reserve(marginal.ids.size());
+  for (std::size_t i = 0; i < marginal.ids.size(); ++i) {
+    const LandmarkId* receiver = lookup.find(marginal.ids[i]);
+    if (receiver == nullptr || *receiver != receiver_ids[i]) continue;
+    ids.push_back(*receiver);
+    kept.push_back(static_cast<Eigen::Index>(i));
+  }
+  if (kept.size() == marginal.ids.size()) return renamed(std::move(marginal), std::move(ids));
+  return cut_relabelled(marginal, kept, std::move(ids));
 }
 
 }  // namespace concord::association

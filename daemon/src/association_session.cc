@@ -63,36 +63,16 @@ std::optional<association::Reanchoring> AssociationSession::finish_round(std::ui
   return move;
 }
 
-std::pair<std::vector<LandmarkId>, std::vector<LandmarkId>> AssociationSession::shared_cut(
-    int robot, const Marginal& held) const {
-  const auto& shared = negotiator_.shared_objects(robot);  // (own id, its id), ascending
-  std::vector<LandmarkId> ids;
-  ids.reserve(shared.size());
-  for (const auto& [own, other] : shared) ids.push_back(own);
-  // The neighbour's id of each landmark the cut keeps, in held's order (Consensus::select keeps
-  // held's order, not the ids').
-  std::vector<LandmarkId> receiver_ids;
-  receiver_ids.reserve(shared.size());
-  for (const LandmarkId id : held.ids) {
-    const auto it = std::lower_bound(shared.begin(), shared.end(), id,
-                                     [](const std::pair<LandmarkId, LandmarkId>& pair,
-                                        LandmarkId key) { return pair.first < key; });
-    if (it != shared.end() && it->first == id) receiver_ids.push_back(it->second);
-  }
-  return {std::move(ids), std::move(receiver_ids)};
+association::SharedCut AssociationSession::shared_cut(int robot, const Marginal& held) const {
+  return association::shared_cut(negotiator_.shared_objects(robot), held.ids);
 }
 
 std::optional<Marginal> AssociationSession::accept_marginal(
     int robot, Marginal&& marginal, const std::vector<LandmarkId>& receiver_ids, int frame) const {
   if (frame != negotiator_.frame() || receiver_ids.size() != marginal.ids.size())
     return std::nullopt;
-  std::vector<std::pair<LandmarkId, LandmarkId>> sent;  // (its id, this robot's id)
-  sent.reserve(marginal.ids.size());
-  for (std::size_t i = 0; i < marginal.ids.size(); ++i)
-    sent.emplace_back(marginal.ids[i], receiver_ids[i]);
-  Marginal relabelled = association::relabel_marginal(
-      std::move(marginal),
-      association::agreed_labels_in_view(sent, negotiator_.shared_view(robot)));
+  Marginal relabelled = association::relabel_agreed(std::move(marginal), receiver_ids,
+                                                    negotiator_.shared_view(robot));
   if (relabelled.ids.empty()) return std::nullopt;
   return relabelled;
 }

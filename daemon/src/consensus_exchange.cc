@@ -529,9 +529,10 @@ void ConsensusExchange::send_marginal(int robot, std::uint64_t round, const Esti
   if (association_) {
     // Negotiated: the objects shared with this neighbour, with its ids and this robot's frame.
     // (The link budget does not trim negotiated marginals: their relabelling is per message.)
-    const auto& [ids, receiver_ids] = shared_cuts_.at(robot);
+    const association::SharedCut& cut = shared_cuts_.at(robot);
+    const std::vector<LandmarkId>& receiver_ids = cut.receiver_ids;
     Marginal marginal;
-    Consensus::select(held_, ids, marginal);
+    Consensus::select(held_, cut.ids, marginal);
     if (!marginal.ids.empty()) to_wire(marginal, *message);
     v1::Relabelling* relabelling = message->mutable_relabelling();
     relabelling->mutable_receiver_ids()->Assign(receiver_ids.begin(), receiver_ids.end());

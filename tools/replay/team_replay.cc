@@ -112,25 +112,23 @@ long long marginal_bytes(const Marginal& marginal) {
 }
 
 /// Marginal of robot j's objects that robot i (the receiver) shares with it, relabelled with i's
-/// ids: only pairs both robots' views agree on (what a daemon receiving j's marginal keeps). Cut
-/// out of `held`, j's marginal of all it holds, into `cut` (moved on). The cut is what
-/// a run with given ids does too; the rest (both views' shared objects, the pairs they agree on,
-/// the relabelled copy) is there because the ids are private, so its time is added to
+/// ids: only pairs both robots' views agree on (what a daemon receiving j's marginal keeps), as
+/// the daemons do it (AssociationSession::shared_cut, accept_marginal). Cut out of `held`, j's
+/// marginal of all it holds, into `cut` (moved on). The cut is what a run with given ids does
+/// too; the rest (which ids to cut and j's labels for i, the pairs i's view agrees with, the
+/// relabelling) is there because the ids are private, so its time is added to
 /// `relabel_seconds`, which the run counts as negotiation.
 Marginal relabelled_marginal(const Marginal& held, const association::Negotiator& sender_view,
                              const association::Negotiator& receiver_view, Marginal& cut,
                              double& relabel_seconds) {
   auto start = Clock::now();
-  const auto& sent = sender_view.shared_objects(receiver_view.robot());  // (j id, i id)
-  std::vector<LandmarkId> ids;
-  ids.reserve(sent.size());
-  for (const auto& [own, theirs] : sent) ids.push_back(own);
+  const association::SharedCut shared =
+      association::shared_cut(sender_view.shared_objects(receiver_view.robot()), held.ids);
   relabel_seconds += seconds_since(start);
-  Consensus::select(held, ids, cut);
+  Consensus::select(held, shared.ids, cut);
   start = Clock::now();
-  Marginal relabelled = association::relabel_marginal(
-      std::move(cut),
-      association::agreed_labels_in_view(sent, receiver_view.shared_view(sender_view.robot())));
+  Marginal relabelled = association::relabel_agreed(std::move(cut), shared.receiver_ids,
+                                                    receiver_view.shared_view(sender_view.robot()));
   relabel_seconds += seconds_since(start);
   return relabelled;
 }

@@ -31,6 +31,44 @@ Labels receiver_view(const std::vector<std::pair<LandmarkId, LandmarkId>>& recei
 Labels agreed_labels_in_view(const std::vector<std::pair<LandmarkId, LandmarkId>>& sent,
                              const Labels& view);
 
+/// Looks up keys in a list of (key, value) pairs ascending by key: the value of the first entry
+/// whose key equals the one asked, or nullptr. Keys asked in ascending order cost a step of a
+/// cursor each; a key below the previous one a binary search (the ids of a marginal ascend
+/// within its blocks).
+class AscendingLookup {
+ public:
+  explicit AscendingLookup(const std::vector<std::pair<LandmarkId, LandmarkId>>& sorted)
+      : sorted_(sorted), cursor_(sorted.begin()) {}
+  const LandmarkId* find(LandmarkId key);
+
+ private:
+  const std::vector<std::pair<LandmarkId, LandmarkId>>& sorted_;
+  std::vector<std::pair<LandmarkId, LandmarkId>>::const_iterator cursor_;
+  bool started_ = false;
+  LandmarkId previous_ = 0;
+};
+
+/// The cut of a sender's marginal for one receiver. `shared`: the sender's shared objects with
+/// it, (sender id, receiver id), ascending; `held_ids`: the ids of the marginal it is cut out of.
+/// `ids`: the sender ids to cut, ascending (Consensus::select's); `receiver_ids`: the receiver's id
+/// of each landmark that cut keeps, in its order (held's). Of two entries for one sender id, the
+/// first counts.
+struct SharedCut {
+  std::vector<LandmarkId> ids;
+  std::vector<LandmarkId> receiver_ids;
+};
+SharedCut shared_cut(const std::vector<std::pair<LandmarkId, LandmarkId>>& shared,
+                     const std::vector<LandmarkId>& held_ids);
+
+/// What a receiver fuses of a sender's marginal: the landmarks whose sender id and receiver id
+/// (`receiver_ids`, parallel to the marginal's ids, as the sender wrote them) the receiver's
+/// view (receiver_view of its shared objects with the sender) holds too, relabelled with the
+/// receiver's ids; order and covariance entries kept exactly. For a marginal of distinct ids the
+/// same as relabel_marginal(marginal, agreed_labels_in_view(sent, view)), in one pass; when every
+/// landmark is agreed only the ids change. Needs receiver_ids.size() == marginal.ids.size().
+Marginal relabel_agreed(Marginal&& marginal, const std::vector<LandmarkId>& receiver_ids,
+                        const Labels& view);
+
 /// The part of `marginal` (the sender's ids) whose ids `labels` holds, relabelled with the
 /// receiver's ids; order and covariance entries kept exactly (a marginal of a subset is the
 /// submatrix of the marginal of a superset), blocks left empty dropped.

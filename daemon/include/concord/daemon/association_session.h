@@ -22,6 +22,7 @@
 
 #include "concord/association/map_description.h"
 #include "concord/association/negotiation.h"
+#include "concord/association/relabelling.h"
 #include "concord/estimator/types.h"
 
 namespace concord {
@@ -64,8 +65,7 @@ class AssociationSession {
   /// out of `held` for it), and the neighbour's id of each landmark that cut keeps, in the cut's
   /// order (held's). `held`: the marginal of every object the robot holds (built once a round
   /// for all neighbours, Estimator::marginal of object_ids()).
-  std::pair<std::vector<LandmarkId>, std::vector<LandmarkId>> shared_cut(
-      int robot, const Marginal& held) const;
+  association::SharedCut shared_cut(int robot, const Marginal& held) const;
   /// What this robot fuses of `robot`'s marginal sent in `frame` with `receiver_ids` (parallel to
   /// its ids): nullopt when the frames differ or no pair is agreed. Takes the marginal (moved
   /// from only when the frames and sizes match).

@@ -28,12 +28,13 @@
 #include <cstdint>
 #include <functional>
 #include <map>
-#include <optional>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <set>
 #include <vector>
 
+#include "concord/association/relabelling.h"
 #include "concord/daemon/config.h"
 #include "concord/estimator/consensus.h"
 #include "concord/estimator/marginal_sharing.h"
@@ -301,7 +302,7 @@ class ConsensusExchange {
   Marginal held_;
   /// Negotiated, estimator thread only: per neighbour this round, the own ids its marginal is cut
   /// by and the neighbour's id of each landmark kept (AssociationSession::shared_cut).
-  std::map<int, std::pair<std::vector<LandmarkId>, std::vector<LandmarkId>>> shared_cuts_;
+  std::map<int, association::SharedCut> shared_cuts_;
   /// Estimator thread only: the last map description the negotiation sent, written for the wire
   /// once and copied into each neighbour's message.
   std::shared_ptr<const association::MapDescription> wired_map_source_;
