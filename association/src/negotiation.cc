@@ -116,12 +116,16 @@ NegotiationMessage Negotiator::message_for(int neighbour, int round) {
   message.frame = frame_;
   if (describes(round) && own_map_ && own_map_round_ == round) message.map = own_map_;
   std::map<int, int>& sent = sent_versions_[neighbour];
+  message.held.reserve(records_.size());
+  // records_ and sent both ascend by owner: one walk along both.
+  auto known = sent.begin();  // the first entry of `sent` not below the current owner
   for (const auto& [owner, record] : records_) {
     if (record->version == 0) continue;  // nothing decided yet
     if (owner == neighbour) continue;    // it knows its own decisions
     message.held.emplace_back(owner, record->version);
-    const auto it = sent.find(owner);
-    if (it != sent.end() && it->second >= record->version) continue;
+    while (known != sent.end() && known->first < owner) ++known;
+    const bool listed = known != sent.end() && known->first == owner;
+    if (listed && known->second >= record->version) continue;
     // Another owner's record waits relay_delay rounds: the neighbour may have it from its owner
     // and say so meanwhile.
     if (owner != robot_) {
@@ -131,7 +135,11 @@ NegotiationMessage Negotiator::message_for(int neighbour, int round) {
       }
     }
     message.records.push_back(record);
-    sent[owner] = record->version;
+    if (listed) {
+      known->second = record->version;
+    } else {
+      known = sent.emplace_hint(known, owner, record->version);
+    }
   }
   ++counters_.messages;
   counters_.bytes_sent += static_cast<long long>(message.wire_size());
@@ -162,10 +170,28 @@ void Negotiator::receive(const NegotiationMessage& message, int round) {
   // Claims on owners this robot holds no record of are left out: it has nothing of theirs to
   // send, and a peer must not grow the table with owners that do not exist (it says what it
   // holds again in every message).
+  // An honest sender lists them ascending, as records_ and sent are: one walk along all three
+  // (a descent is searched for).
+  auto record = records_.begin();
+  auto known = sent.begin();
+  bool started = false;
+  int previous = 0;
   for (const auto& [owner, version] : message.held) {
-    if (!records_.contains(owner)) continue;
-    int& known = sent[owner];
-    known = std::max(known, version);
+    if (started && owner < previous) {
+      record = records_.lower_bound(owner);
+      known = sent.lower_bound(owner);
+    } else {
+      while (record != records_.end() && record->first < owner) ++record;
+      while (known != sent.end() && known->first < owner) ++known;
+    }
+    started = true;
+    previous = owner;
+    if (record == records_.end() || record->first != owner) continue;
+    if (known != sent.end() && known->first == owner) {
+      known->second = std::max(known->second, version);
+    } else {
+      known = sent.emplace_hint(known, owner, std::max(0, version));
+    }
   }
 }
 
