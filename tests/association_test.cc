@@ -1704,6 +1704,34 @@ TEST(NegotiationTest, OptionsAreValidatedNamingTheKey) {
   EXPECT_TRUE(start_up_vector("unknown").isZero());
 }
 
+/// A random symmetric positive definite matrix (A A^T + I, A standard normal).
+Eigen::MatrixXd random_covariance(std::mt19937& random, int size) {
+  std::normal_distribution<double> normal;
+  Eigen::MatrixXd A(size, size);
+  for (int r = 0; r < size; ++r)
+    for (int c = 0; c < size; ++c) A(r, c) = normal(random);
+  return A * A.transpose() + Eigen::MatrixXd::Identity(size, size);
+}
+
+/// Two marginals with the same ids, means and blocks, exactly.
+bool same_marginal(const Marginal& a, const Marginal& b) {
+  if (a.ids != b.ids || a.mean != b.mean || a.blocks.size() != b.blocks.size()) return false;
+  for (std::size_t k = 0; k < a.blocks.size(); ++k)
+    if (a.blocks[k] != b.blocks[k]) return false;
+  return true;
+}
+
+/// A marginal over sender ids 4, 2 (one joint block) and 1, 3 (one block each).
+Marginal four_landmark_marginal(unsigned seed) {
+  std::mt19937 random(seed);
+  Marginal marginal;
+  marginal.ids = {4, 2, 1, 3};
+  marginal.mean = Eigen::VectorXd::LinSpaced(12, 1.0, 12.0);
+  marginal.blocks = {random_covariance(random, 6), random_covariance(random, 3),
+                     random_covariance(random, 3)};
+  return marginal;
+}
+
 TEST(RelabellingTest, OnlyPairsBothViewsHoldAreRelabelledWithTheReceiversIds) {
   // The sender's view, (sender id, receiver id), unsorted; the receiver's, (receiver id, sender
   // id). Sender 4 -> receiver 40 both agree; 1 -> 10 both agree; 2: the receiver says 21, the
@@ -1716,18 +1744,7 @@ TEST(RelabellingTest, OnlyPairsBothViewsHoldAreRelabelledWithTheReceiversIds) {
 
   // A marginal over sender ids 4, 2 (one joint block) and 1, 3 (one block each): the kept
   // landmarks keep their entries exactly, in the marginal's order, with the receiver's ids.
-  std::mt19937 random(5);
-  std::normal_distribution<double> normal;
-  const auto covariance = [&](int size) {
-    Eigen::MatrixXd A(size, size);
-    for (int r = 0; r < size; ++r)
-      for (int c = 0; c < size; ++c) A(r, c) = normal(random);
-    return Eigen::MatrixXd(A * A.transpose() + Eigen::MatrixXd::Identity(size, size));
-  };
-  Marginal marginal;
-  marginal.ids = {4, 2, 1, 3};
-  marginal.mean = Eigen::VectorXd::LinSpaced(12, 1.0, 12.0);
-  marginal.blocks = {covariance(6), covariance(3), covariance(3)};
+  const Marginal marginal = four_landmark_marginal(5);
   ASSERT_TRUE(marginal.well_formed());
   const Marginal out = relabel_marginal(marginal, labels);
   ASSERT_TRUE(out.well_formed());
@@ -1751,19 +1768,7 @@ TEST(RelabellingTest, OnlyPairsBothViewsHoldAreRelabelledWithTheReceiversIds) {
 
 TEST(RelabellingTest, TheOnePassCutAndRelabellingAgreeWithTheLabelsFormsOnRandomViews) {
   std::mt19937 random(11);
-  std::normal_distribution<double> normal;
-  const auto covariance = [&](int size) {
-    Eigen::MatrixXd A(size, size);
-    for (int r = 0; r < size; ++r)
-      for (int c = 0; c < size; ++c) A(r, c) = normal(random);
-    return Eigen::MatrixXd(A * A.transpose() + Eigen::MatrixXd::Identity(size, size));
-  };
-  const auto same = [](const Marginal& a, const Marginal& b) {
-    if (a.ids != b.ids || a.mean != b.mean || a.blocks.size() != b.blocks.size()) return false;
-    for (std::size_t k = 0; k < a.blocks.size(); ++k)
-      if (a.blocks[k] != b.blocks[k]) return false;
-    return true;
-  };
+  const auto covariance = [&](int size) { return random_covariance(random, size); };
   int in_place = 0, cut = 0;
   for (int trial = 0; trial < 200; ++trial) {
     // A sender's marginal of distinct ids, its blocks ascending inside and the blocks in any
@@ -1819,7 +1824,7 @@ TEST(RelabellingTest, TheOnePassCutAndRelabellingAgreeWithTheLabelsFormsOnRandom
     const Labels view = receiver_view(received);
     const Marginal expected = relabel_marginal(sent, agreed_labels_in_view(pairs, view));
     const Marginal out = relabel_agreed(Marginal(sent), shared_ids.receiver_ids, view);
-    EXPECT_TRUE(same(out, expected)) << "trial " << trial;
+    EXPECT_TRUE(same_marginal(out, expected)) << "trial " << trial;
     EXPECT_TRUE(out.well_formed());
     (out.ids.size() == sent.ids.size() ? in_place : cut) += 1;
   }
@@ -1838,32 +1843,15 @@ TEST(RelabellingTest, AReceiversKeptViewAndATakenMarginalGiveWhatTheCopyingForms
   EXPECT_EQ(agreed_labels_in_view(sent, view), (Labels{{1, 10}, {4, 40}}));
   EXPECT_EQ(agreed_labels_in_view(sent, view), agreed_labels(sent, received));
 
-  std::mt19937 random(7);
-  std::normal_distribution<double> normal;
-  const auto covariance = [&](int size) {
-    Eigen::MatrixXd A(size, size);
-    for (int r = 0; r < size; ++r)
-      for (int c = 0; c < size; ++c) A(r, c) = normal(random);
-    return Eigen::MatrixXd(A * A.transpose() + Eigen::MatrixXd::Identity(size, size));
-  };
-  Marginal marginal;
-  marginal.ids = {4, 2, 1, 3};
-  marginal.mean = Eigen::VectorXd::LinSpaced(12, 1.0, 12.0);
-  marginal.blocks = {covariance(6), covariance(3), covariance(3)};
+  const Marginal marginal = four_landmark_marginal(7);
   ASSERT_TRUE(marginal.well_formed());
-  const auto same = [](const Marginal& a, const Marginal& b) {
-    if (a.ids != b.ids || a.mean != b.mean || a.blocks.size() != b.blocks.size()) return false;
-    for (std::size_t k = 0; k < a.blocks.size(); ++k)
-      if (a.blocks[k] != b.blocks[k]) return false;
-    return true;
-  };
   // Every landmark kept (relabelled in place), some kept (cut), none kept: as the copying form.
   for (const Labels& labels : {Labels{{1, 10}, {2, 20}, {3, 30}, {4, 40}}, Labels{{1, 10}, {4, 40}},
                                Labels{{2, 20}}, Labels{}}) {
     const Marginal copied = relabel_marginal(marginal, labels);
     Marginal taken = marginal;
     const Marginal out = relabel_marginal(std::move(taken), labels);
-    EXPECT_TRUE(same(out, copied)) << labels.size() << " labels";
+    EXPECT_TRUE(same_marginal(out, copied)) << labels.size() << " labels";
     EXPECT_TRUE(out.well_formed());
   }
   const Marginal all =
