@@ -39,6 +39,8 @@ class AscendingLookup {
  public:
   explicit AscendingLookup(const std::vector<std::pair<LandmarkId, LandmarkId>>& sorted)
       : sorted_(sorted), cursor_(sorted.begin()) {}
+  /// It keeps a reference: not from a temporary.
+  explicit AscendingLookup(std::vector<std::pair<LandmarkId, LandmarkId>>&&) = delete;
   const LandmarkId* find(LandmarkId key);
 
  private:
