@@ -1822,7 +1822,7 @@ TEST(RelabellingTest, TheOnePassCutAndRelabellingAgreeWithTheLabelsFormsOnRandom
     for (std::size_t i = 0; i < sent.ids.size(); ++i)
       pairs.emplace_back(sent.ids[i], shared_ids.receiver_ids[i]);
     const Labels view = receiver_view(received);
-    const Marginal expected = relabel_marginal(sent, agreed_labels_in_view(pairs, view));
+    const Marginal expected = relabel_marginal(sent, agreed_labels(pairs, received));
     const Marginal out = relabel_agreed(Marginal(sent), shared_ids.receiver_ids, view);
     EXPECT_TRUE(same_marginal(out, expected)) << "trial " << trial;
     EXPECT_TRUE(out.well_formed());
@@ -1840,22 +1840,22 @@ TEST(RelabellingTest, AReceiversKeptViewAndATakenMarginalGiveWhatTheCopyingForms
   const Labels expected_view{{1, 10}, {2, 22}, {3, 30}, {4, 40}};
   EXPECT_EQ(view, expected_view);
   const std::vector<std::pair<LandmarkId, LandmarkId>> sent{{4, 40}, {2, 21}, {1, 10}, {3, 31}};
-  EXPECT_EQ(agreed_labels_in_view(sent, view), (Labels{{1, 10}, {4, 40}}));
-  EXPECT_EQ(agreed_labels_in_view(sent, view), agreed_labels(sent, received));
+  EXPECT_EQ(agreed_labels(sent, received), (Labels{{1, 10}, {4, 40}}));
 
   const Marginal marginal = four_landmark_marginal(7);
   ASSERT_TRUE(marginal.well_formed());
+  // The sender names each landmark 10 x its id; a view holding those pairs agrees with them.
+  const std::vector<LandmarkId> receiver_ids{40, 20, 10, 30};
   // Every landmark kept (relabelled in place), some kept (cut), none kept: as the copying form.
   for (const Labels& labels : {Labels{{1, 10}, {2, 20}, {3, 30}, {4, 40}}, Labels{{1, 10}, {4, 40}},
                                Labels{{2, 20}}, Labels{}}) {
     const Marginal copied = relabel_marginal(marginal, labels);
-    Marginal taken = marginal;
-    const Marginal out = relabel_marginal(std::move(taken), labels);
+    const Marginal out = relabel_agreed(Marginal(marginal), receiver_ids, labels);
     EXPECT_TRUE(same_marginal(out, copied)) << labels.size() << " labels";
     EXPECT_TRUE(out.well_formed());
   }
   const Marginal all =
-      relabel_marginal(Marginal(marginal), Labels{{1, 10}, {2, 20}, {3, 30}, {4, 40}});
+      relabel_agreed(Marginal(marginal), receiver_ids, Labels{{1, 10}, {2, 20}, {3, 30}, {4, 40}});
   EXPECT_EQ(all.ids, (std::vector<LandmarkId>{40, 20, 10, 30}));
   EXPECT_EQ(all.blocks[0], marginal.blocks[0]);
 }

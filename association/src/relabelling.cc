@@ -35,8 +35,9 @@ Labels receiver_view(const std::vector<std::pair<LandmarkId, LandmarkId>>& recei
   return view;
 }
 
-Labels agreed_labels_in_view(const std::vector<std::pair<LandmarkId, LandmarkId>>& sent,
-                             const Labels& view) {
+Labels agreed_labels(const std::vector<std::pair<LandmarkId, LandmarkId>>& sent,
+                     const std::vector<std::pair<LandmarkId, LandmarkId>>& received) {
+  const Labels view = receiver_view(received);
   Labels labels;
   labels.reserve(sent.size());
   for (const auto& [own, theirs] : sent) {
@@ -44,15 +45,9 @@ Labels agreed_labels_in_view(const std::vector<std::pair<LandmarkId, LandmarkId>
     if (receiver != nullptr && *receiver == theirs) labels.emplace_back(own, theirs);
   }
   // A sender id agrees with one receiver id at most, so equal firsts are equal entries.
-  if (!std::is_sorted(labels.begin(), labels.end(), first_less))
-    std::sort(labels.begin(), labels.end(), first_less);
+  std::sort(labels.begin(), labels.end(), first_less);
   labels.erase(std::unique(labels.begin(), labels.end()), labels.end());
   return labels;
-}
-
-Labels agreed_labels(const std::vector<std::pair<LandmarkId, LandmarkId>>& sent,
-                     const std::vector<std::pair<LandmarkId, LandmarkId>>& received) {
-  return agreed_labels_in_view(sent, receiver_view(received));
 }
 
 namespace {
@@ -89,6 +84,33 @@ Marginal cut_relabelled(const Marginal& marginal, const std::vector<Eigen::Index
   return out;
 }
 
+/// Looks up keys in a list of (key, value) pairs ascending by key: the value of the first entry
+/// whose key equals the one asked, or nullptr. Keys asked in ascending order cost a step of a
+/// cursor each; a key below the previous one a binary search (the ids of a marginal ascend
+/// within its blocks).
+class AscendingLookup {
+ public:
+  explicit AscendingLookup(const Labels& sorted) : sorted_(sorted), cursor_(sorted.begin()) {}
+
+  const LandmarkId* find(LandmarkId key) {
+    if (!started_ || key < previous_) {
+      cursor_ = std::lower_bound(sorted_.begin(), sorted_.end(), std::pair{key, LandmarkId{}},
+                                 first_less);
+    } else {
+      while (cursor_ != sorted_.end() && cursor_->first < key) ++cursor_;
+    }
+    started_ = true;
+    previous_ = key;
+    return cursor_ != sorted_.end() && cursor_->first == key ? &cursor_->second : nullptr;
+  }
+
+ private:
+  const Labels& sorted_;
+  Labels::const_iterator cursor_;
+  bool started_ = false;
+  LandmarkId previous_ = 0;
+};
+
 /// `marginal` with `ids` (one a landmark) in place of its own: nothing copied.
 Marginal renamed(Marginal&& marginal, std::vector<LandmarkId> ids) {
   marginal.ids = std::move(ids);
@@ -110,29 +132,6 @@ Marginal relabel_marginal(const Marginal& marginal, const Labels& labels) {
     kept.push_back(static_cast<Eigen::Index>(i));
   }
   return cut_relabelled(marginal, kept, std::move(ids));
-}
-
-Marginal relabel_marginal(Marginal&& marginal, const Labels& labels) {
-  std::vector<LandmarkId> ids;
-  ids.reserve(marginal.ids.size());
-  for (const LandmarkId id : marginal.ids) {
-    const LandmarkId* label = find_second(labels, id);
-    if (label == nullptr) return relabel_marginal(std::as_const(marginal), labels);
-    ids.push_back(*label);
-  }
-  return renamed(std::move(marginal), std::move(ids));
-}
-
-const LandmarkId* AscendingLookup::find(LandmarkId key) {
-  if (!started_ || key < previous_) {
-    cursor_ =
-        std::lower_bound(sorted_.begin(), sorted_.end(), std::pair{key, LandmarkId{}}, first_less);
-  } else {
-    while (cursor_ != sorted_.end() && cursor_->first < key) ++cursor_;
-  }
-  started_ = true;
-  previous_ = key;
-  return cursor_ != sorted_.end() && cursor_->first == key ? &cursor_->second : nullptr;
 }
 
 SharedCut shared_cut(const std::vector<std::pair<LandmarkId, LandmarkId>>& shared,

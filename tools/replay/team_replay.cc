@@ -113,18 +113,18 @@ long long marginal_bytes(const Marginal& marginal) {
 
 /// Marginal of robot j's objects that robot i (the receiver) shares with it, relabelled with i's
 /// ids: only pairs both robots' views agree on (what a daemon receiving j's marginal keeps), as
-/// the daemons do it (AssociationSession::shared_cut, accept_marginal). Cut out of `held`, j's
-/// marginal of all it holds, into `cut` (moved on). The cut is what a run with given ids does
-/// too; the rest (which ids to cut and j's labels for i, the pairs i's view agrees with, the
-/// relabelling) is there because the ids are private, so its time is added to
-/// `relabel_seconds`, which the run counts as negotiation.
+/// the daemons do it (AssociationSession::shared_cut, accept_marginal), cut out of `held`, j's
+/// marginal of all it holds. The cut is what a run with given ids does too; the rest (which ids to
+/// cut and j's labels for i, the pairs i's view agrees with, the relabelling) is there because the
+/// ids are private, so its time is added to `relabel_seconds`, which the run counts as negotiation.
 Marginal relabelled_marginal(const Marginal& held, const association::Negotiator& sender_view,
-                             const association::Negotiator& receiver_view, Marginal& cut,
+                             const association::Negotiator& receiver_view,
                              double& relabel_seconds) {
   auto start = Clock::now();
   const association::SharedCut shared =
       association::shared_cut(sender_view.shared_objects(receiver_view.robot()), held.ids);
   relabel_seconds += seconds_since(start);
+  Marginal cut;
   Consensus::select(held, shared.ids, cut);
   start = Clock::now();
   Marginal relabelled = association::relabel_agreed(std::move(cut), shared.receiver_ids,
@@ -233,7 +233,6 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
   std::vector<WeightedShare> given_shares;    // with given ids, each robot's in turn
   std::vector<WeightedMarginal> given_inbox;  // the same, cut and sent in compact form
   std::vector<int> common_per_block;
-  Marginal cut;  // a negotiated marginal before its relabelling
   const auto next_in = [&](int i) -> WeightedMarginal& {
     auto& box = inbox[static_cast<std::size_t>(i)];
     std::size_t& size = inbox_size[static_cast<std::size_t>(i)];
@@ -350,7 +349,7 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
           for (int j : round_neighbours[i]) {
             if (frame_of[i] != frame_of[j]) continue;  // not aligned yet: separate
             Marginal marginal = relabelled_marginal(held[j].marginal(), negotiators[j],
-                                                    negotiators[i], cut, relabel_seconds);
+                                                    negotiators[i], relabel_seconds);
             if (marginal.ids.empty()) continue;
             count_bytes(j, marginal_bytes(marginal));
             const double weight =

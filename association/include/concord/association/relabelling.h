@@ -27,29 +27,6 @@ Labels agreed_labels(
 /// `received` counts). A receiver keeps it from one change of its shared objects to the next.
 Labels receiver_view(const std::vector<std::pair<LandmarkId, LandmarkId>>& received);
 
-/// agreed_labels(sent, received) from receiver_view(received).
-Labels agreed_labels_in_view(const std::vector<std::pair<LandmarkId, LandmarkId>>& sent,
-                             const Labels& view);
-
-/// Looks up keys in a list of (key, value) pairs ascending by key: the value of the first entry
-/// whose key equals the one asked, or nullptr. Keys asked in ascending order cost a step of a
-/// cursor each; a key below the previous one a binary search (the ids of a marginal ascend
-/// within its blocks).
-class AscendingLookup {
- public:
-  explicit AscendingLookup(const std::vector<std::pair<LandmarkId, LandmarkId>>& sorted)
-      : sorted_(sorted), cursor_(sorted.begin()) {}
-  /// It keeps a reference: not from a temporary.
-  explicit AscendingLookup(std::vector<std::pair<LandmarkId, LandmarkId>>&&) = delete;
-  const LandmarkId* find(LandmarkId key);
-
- private:
-  const std::vector<std::pair<LandmarkId, LandmarkId>>& sorted_;
-  std::vector<std::pair<LandmarkId, LandmarkId>>::const_iterator cursor_;
-  bool started_ = false;
-  LandmarkId previous_ = 0;
-};
-
 /// The cut of a sender's marginal for one receiver. `shared`: the sender's shared objects with
 /// it, (sender id, receiver id), ascending; `held_ids`: the ids of the marginal it is cut out of.
 /// `ids`: the sender ids to cut, ascending (Consensus::select's); `receiver_ids`: the receiver's id
@@ -66,7 +43,8 @@ SharedCut shared_cut(const std::vector<std::pair<LandmarkId, LandmarkId>>& share
 /// (`receiver_ids`, parallel to the marginal's ids, as the sender wrote them) the receiver's
 /// view (receiver_view of its shared objects with the sender) holds too, relabelled with the
 /// receiver's ids; order and covariance entries kept exactly. For a marginal of distinct ids the
-/// same as relabel_marginal(marginal, agreed_labels_in_view(sent, view)), in one pass; when every
+/// same as relabel_marginal(marginal, agreed_labels(sent, received)), with view =
+/// receiver_view(received) and sent the marginal's (id, receiver id) pairs, in one pass; when every
 /// landmark is agreed only the ids change. Needs receiver_ids.size() == marginal.ids.size().
 Marginal relabel_agreed(Marginal&& marginal, const std::vector<LandmarkId>& receiver_ids,
                         const Labels& view);
@@ -75,8 +53,5 @@ Marginal relabel_agreed(Marginal&& marginal, const std::vector<LandmarkId>& rece
 /// receiver's ids; order and covariance entries kept exactly (a marginal of a subset is the
 /// submatrix of the marginal of a superset), blocks left empty dropped.
 Marginal relabel_marginal(const Marginal& marginal, const Labels& labels);
-/// The same, taking the marginal: when every landmark is kept (the usual case) only its ids
-/// change, with no copy of its means and covariances.
-Marginal relabel_marginal(Marginal&& marginal, const Labels& labels);
 
 }  // namespace concord::association
