@@ -4,6 +4,7 @@
 // team ids over three robots, and the negotiation (frames, confirmation, splitting a wrong merge).
 #include <gtest/gtest.h>
 
+#include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
 #include <functional>
@@ -142,7 +143,7 @@ TEST(MapDescriptionTest, ArchivedObjectsAreDescribedRelativeToThePoseOfTheirArch
   state.archived_local_covariance[9] = 0.05 * Eigen::Matrix3d::Identity();
   ObservationTally tally;
   tally.add({{5}, {7}, {8}, {9}}, {}, state, StereoCamera{});
-  const MapDescription map = describe_map(state, 0, 0, tally, 1, true);
+  const MapDescription map = describe_map(state, 0, 0, tally, 1);
   ASSERT_EQ(map.objects.size(), 4u);
   const ObjectDescription& active = map.objects[0];
   EXPECT_EQ(active.id, 5);
@@ -162,13 +163,9 @@ TEST(MapDescriptionTest, ArchivedObjectsAreDescribedRelativeToThePoseOfTheirArch
   EXPECT_TRUE(map.objects[2].archived);
   EXPECT_EQ(map.objects[2].local_covariance, state.archived.at(8).covariance);
   EXPECT_EQ(map.objects[3].local_covariance, state.archived.at(9).covariance);
-  // Without association.archived_local_covariance every archived object carries its marginal.
-  const MapDescription marginal = describe_map(state, 0, 0, tally, 1, false);
-  EXPECT_TRUE(marginal.objects[0].local_covariance.isApprox(conditioned, 1e-9));
-  for (int k = 1; k < 4; ++k) {
-    EXPECT_TRUE(marginal.objects[k].archived);
-    EXPECT_EQ(marginal.objects[k].local_covariance, marginal.objects[k].covariance);
-  }
+  // The newest pose's covariance: the map's drift.
+  EXPECT_EQ(map.pose_frame, 10);
+  EXPECT_TRUE(map.pose_covariance.isApprox(P.block<6, 6>(0, 0), 1e-12));
 }
 
 TEST(MapDescriptionTest, AnObjectNotDetectedAgainWhereTheRobotStillLooksIsLeftOut) {
@@ -205,7 +202,7 @@ TEST(MapDescriptionTest, AnObjectNotDetectedAgainWhereTheRobotStillLooksIsLeftOu
   const auto described = [&](double min_detection_ratio) {
     std::vector<LandmarkId> ids;
     for (const ObjectDescription& o :
-         describe_map(state, 0, 0, tally, 5, false, min_detection_ratio).objects) {
+         describe_map(state, 0, 0, tally, 5, min_detection_ratio).objects) {
       ids.push_back(o.id);
     }
     return ids;
@@ -633,8 +630,8 @@ TEST(PairwiseAssociationTest, InOneFrameGatingIsMutualAndUnambiguous) {
   a.objects = {object(0, 0, 0, 0.1), object(1, 10, 0, 0.1), object(2, 20, 0, 0.1)};
   // b: a clear partner of 0, two partners of 1 that are equally close (ambiguous), none for 2.
   b.objects = {object(5, 0.1, 0.05, 0.1), object(6, 10.2, 0.0, 0.1), object(7, 9.8, 0.0, 0.1)};
-  const auto matches =
-      match_with_transform(a, b, Eigen::Isometry3d::Identity(), false, test_options());
+  const auto matches = match_with_transform(a, b, Eigen::Isometry3d::Identity(),
+                                            Covariances::kMarginal, test_options());
   ASSERT_EQ(matches.size(), 1u);
   EXPECT_EQ(matches[0].id_a, 0);
   EXPECT_EQ(matches[0].id_b, 5);
@@ -663,16 +660,16 @@ TEST(PairwiseAssociationTest, AnUncertainTransformWidensTheGateWithTheDistanceFr
     return ids;
   };
   using Ids = std::vector<std::pair<LandmarkId, LandmarkId>>;
-  EXPECT_EQ(
-      ids_of(match_with_transform(a, b, Eigen::Isometry3d::Identity(), false, test_options())),
-      (Ids{{0, 10}}));
-  EXPECT_EQ(ids_of(match_with_transform(a, b, Eigen::Isometry3d::Identity(), false, test_options(),
-                                        &uncertain)),
+  EXPECT_EQ(ids_of(match_with_transform(a, b, Eigen::Isometry3d::Identity(), Covariances::kMarginal,
+                                        test_options())),
+            (Ids{{0, 10}}));
+  EXPECT_EQ(ids_of(match_with_transform(a, b, Eigen::Isometry3d::Identity(), Covariances::kMarginal,
+                                        test_options(), &uncertain)),
             (Ids{{0, 10}, {1, 11}}));
   // A certain transform is the same as none.
   const lie::Matrix6d certain = lie::Matrix6d::Zero();
-  EXPECT_EQ(ids_of(match_with_transform(a, b, Eigen::Isometry3d::Identity(), false, test_options(),
-                                        &certain)),
+  EXPECT_EQ(ids_of(match_with_transform(a, b, Eigen::Isometry3d::Identity(), Covariances::kMarginal,
+                                        test_options(), &certain)),
             (Ids{{0, 10}}));
 }
 
@@ -731,7 +728,9 @@ TEST(PairwiseAssociationTest, MatchingUnderATransformFindsWhatAnExhaustiveSearch
     }
     ASSERT_GT(expected.size(), 10u) << "local " << local;
     std::set<std::pair<LandmarkId, LandmarkId>> found;
-    for (const Match& match : match_with_transform(a.map, b.map, T_a_b, local, options)) {
+    for (const Match& match :
+         match_with_transform(a.map, b.map, T_a_b,
+                              local ? Covariances::kTransform : Covariances::kMarginal, options)) {
       found.emplace(match.id_a, match.id_b);
     }
     EXPECT_EQ(found, expected) << "local " << local;
@@ -751,8 +750,8 @@ TEST(PairwiseAssociationTest, MatchingUnderATransformFindsWhatAnExhaustiveSearch
   AssociationOptions margin_nine = test_options();
   margin_nine.match_margin = 9.0;
   margin_nine.match_chi2_probability = 0.999;
-  const auto matches =
-      match_with_transform(c, d, Eigen::Isometry3d::Identity(), false, margin_nine);
+  const auto matches = match_with_transform(c, d, Eigen::Isometry3d::Identity(),
+                                            Covariances::kMarginal, margin_nine);
   ASSERT_EQ(matches.size(), 1u);
   EXPECT_EQ(matches[0].id_a, 0);
   EXPECT_EQ(matches[0].id_b, 5);
@@ -1120,6 +1119,10 @@ class SyntheticTeam {
         const auto shown = static_cast<std::size_t>(reveal_per_round * (round_ + 1));
         if (description.objects.size() > shown) description.objects.resize(shown);
       }
+      if (!drifts.empty()) {
+        description.pose_frame = round_;
+        description.pose_covariance = drifts[static_cast<std::size_t>(r)];
+      }
       negotiators_[r].set_own_map(std::move(description), round_);
     }
     std::vector<std::vector<NegotiationMessage>> inbox(n);
@@ -1145,18 +1148,23 @@ class SyntheticTeam {
         maps_[r].map.frame = move->to_frame;
         T_frame_world_[r] = T_new_old * T_frame_world_[r];
         moves_.push_back({r, round_});
+        reanchorings_.push_back(*move);
       }
     }
     ++round_;
   }
 
   int reveal_per_round = 0;
+  /// Each robot's pose covariance in its descriptions (their pose_frame is the round); empty:
+  /// none (zero, pose_frame -1).
+  std::vector<lie::Matrix6d> drifts;
   std::function<bool(int, int)> linked;  ///< empty: the complete graph
   Eigen::Isometry3d wrong_into_zero = Eigen::Isometry3d::Identity();
   std::vector<Negotiator> negotiators_;
   std::vector<RobotMap> maps_;
   std::vector<Eigen::Isometry3d> T_frame_world_;
   std::vector<std::pair<int, int>> moves_;
+  std::vector<Reanchoring> reanchorings_;  ///< parallel to moves_
   int round_ = 0;
 };
 
@@ -1216,6 +1224,48 @@ TEST(NegotiationTest, ThreeRobotsJoinRobotZerosFrameWithConsistentTeamIds) {
   for (const auto& [own, theirs] : shared) {
     EXPECT_EQ(team.maps_[0].truth.at(own), team.maps_[2].truth.at(theirs));
   }
+}
+
+TEST(NegotiationTest, AMoveCarriesBothMapsDriftAndNamesThePoseItsOwnDriftCameFrom) {
+  // Each map shares its robot's pose error (its drift, the description's pose covariance). The
+  // transform between two start frames holds both; a move into the team frame reports the
+  // whole of it and, apart, what does not come from the moving robot's own pose.
+  std::mt19937 random(41);
+  const Scene scene = random_scene(60, 40.0, 2.5, 0, random);
+  const std::vector<Eigen::Isometry3d> T_own_world{
+      make_transform(0.3, 0.0, Eigen::Vector3d(1, 2, 0)),
+      make_transform(-1.1, 0.02, Eigen::Vector3d(-20, 6, 0))};
+  NegotiationOptions options;
+  options.association = test_options();
+  options.description_interval = 2;
+  options.confirmations = 2;
+  options.confirmation_new_matches = 0;
+  SyntheticTeam team(scene, T_own_world, {{0, 40}, {0, 40}}, 9, options);
+  lie::Matrix6d drift_0 = lie::Matrix6d::Zero(), drift_1 = lie::Matrix6d::Zero();
+  drift_0.diagonal() << 0.04, 0.05, 0.01, 1e-4, 2e-4, 3e-4;
+  drift_1.diagonal() << 0.09, 0.02, 0.03, 4e-4, 1e-4, 2e-4;
+  drift_1(0, 4) = drift_1(4, 0) = 1e-3;
+  team.drifts = {drift_0, drift_1};
+  team.run(8);
+  ASSERT_EQ(team.moves_.size(), 1u);
+  EXPECT_EQ(team.moves_[0].first, 1);
+  const Reanchoring& move = team.reanchorings_[0];
+  EXPECT_EQ(move.from_frame, 1);
+  EXPECT_EQ(move.to_frame, 0);
+  // The pose of the description the accepted transform came from: a describing round, not
+  // after the move.
+  EXPECT_GE(move.pose_frame, 0);
+  EXPECT_LE(move.pose_frame, team.moves_[0].second);
+  EXPECT_EQ(move.pose_frame % options.description_interval, 0);
+  // The whole error less the independent part is robot 1's drift, turned into frame 0.
+  const lie::Matrix6d adjoint = lie::adjoint(move.T_new_old);
+  const lie::Matrix6d own_part = move.covariance - move.independent;
+  EXPECT_LT((own_part - adjoint * drift_1 * adjoint.transpose()).norm(), 1e-9 * drift_1.norm());
+  // The independent part holds robot 0's drift besides the fit's own error.
+  const Eigen::SelfAdjointEigenSolver<lie::Matrix6d> fit_part(move.independent - drift_0);
+  EXPECT_GT(fit_part.eigenvalues().minCoeff(), 0.0);
+  // alignment.json reports the whole of it.
+  EXPECT_TRUE(team.negotiators_[1].covariance_frame_start().isApprox(move.covariance, 1e-12));
 }
 
 TEST(NegotiationTest, EveryPairHasOneOwnerAndTheTeamSharesThePairsEvenly) {

@@ -76,6 +76,9 @@ association::NegotiationMessage sample_message() {
     object.archived = n == 1;
     map.objects.push_back(object);
   }
+  map.pose_frame = 33;
+  map.pose_covariance = 0.004 * lie::Matrix6d::Identity();
+  map.pose_covariance(2, 3) = map.pose_covariance(3, 2) = 0.0005;
   message.map = std::make_shared<const association::MapDescription>(map);
   association::OwnerRecord record;
   record.owner = 0;
@@ -91,6 +94,11 @@ association::NegotiationMessage sample_message() {
   edge.covariance(0, 5) = edge.covariance(5, 0) = 0.001;
   edge.round = 15;
   edge.owner = 0;
+  edge.robot_b = 1;
+  edge.drift_a = 0.003 * lie::Matrix6d::Identity();
+  edge.drift_b = map.pose_covariance;
+  edge.pose_frame_a = 14;
+  edge.pose_frame_b = 15;
   association::FrameCorrection correction;
   correction.frame = 0;
   correction.moves_b_side = false;
@@ -138,6 +146,8 @@ TEST(NegotiationWire, RoundTripIsExact) {
     EXPECT_EQ(a.archived, b.archived);
   }
   EXPECT_TRUE(decoded->map->objects[1].archived);
+  EXPECT_EQ(decoded->map->pose_frame, 33);
+  EXPECT_EQ(decoded->map->pose_covariance, message.map->pose_covariance);
   ASSERT_EQ(decoded->records.size(), 1u);
   const auto& record = *decoded->records[0];
   EXPECT_EQ(record.owner, 0);
@@ -150,6 +160,11 @@ TEST(NegotiationWire, RoundTripIsExact) {
   EXPECT_EQ(record.frame_edges[0].T_a_b.matrix(), message.records[0]->frame_edges[0].T_a_b.matrix());
   EXPECT_EQ(record.frame_edges[0].covariance, message.records[0]->frame_edges[0].covariance);
   EXPECT_EQ(record.frame_edges[0].round, 15);
+  EXPECT_EQ(record.frame_edges[0].robot_b, 1);
+  EXPECT_EQ(record.frame_edges[0].drift_a, message.records[0]->frame_edges[0].drift_a);
+  EXPECT_EQ(record.frame_edges[0].drift_b, message.records[0]->frame_edges[0].drift_b);
+  EXPECT_EQ(record.frame_edges[0].pose_frame_a, 14);
+  EXPECT_EQ(record.frame_edges[0].pose_frame_b, 15);
   ASSERT_EQ(record.frame_edges[0].corrections.size(), 1u);
   const auto& sent = message.records[0]->frame_edges[0].corrections[0];
   const auto& got = record.frame_edges[0].corrections[0];
@@ -244,6 +259,19 @@ TEST(NegotiationWire, MalformedDescriptionsAreRefusedNamingTheProblem) {
          m.mutable_records(0)->mutable_frame_edges(0)->set_covariance(0, nan);
        },
        "covariance"},
+      {"edge drift not a covariance",
+       [&](v1::Negotiation& m) {
+         m.mutable_records(0)->mutable_frame_edges(0)->set_drift_b(0, -1.0);
+       },
+       "frame edge drift malformed"},
+      {"edge to its own robot",
+       [&](v1::Negotiation& m) { m.mutable_records(0)->mutable_frame_edges(0)->set_robot_b(0); },
+       "frame edge drift malformed"},
+      {"description pose covariance",
+       [&](v1::Negotiation& m) { m.mutable_map()->set_pose_covariance(20, nan); },
+       "description pose"},
+      {"description pose frame", [&](v1::Negotiation& m) { m.mutable_map()->set_pose_frame(-7); },
+       "description pose"},
       {"edge of another owner",
        [&](v1::Negotiation& m) { m.mutable_records(0)->mutable_frame_edges(0)->set_owner(5); },
        "malformed frame edge"},

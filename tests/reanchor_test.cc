@@ -98,6 +98,74 @@ TEST(ReanchorTest, CovarianceMatchesMonteCarlo) {
             0.05);
 }
 
+TEST(ReanchorTest, ATransformFoundFromTheStatesOwnMapCarriesItsPosesErrorNotTwice) {
+  // A transform fitted to the robot's map as it stood relative to one of its poses: the map
+  // shares that pose's error e_c, so T_hat = exp(-e_ind) T exp(e_c) (docs/association.md, "A
+  // move that keeps the map's drift"). Monte-Carlo over that model against the correlated move.
+  std::mt19937 random(11);
+  State state = testing::random_state(3, 2, random);
+  state.covariance *= 0.01;
+  state.archived[9] = {9, Eigen::Vector3d(4, 1, 0), 0.02 * Eigen::Matrix3d::Identity()};
+  const Eigen::Isometry3d T = transform(-0.9, Eigen::Vector3d(-4, 2, 3));
+  lie::Matrix6d independent = lie::Matrix6d::Zero();
+  independent.diagonal() << 0.01, 0.02, 0.01, 1e-4, 3e-4, 2e-4;
+  const int slot = 2;
+  const int pose = state.pose_index(slot);
+  const lie::Matrix6d adjoint = lie::adjoint(T);
+  const lie::Matrix6d whole =
+      independent + adjoint * state.covariance.block<6, 6>(pose, pose) * adjoint.transpose();
+  State moved = state;
+  StateHelper::reanchor(moved, T, whole, slot, independent);
+  // The pose the transform came from now knows only the transform's own error.
+  const lie::Matrix6d at_pose = moved.covariance.block<6, 6>(pose, pose);
+  EXPECT_TRUE(at_pose.isApprox(independent, 1e-9));
+
+  const int n = state.dimension();
+  const Eigen::LLT<Eigen::MatrixXd> state_llt(state.covariance);
+  const Eigen::LLT<lie::Matrix6d> transform_llt(independent);
+  const Eigen::LLT<Eigen::Matrix3d> archived_llt(state.archived.at(9).covariance);
+  std::normal_distribution<double> normal;
+  Eigen::MatrixXd sample = Eigen::MatrixXd::Zero(n, n);
+  Eigen::Matrix3d archived_sample = Eigen::Matrix3d::Zero();
+  const int draws = 20000;
+  for (int draw = 0; draw < draws; ++draw) {
+    const Eigen::VectorXd x = state_llt.matrixL() * testing::random_vector(n, random);
+    lie::Vector6d y;
+    for (int k = 0; k < 6; ++k) y(k) = normal(random);
+    const Eigen::Isometry3d T_true =
+        lie::se3_exp(transform_llt.matrixL() * y) * T * lie::se3_exp(-x.segment<6>(pose));
+    Eigen::VectorXd error(n);
+    for (int i = 0; i < state.num_poses(); ++i) {
+      const int index = state.pose_index(i);
+      const Eigen::Isometry3d truth =
+          T_true * lie::se3_exp(x.segment<6>(index)) * state.poses[i].T_world_body;
+      error.segment<6>(index) = lie::se3_log(truth * moved.poses[i].T_world_body.inverse());
+    }
+    for (int j = 0; j < state.num_landmarks(); ++j) {
+      const int index = state.landmark_index(j);
+      const Eigen::Vector3d truth = T_true * (state.landmarks[j].p_world + x.segment<3>(index));
+      error.segment<3>(index) = truth - moved.landmarks[j].p_world;
+    }
+    sample += error * error.transpose();
+    const Eigen::Vector3d z{normal(random), normal(random), normal(random)};
+    const Eigen::Vector3d archived_truth =
+        T_true * (state.archived.at(9).p_world + archived_llt.matrixL() * z);
+    const Eigen::Vector3d archived_error = archived_truth - moved.archived.at(9).p_world;
+    archived_sample += archived_error * archived_error.transpose();
+  }
+  sample /= draws;
+  archived_sample /= draws;
+  EXPECT_LT((sample - moved.covariance).norm() / moved.covariance.norm(), 0.05);
+  EXPECT_LT((archived_sample - moved.archived.at(9).covariance).norm() /
+                moved.archived.at(9).covariance.norm(),
+            0.05);
+  // Taking the same transform as independent of the state counts the pose's error twice.
+  State twice = state;
+  StateHelper::reanchor(twice, T, whole);
+  EXPECT_GT((sample - twice.covariance).norm() / twice.covariance.norm(), 0.2);
+  EXPECT_THROW(StateHelper::reanchor(twice, T, whole, 3, independent), std::invalid_argument);
+}
+
 TEST(ReanchorTest, AnObservationAfterTheMoveCannotSeeTheTransformsError) {
   // Objects whose estimates have moved from their first estimates (the points their pose
   // Jacobians are taken at). The transform's error is a rigid move of the whole state, which an

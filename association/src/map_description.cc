@@ -24,7 +24,7 @@ int robot_of(ObjectKey key) { return static_cast<int>(key >> kIdBits); }
 LandmarkId id_of(ObjectKey key) { return key & kIdMask; }
 
 std::size_t MapDescription::wire_size() const {
-  constexpr std::size_t kHeader = 12;
+  constexpr std::size_t kHeader = 16 + 21 * 4;
   constexpr std::size_t kPerObject = 8 + 2 + 2 + 1 + 15 * 4;
   return kHeader + kPerObject * objects.size();
 }
@@ -135,10 +135,15 @@ int ObservationTally::object_class(LandmarkId id) const {
 }
 
 MapDescription describe_map(const State& state, int robot, int frame, const ObservationTally& tally,
-                            int min_observations, bool archived_local, double min_detection_ratio) {
+                            int min_observations, double min_detection_ratio) {
   MapDescription description;
   description.robot = robot;
   description.frame = frame;
+  const int pose = state.pose_index(state.num_poses() - 1);
+  description.pose_frame = state.newest_pose().frame;
+  description.pose_covariance = state.covariance.block<6, 6>(pose, pose);
+  description.pose_covariance =
+      0.5 * (description.pose_covariance + description.pose_covariance.transpose()).eval();
   // The object relative to the robot's current pose (kept as the marginal when round-off made the
   // conditional indefinite).
   const NewestPoseConditioning conditioning(state);
@@ -162,7 +167,7 @@ MapDescription describe_map(const State& state, int robot, int frame, const Obse
     entry.observations = observations;
     const int slot = state.landmark_slot(object.id);
     entry.archived = slot < 0;
-    if (slot < 0 && archived_local) {
+    if (slot < 0) {
       // Archived: what the robot knew of it relative to itself when it archived it, unless
       // consensus has since made the marginal itself the smaller (a relative uncertainty cannot
       // exceed the marginal).

@@ -72,8 +72,18 @@ std::vector<std::string> NegotiationOptions::validate() const {
   return problems;
 }
 
+lie::Matrix6d FrameEdge::full_covariance(bool omit_a, bool omit_b) const {
+  lie::Matrix6d full = covariance;
+  if (!omit_a) full += drift_a;
+  if (!omit_b) {
+    const lie::Matrix6d adjoint = lie::adjoint(T_a_b);
+    full += adjoint * drift_b * adjoint.transpose();
+  }
+  return 0.5 * (full + full.transpose());
+}
+
 std::size_t OwnerRecord::wire_size() const {
-  std::size_t size = 12 + 20 * links.size() + 144 * frame_edges.size();
+  std::size_t size = 12 + 20 * links.size() + 324 * frame_edges.size();
   for (const FrameEdge& edge : frame_edges) size += 144 * edge.corrections.size();
   return size;
 }
@@ -231,11 +241,19 @@ std::optional<Reanchoring> Negotiator::finish_round(int round) {
   const std::optional<Reanchoring> correction = take_corrections();
   const FrameTarget target = team_frame_of(frame_);
   if (target.frame == frame_) return correction;
-  Reanchoring move{frame_, target.frame, target.T_target_frame, target.covariance};
+  Reanchoring move{frame_,
+                   target.frame,
+                   target.T_target_frame,
+                   target.covariance,
+                   target.pose_frame,
+                   target.independent};
   if (correction) {
+    // (A correction first: the transform is no longer the one the pose's drift entered.)
     move.T_new_old = target.T_target_frame * correction->T_new_old;
     move.covariance =
         compose_covariance(target.T_target_frame, target.covariance, correction->covariance);
+    move.pose_frame = -1;
+    move.independent.setZero();
   }
   covariance_frame_start_ =
       compose_covariance(target.T_target_frame, target.covariance, covariance_frame_start_);
@@ -392,10 +410,11 @@ bool Negotiator::revisit_edge(PairState& pair, const MapDescription& theirs, int
   //    the edge.
   //    Only a revisit beyond the gate needs it.
   const std::size_t supported =
-      distance > revisit_bound_ ? match_with_transform(own, theirs, Eigen::Isometry3d::Identity(),
-                                                       true, options_.association)
-                                      .size()
-                                : 0;
+      distance > revisit_bound_
+          ? match_with_transform(own, theirs, Eigen::Isometry3d::Identity(),
+                                 Covariances::kTransform, options_.association)
+                .size()
+          : 0;
   const bool rivalled =
       distance > revisit_bound_ &&
       static_cast<double>(supported) >=
@@ -431,13 +450,18 @@ bool Negotiator::revisit_edge(PairState& pair, const MapDescription& theirs, int
   correction.moves_b_side = a_stays;
   correction.round = round;
   // found.T_a_b maps the neighbour's map onto this robot's: the neighbour's side moves by it, or
-  // this robot's side by its inverse.
+  // this robot's side by its inverse. Its error holds both maps' drift in the frame (their
+  // poses' covariances), as a search's does (FrameEdge::full_covariance).
+  const lie::Matrix6d found_adjoint = lie::adjoint(found.T_a_b);
+  const lie::Matrix6d found_covariance =
+      found.covariance + own.pose_covariance +
+      found_adjoint * theirs.pose_covariance * found_adjoint.transpose();
   if (staying.contains(start_frame_)) {
     correction.T = found.T_a_b;
-    correction.covariance = found.covariance;
+    correction.covariance = found_covariance;
   } else {
     correction.T = found.T_a_b.inverse();
-    correction.covariance = inverse_covariance(found.T_a_b, found.covariance);
+    correction.covariance = inverse_covariance(found.T_a_b, found_covariance);
   }
   // 4. The edge as it should have been: T_team_a^-1 C T_team_b with C on the moving side's path.
   //    Its covariance is the correction's, taken into frame_a (what the found transform knows of
@@ -449,6 +473,10 @@ bool Negotiator::revisit_edge(PairState& pair, const MapDescription& theirs, int
   const lie::Matrix6d adjoint = lie::adjoint(T_team_a.inverse());
   edge.T_a_b = T_team_a.inverse() * T_team_b;
   edge.covariance = adjoint * correction.covariance * adjoint.transpose();
+  // The correction's covariance holds the maps' drift as they were revisited.
+  edge.drift_a.setZero();
+  edge.drift_b.setZero();
+  edge.pose_frame_a = edge.pose_frame_b = -1;
   edge.corrections.push_back(correction);
   ++counters_.frame_corrections;
   pair.since_edge = 0;
@@ -473,8 +501,19 @@ bool Negotiator::revisit_edge(PairState& pair, const MapDescription& theirs, int
 
 bool Negotiator::accept_frames(PairState& pair, const MapDescription& theirs,
                                const PairAlignment& found, int round) {
-  own_frame_edges_.push_back(
-      FrameEdge{own_map_->frame, theirs.frame, found.T_a_b, found.covariance, round, robot_, {}});
+  FrameEdge edge;
+  edge.frame_a = own_map_->frame;
+  edge.frame_b = theirs.frame;
+  edge.T_a_b = found.T_a_b;
+  edge.covariance = found.covariance;
+  edge.round = round;
+  edge.owner = robot_;
+  edge.robot_b = theirs.robot;
+  edge.drift_a = own_map_->pose_covariance;
+  edge.drift_b = theirs.pose_covariance;
+  edge.pose_frame_a = own_map_->pose_frame;
+  edge.pose_frame_b = theirs.pose_frame;
+  own_frame_edges_.push_back(std::move(edge));
   pair.edge = static_cast<int>(own_frame_edges_.size()) - 1;
   pair.since_edge = 0;
   ++counters_.frame_edges;
@@ -519,7 +558,10 @@ std::optional<RigidAlignment> Negotiator::relative_pose(const PairState& pair,
     const ObjectDescription* mine = find_object(own, ids.first);
     const ObjectDescription* other = find_object(theirs, ids.second);
     if (mine == nullptr || other == nullptr) continue;
-    // As a search fits its transform: the covariances relative to each robot's current pose.
+    // As a search fits its transform: the covariances relative to each robot's current pose
+    // (an archived object's marginal stands for its drift since; on the recorded covariances
+    // the old parts of the maps pull the fit, measured in docs/association.md, "A move that
+    // keeps the map's drift").
     points.push_back(point_pair(*mine, *other, true, options_.association.distance_noise));
   }
   if (static_cast<int>(points.size()) < options_.association.min_inliers) return std::nullopt;
@@ -560,10 +602,10 @@ bool Negotiator::match_in_frame(PairState& pair, const MapDescription& theirs) {
   //    stand in the common frame.
   const std::optional<RigidAlignment> relative = relative_pose(pair, theirs);
   const std::vector<Match> matches =
-      relative ? match_with_transform(own, theirs, relative->T_target_source, true,
+      relative ? match_with_transform(own, theirs, relative->T_target_source, Covariances::kLocal,
                                       options_.association, &relative->covariance)
-               : match_with_transform(own, theirs, Eigen::Isometry3d::Identity(), false,
-                                      options_.association);
+               : match_with_transform(own, theirs, Eigen::Isometry3d::Identity(),
+                                      Covariances::kMarginal, options_.association);
   // The objects already linked on either side, ascending (`accepted` is ordered by own id).
   std::vector<LandmarkId> own_linked, their_linked;
   own_linked.reserve(pair.accepted.size());
@@ -641,41 +683,69 @@ Negotiator::FrameTarget Negotiator::team_frame_of(int frame) const {
   if (target.frame == frame) return target;
   // Breadth-first from the team frame, neighbours in ascending frame id, the first edge between
   // two frames in the canonical order: T_target_x and its covariance for every reached frame.
-  std::map<int, std::pair<Eigen::Isometry3d, lie::Matrix6d>> reached;
-  reached[target.frame] = {Eigen::Isometry3d::Identity(), lie::Matrix6d::Zero()};
+  // Each edge's error holds both maps' drift (FrameEdge::full_covariance).
+  struct Step {
+    const FrameEdge* edge = nullptr;
+    bool forward = true;  ///< from frame_a to frame_b
+    Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  };
+  const auto step_covariance = [](const Step& step, bool omit_far) {
+    const lie::Matrix6d full =
+        step.edge->full_covariance(!step.forward && omit_far, step.forward && omit_far);
+    return step.forward ? full : inverse_covariance(step.edge->T_a_b, full);
+  };
+  struct Reached {
+    Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+    lie::Matrix6d covariance = lie::Matrix6d::Zero();
+    int from = kWorldFrame;
+    Step step;
+  };
+  std::map<int, Reached> reached;
+  reached[target.frame] = {};
   std::deque<int> queue{target.frame};
   while (!queue.empty() && !reached.contains(frame)) {
     const int current = queue.front();
     queue.pop_front();
-    std::map<int, std::pair<Eigen::Isometry3d, lie::Matrix6d>> next;  // neighbour -> T_current_n
+    std::map<int, Step> next;  // neighbour -> the step current -> neighbour
     for (const FrameEdge* edge : edges) {
       int other;
-      Eigen::Isometry3d T_current_other;
-      lie::Matrix6d covariance;
+      Step step;
+      step.edge = edge;
       if (edge->frame_a == current) {
         other = edge->frame_b;
-        T_current_other = edge->T_a_b;
-        covariance = edge->covariance;
+        step.T = edge->T_a_b;
       } else if (edge->frame_b == current) {
         other = edge->frame_a;
-        T_current_other = edge->T_a_b.inverse();
-        covariance = inverse_covariance(edge->T_a_b, edge->covariance);
+        step.forward = false;
+        step.T = edge->T_a_b.inverse();
       } else {
         continue;
       }
       if (reached.contains(other) || next.contains(other)) continue;
-      next[other] = {T_current_other, covariance};
+      next[other] = step;
     }
-    const auto& [T_target_current, covariance_target_current] = reached.at(current);
+    const Reached here = reached.at(current);
     for (const auto& [other, step] : next) {
-      reached[other] = {
-          T_target_current * step.first,
-          compose_covariance(T_target_current, covariance_target_current, step.second)};
+      reached[other] = {here.T * step.T,
+                        compose_covariance(here.T, here.covariance, step_covariance(step, false)),
+                        current, step};
       queue.push_back(other);
     }
   }
-  target.T_target_frame = reached.at(frame).first;
-  target.covariance = reached.at(frame).second;
+  const Reached& end = reached.at(frame);
+  target.T_target_frame = end.T;
+  target.covariance = end.covariance;
+  // The last edge's map on this frame's side was this robot's: its drift is this robot's pose
+  // error then, which the state holds (Reanchoring::pose_frame).
+  const FrameEdge& last = *end.step.edge;
+  const int far_robot = end.step.forward ? last.robot_b : last.owner;
+  const int far_pose = end.step.forward ? last.pose_frame_b : last.pose_frame_a;
+  if (far_robot == robot_ && far_pose >= 0) {
+    const Reached& before = reached.at(end.from);
+    target.pose_frame = far_pose;
+    target.independent =
+        compose_covariance(before.T, before.covariance, step_covariance(end.step, true));
+  }
   return target;
 }
 

@@ -372,9 +372,20 @@ double mahalanobis_squared(const ObjectDescription& a, const ObjectDescription& 
 }
 
 std::vector<Match> match_with_transform(const MapDescription& a, const MapDescription& b,
-                                        const Eigen::Isometry3d& T_a_b, bool local,
+                                        const Eigen::Isometry3d& T_a_b, Covariances which,
                                         const AssociationOptions& options,
                                         const lie::Matrix6d* transform_covariance) {
+  const auto covariance_of = [which](const ObjectDescription& object) -> const Eigen::Matrix3d& {
+    switch (which) {
+      case Covariances::kTransform:
+        return object.transform_covariance();
+      case Covariances::kLocal:
+        return object.local_covariance;
+      case Covariances::kMarginal:
+        break;
+    }
+    return object.covariance;
+  };
   const double gate = UpdaterHelper::chi2_quantile(options.match_chi2_probability, 3);
   const std::size_t na = a.objects.size(), nb = b.objects.size();
   const Eigen::Matrix3d& R = T_a_b.linear();
@@ -387,8 +398,7 @@ std::vector<Match> match_with_transform(const MapDescription& a, const MapDescri
   std::vector<double> trace_b(nb);
   for (std::size_t j = 0; j < nb; ++j) {
     transformed[j] = T_a_b * b.objects[j].position;
-    const Eigen::Matrix3d& own =
-        local ? b.objects[j].transform_covariance() : b.objects[j].covariance;
+    const Eigen::Matrix3d& own = covariance_of(b.objects[j]);
     trace_b[j] = own.trace();
     covariance_b[j] = R * own * R.transpose();
     if (transform_covariance != nullptr) {
@@ -431,7 +441,7 @@ std::vector<Match> match_with_transform(const MapDescription& a, const MapDescri
   std::vector<unsigned char> near(nb);
   for (std::size_t i = 0; i < na; ++i) {
     const ObjectDescription& x = a.objects[i];
-    const Eigen::Matrix3d& covariance_x = local ? x.transform_covariance() : x.covariance;
+    const Eigen::Matrix3d& covariance_x = covariance_of(x);
     const double trace_x = covariance_x.trace() + 3.0 * noise;
     const double px = x.position.x(), py = x.position.y(), pz = x.position.z();
     for (std::size_t j = 0; j < nb; ++j) {
@@ -487,7 +497,19 @@ MapDescription well_placed(const MapDescription& map, double max_sigma) {
 }  // namespace
 
 PreparedMap::PreparedMap(const MapDescription& map, const AssociationOptions& options) {
-  MapDescription placed = well_placed(map, options.search_max_sigma);
+  // Archived objects take part by their marginals unless archived_local_covariance.
+  MapDescription geometry;
+  const MapDescription* source = &map;
+  if (!options.archived_local_covariance &&
+      std::any_of(map.objects.begin(), map.objects.end(),
+                  [](const ObjectDescription& object) { return object.archived; })) {
+    geometry = map;
+    for (ObjectDescription& object : geometry.objects) {
+      if (object.archived) object.local_covariance = object.covariance;
+    }
+    source = &geometry;
+  }
+  MapDescription placed = well_placed(*source, options.search_max_sigma);
   DistanceTable table(placed, options.distance_noise);
   Descriptors descriptors = descriptors_of(placed, table, options);
   parts_ = std::make_unique<const Parts>(
@@ -610,7 +632,7 @@ PairAlignment align_maps(const PreparedMap& prepared_a, const PreparedMap& prepa
   std::vector<Match> matches;
   std::optional<RigidAlignment> final_fit = clique_fit;
   for (int pass = 0; pass < 2; ++pass) {
-    matches = match_with_transform(a, b, T, true, options);
+    matches = match_with_transform(a, b, T, Covariances::kTransform, options);
     if (matches.size() < min_inliers) break;
     std::vector<std::pair<int, int>> pairs;
     for (const Match& match : matches)

@@ -26,7 +26,6 @@ void AssociationSession::begin_round(std::uint64_t round, const Estimator& estim
   negotiator_.set_own_map(
       association::describe_map(estimator.state(), negotiator_.robot(), negotiator_.frame(), tally_,
                                 negotiator_.options().association.min_observations,
-                                negotiator_.options().association.archived_local_covariance,
                                 negotiator_.options().association.min_detection_ratio),
       k);
 }
@@ -50,7 +49,7 @@ std::optional<association::Reanchoring> AssociationSession::finish_round(std::ui
   // A correction moved some robots within the team frame: their claims jump.
   if (negotiator_.corrections_seen() != corrections) estimator.forget_claims();
   if (move) {
-    estimator.reanchor(move->T_new_old, move->covariance);
+    estimator.reanchor(move->T_new_old, move->covariance, move->pose_frame, move->independent);
     // The first round in the final frame: a correction (a move within it) keeps it.
     if (move->from_frame != move->to_frame) {
       alignment_.aligned_at_round = static_cast<std::int64_t>(round);

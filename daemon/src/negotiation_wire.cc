@@ -1,6 +1,8 @@
 #include "concord/daemon/negotiation_wire.h"
 
 #include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
+#include <algorithm>
 #include <cmath>
 #include <limits>
 
@@ -30,6 +32,29 @@ bool read_upper(const google::protobuf::RepeatedField<double>& values,
     for (int column = row; column < N; ++column)
       out(row, column) = out(column, row) = values.Get(index++);
   return out.allFinite() && Eigen::LLT<Eigen::Matrix<double, N, N>>(out).info() == Eigen::Success;
+}
+
+/// A covariance that may be zero: none (zero), or 21 finite values of a positive semi-definite
+/// matrix.
+bool read_upper_or_zero(const google::protobuf::RepeatedField<double>& values,
+                        Eigen::Matrix<double, 6, 6>& out) {
+  out.setZero();
+  if (values.empty()) return true;
+  if (values.size() != 21) return false;
+  int index = 0;
+  for (int row = 0; row < 6; ++row)
+    for (int column = row; column < 6; ++column)
+      out(row, column) = out(column, row) = values.Get(index++);
+  if (!out.allFinite()) return false;
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> solver(out,
+                                                                          Eigen::EigenvaluesOnly);
+  return solver.info() == Eigen::Success &&
+         solver.eigenvalues().minCoeff() >= -1e-9 * std::max(1.0, solver.eigenvalues().maxCoeff());
+}
+
+/// A pose's frame index: -1 (unknown) or a frame.
+bool valid_pose_frame(std::int64_t frame) {
+  return frame >= -1 && frame <= std::numeric_limits<int>::max();
 }
 
 bool valid_frame(int frame) { return frame >= association::kWorldFrame && frame <= kMaxRobot; }
@@ -76,6 +101,14 @@ bool read_map(const v1::MapDescription& message, int sender, const NegotiationLi
   }
   map.robot = sender;
   map.frame = message.frame();
+  if (!valid_pose_frame(message.pose_frame()) ||
+      !read_upper_or_zero(message.pose_covariance(), map.pose_covariance)) {
+    error =
+        "description pose: frame out of range or covariance not 21 finite values of a "
+        "positive semi-definite matrix";
+    return false;
+  }
+  map.pose_frame = static_cast<int>(message.pose_frame());
   map.objects.reserve(static_cast<std::size_t>(message.objects_size()));
   for (const v1::ObjectDescription& object : message.objects()) {
     association::ObjectDescription entry;
@@ -169,6 +202,17 @@ bool read_record(const v1::OwnerRecord& message, const NegotiationLimits& limits
       error = what + ": frame edge covariance not 21 finite values of a positive definite matrix";
       return false;
     }
+    if (edge.robot_b() > static_cast<std::uint32_t>(kMaxRobot) ||
+        edge.robot_b() == message.owner() || !valid_pose_frame(edge.pose_frame_a()) ||
+        !valid_pose_frame(edge.pose_frame_b()) ||
+        !read_upper_or_zero(edge.drift_a(), out.drift_a) ||
+        !read_upper_or_zero(edge.drift_b(), out.drift_b)) {
+      error = what + ": frame edge drift malformed (robot, pose frames or covariances)";
+      return false;
+    }
+    out.robot_b = static_cast<int>(edge.robot_b());
+    out.pose_frame_a = static_cast<int>(edge.pose_frame_a());
+    out.pose_frame_b = static_cast<int>(edge.pose_frame_b());
     for (const v1::FrameCorrection& correction : edge.corrections()) {
       association::FrameCorrection in;
       in.frame = correction.frame();
@@ -193,6 +237,8 @@ bool read_record(const v1::OwnerRecord& message, const NegotiationLimits& limits
 void to_wire(const association::MapDescription& map, v1::MapDescription& out) {
   out.Clear();
   out.set_frame(map.frame);
+  out.set_pose_frame(map.pose_frame);
+  add_upper<6>(map.pose_covariance, *out.mutable_pose_covariance());
   out.mutable_objects()->Reserve(static_cast<int>(map.objects.size()));
   for (const association::ObjectDescription& object : map.objects) {
     v1::ObjectDescription* entry = out.add_objects();
@@ -236,6 +282,11 @@ void write_all_but_map(const association::NegotiationMessage& message, v1::Negot
       add_upper<6>(edge.covariance, *e->mutable_covariance());
       e->set_round(edge.round);
       e->set_owner(static_cast<std::uint32_t>(edge.owner));
+      e->set_robot_b(static_cast<std::uint32_t>(edge.robot_b));
+      add_upper<6>(edge.drift_a, *e->mutable_drift_a());
+      add_upper<6>(edge.drift_b, *e->mutable_drift_b());
+      e->set_pose_frame_a(edge.pose_frame_a);
+      e->set_pose_frame_b(edge.pose_frame_b);
       for (const association::FrameCorrection& correction : edge.corrections) {
         v1::FrameCorrection* c = e->add_corrections();
         c->set_frame(correction.frame);

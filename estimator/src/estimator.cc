@@ -200,6 +200,15 @@ void Estimator::reanchor(const Eigen::Isometry3d& T_new_old,
   forget_claims();
 }
 
+bool Estimator::reanchor(const Eigen::Isometry3d& T_new_old,
+                         const Eigen::Matrix<double, 6, 6>& covariance, int pose_frame,
+                         const Eigen::Matrix<double, 6, 6>& independent) {
+  const int slot = state_.pose_slot(pose_frame);
+  StateHelper::reanchor(state_, T_new_old, covariance, slot, independent);
+  forget_claims();
+  return slot >= 0;
+}
+
 void Estimator::forget_claims() { consensus_workspace_ = ConsensusWorkspace(); }
 
 Eigen::Matrix<double, 6, 6> Estimator::current_pose_covariance() const {

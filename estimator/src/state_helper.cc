@@ -1,6 +1,8 @@
 #include "concord/estimator/state_helper.h"
 
 #include <Eigen/Cholesky>
+#include <stdexcept>
+#include <string>
 
 #include "concord/estimator/lie.h"
 #include "concord/estimator/pose_conditioning.h"
@@ -180,7 +182,12 @@ std::vector<int> StateHelper::nonzero_columns(const Eigen::MatrixXd& H) {
 }
 
 void StateHelper::reanchor(State& state, const Eigen::Isometry3d& T_new_old,
-                           const lie::Matrix6d& covariance) {
+                           const lie::Matrix6d& covariance, int correlated_slot,
+                           const lie::Matrix6d& independent) {
+  if (correlated_slot >= state.num_poses()) {
+    throw std::invalid_argument("StateHelper::reanchor: no pose slot " +
+                                std::to_string(correlated_slot));
+  }
   const Eigen::Matrix3d& R = T_new_old.linear();
   const lie::Matrix6d adjoint = lie::adjoint(T_new_old);
   // 1. Means.
@@ -241,7 +248,19 @@ void StateHelper::reanchor(State& state, const Eigen::Isometry3d& T_new_old,
     J.block<3, 3>(index, 0).setIdentity();
     J.block<3, 3>(index, 3) = -lie::skew(state.landmarks[slot].p_linearization);
   }
-  P += J * covariance * J.transpose();
+  if (correlated_slot < 0) {
+    P += J * covariance * J.transpose();
+  } else {
+    // P <- (G - K) P (G - K)^T + J e_ind J^T with K = J Ad S_slot. With P_G = G P G^T (above)
+    // and G's block of that pose being Ad, G P K^T = P_G[:, slot] J^T and K P K^T =
+    // J P_G[slot, slot] J^T.
+    const int pose = state.pose_index(correlated_slot);
+    const Eigen::MatrixXd X = P.middleCols(pose, 6);
+    const lie::Matrix6d at_pose = X.middleRows(pose, 6);
+    P.noalias() -= X * J.transpose();
+    P.noalias() -= J * X.transpose();
+    P.noalias() += J * (at_pose + independent) * J.transpose();
+  }
   symmetrize(state);
   // 3. Archived objects, each with its own share of the transform's error.
   for (auto& [id, estimate] : state.archived) {

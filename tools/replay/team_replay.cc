@@ -298,7 +298,6 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
                 association::describe_map(estimators[i].state(), i, negotiators[i].frame(),
                                           tallies[i],
                                           options.negotiation.association.min_observations,
-                                          options.negotiation.association.archived_local_covariance,
                                           options.negotiation.association.min_detection_ratio),
                 step);
           }
@@ -317,7 +316,8 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
           // A correction moved some robots within the team frame: their claims jump.
           if (negotiators[i].corrections_seen() != corrections) estimators[i].forget_claims();
           if (move) {
-            estimators[i].reanchor(move->T_new_old, move->covariance);
+            estimators[i].reanchor(move->T_new_old, move->covariance, move->pose_frame,
+                                   move->independent);
             // The first frame in the final frame: a correction (a move within it) keeps it.
             if (move->from_frame != move->to_frame) result.robots[i].aligned_at_frame = step;
             result.robots[i].moved = true;

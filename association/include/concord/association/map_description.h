@@ -41,10 +41,11 @@ struct ObjectDescription {
   /// What the robot knows of the object relative to itself, without the drift its whole map
   /// shares: for the geometry of its map (distances between its objects, which a transform to
   /// another frame leaves as they are). In the state: the covariance conditioned on the robot's
-  /// current pose. Archived: the marginal or, with association.archived_local_covariance,
-  /// conditioned on the pose the robot had when it archived it (State::archived_local_covariance),
-  /// since the objects a robot mapped at about the same time share the drift it had then,
-  /// however far it has drifted since.
+  /// current pose. Archived: conditioned on the pose the robot had when it archived it
+  /// (State::archived_local_covariance; the marginal when none was recorded), since the objects
+  /// a robot mapped at about the same time share the drift it had then, however far it has
+  /// drifted since. A search across frames takes an archived object's marginal instead unless
+  /// association.archived_local_covariance (PreparedMap).
   Eigen::Matrix3d local_covariance = Eigen::Matrix3d::Identity();
   /// Whether the object has left the robot's joint state (archived), so that local_covariance
   /// is relative to an earlier pose than the current one.
@@ -67,10 +68,18 @@ struct MapDescription {
   int frame = kWorldFrame;
   /// Objects sorted by id.
   std::vector<ObjectDescription> objects;
+  /// The robot's newest pose when it described the map (its frame index; -1 unknown) and that
+  /// pose's covariance, a left perturbation in the description's frame: the map's drift. A map
+  /// is right relative to the robot up to its local covariances, and the whole of it shares the
+  /// pose's error in its frame, so a transform fitted on local covariances (alignment.h) leaves
+  /// both maps' drift to be added (docs/association.md, "A move that keeps the map's drift").
+  int pose_frame = -1;
+  Eigen::Matrix<double, 6, 6> pose_covariance = Eigen::Matrix<double, 6, 6>::Zero();
 
-  /// Bytes on the wire in a fixed-width encoding: 12 bytes of header, then per object an 8-byte
-  /// id, a 2-byte class, a 2-byte observation count, a 1-byte archived flag and 15 floats
-  /// (position, upper triangles of both covariances).
+  /// Bytes on the wire in a fixed-width encoding: 16 bytes of header and 21 floats (the pose's
+  /// frame and covariance), then per object an 8-byte id, a 2-byte class, a 2-byte observation
+  /// count, a 1-byte archived flag and 15 floats (position, upper triangles of both
+  /// covariances).
   std::size_t wire_size() const;
 };
 
@@ -117,13 +126,13 @@ class ObservationTally {
 };
 
 /// The description of a robot's map: every object it holds with at least min_observations frames
-/// of detections, in the frame the state is in. archived_local: an archived object's
-/// local_covariance is the one the state recorded when it archived it (when there is one, and
-/// the marginal is not the smaller); otherwise its marginal. min_detection_ratio: an object
+/// of detections, in the frame the state is in. An archived object's local_covariance is the
+/// one the state recorded when it archived it (when there is one, and the marginal is not the
+/// smaller); otherwise its marginal. A search takes it only with
+/// AssociationOptions::archived_local_covariance (PreparedMap). min_detection_ratio: an object
 /// detected in fewer than this fraction of the frames it was in view (detections / (detections
 /// + misses), ObservationTally) is left out as a likely false detection (0: none is).
 MapDescription describe_map(const State& state, int robot, int frame, const ObservationTally& tally,
-                            int min_observations, bool archived_local,
-                            double min_detection_ratio = 0.0);
+                            int min_observations, double min_detection_ratio = 0.0);
 
 }  // namespace concord::association

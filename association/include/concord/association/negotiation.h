@@ -85,13 +85,27 @@ struct FrameEdge {
   int frame_b = 0;
   /// Maps frame_b coordinates into frame_a.
   Eigen::Isometry3d T_a_b = Eigen::Isometry3d::Identity();
-  /// Left perturbation in frame_a (alignment.h).
+  /// The fit's own covariance, a left perturbation in frame_a (alignment.h): what the two maps'
+  /// local geometry knows of their relative pose.
   lie::Matrix6d covariance = lie::Matrix6d::Identity();
   int round = 0;
-  int owner = 0;
+  int owner = 0;    ///< whose map was frame_a's side
+  int robot_b = 0;  ///< whose map was frame_b's side
+  /// The drift of each side's map when it was described (MapDescription::pose_covariance: the
+  /// robot's pose covariance, a left perturbation in frame_a and frame_b) and that pose's frame
+  /// index. The transform's error is -drift_a + Ad(T_a_b) drift_b + the fit's error
+  /// (full_covariance()).
+  lie::Matrix6d drift_a = lie::Matrix6d::Zero();
+  lie::Matrix6d drift_b = lie::Matrix6d::Zero();
+  int pose_frame_a = -1;
+  int pose_frame_b = -1;
   /// Corrections since it was accepted, oldest first (T_a_b and covariance are the corrected ones:
   /// a robot that joins through the edge later needs none of them).
   std::vector<FrameCorrection> corrections;
+
+  /// The covariance of T_a_b's error, a left perturbation in frame_a: the fit's and both maps'
+  /// drift, leaving out side a's drift (omit_a) or side b's (omit_b).
+  lie::Matrix6d full_covariance(bool omit_a = false, bool omit_b = false) const;
 };
 
 /// An owner's decisions: its current links and frame edges, versioned (newer replaces older).
@@ -101,9 +115,9 @@ struct OwnerRecord {
   std::vector<ObjectLink> links;  ///< ascending by (a, b) as the owner makes them
   std::vector<FrameEdge> frame_edges;
 
-  /// Bytes in a fixed-width encoding: 12 bytes of header, 20 per link (two keys, a float), 144
-  /// per frame edge (frames, round, owner, 12 + 21 floats) and per correction (frame, side,
-  /// round, 12 + 21 floats).
+  /// Bytes in a fixed-width encoding: 12 bytes of header, 20 per link (two keys, a float), 324
+  /// per frame edge (frames, round, owner, the other robot, two pose frames, 12 + 3 x 21 floats)
+  /// and 144 per correction (frame, side, round, 12 + 21 floats).
   std::size_t wire_size() const;
 };
 
@@ -135,7 +149,14 @@ struct Reanchoring {
   int from_frame = kWorldFrame;
   int to_frame = kWorldFrame;
   Eigen::Isometry3d T_new_old = Eigen::Isometry3d::Identity();
+  /// The whole covariance of T_new_old's error.
   lie::Matrix6d covariance = lie::Matrix6d::Zero();
+  /// When the transform came from this robot's own map (the last edge of its path has its map
+  /// on the robot's side), its error holds the error of the robot's pose of that frame index:
+  /// Estimator::reanchor(T_new_old, covariance, pose_frame, independent). -1: none.
+  int pose_frame = -1;
+  /// The error's part independent of the robot's state (pose_frame >= 0).
+  lie::Matrix6d independent = lie::Matrix6d::Zero();
 };
 
 /// What a negotiator did, counted over its life.
@@ -308,6 +329,11 @@ class Negotiator {
     int frame = kWorldFrame;
     Eigen::Isometry3d T_target_frame = Eigen::Isometry3d::Identity();
     lie::Matrix6d covariance = lie::Matrix6d::Zero();
+    /// When the edge into `frame` had this robot's map on frame's side: the frame index of the
+    /// robot's pose whose drift that map had, and the covariance without that drift
+    /// (Reanchoring::pose_frame and independent).
+    int pose_frame = -1;
+    lie::Matrix6d independent = lie::Matrix6d::Zero();
   };
   FrameTarget team_frame_of(int frame) const;
   bool frames_connected(int a, int b) const;

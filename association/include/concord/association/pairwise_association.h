@@ -96,14 +96,21 @@ class PreparedMap {
 PairAlignment align_maps(const PreparedMap& a, const PreparedMap& b,
                          const AssociationOptions& options);
 
+/// Which of an object's covariances a comparison of two maps takes (ObjectDescription):
+/// kMarginal, the marginal (maps compared as they stand in one frame); kTransform,
+/// transform_covariance() (under a transform fitted where the robots are now); kLocal,
+/// local_covariance (under the relative pose fitted to a pair's accepted correspondences,
+/// which absorbs what each map shares, however old its parts).
+enum class Covariances { kMarginal, kTransform, kLocal };
+
 /// Correspondences of two maps under a known transform T_a_b (identity for maps in one frame):
 /// pairs within the match gate, mutual best with the margin, compatible classes; residual
-/// covariance C_a + R C_b R^T + distance_noise^2 I with the marginal covariances (local: the
-/// local covariances), plus J Sigma J^T when the transform's covariance Sigma is given (a left
-/// perturbation in a's frame, J = [I, -[T_a_b p_b]x]: a fitted transform's error grows with
-/// the distance from where it was fitted). Sorted by id_a.
+/// covariance C_a + R C_b R^T + distance_noise^2 I with the covariances `which`, plus
+/// J Sigma J^T when the transform's covariance Sigma is given (a left perturbation in a's frame,
+/// J = [I, -[T_a_b p_b]x]: a fitted transform's error grows with the distance from where it was
+/// fitted). Sorted by id_a.
 std::vector<Match> match_with_transform(const MapDescription& a, const MapDescription& b,
-                                        const Eigen::Isometry3d& T_a_b, bool local,
+                                        const Eigen::Isometry3d& T_a_b, Covariances which,
                                         const AssociationOptions& options,
                                         const lie::Matrix6d* transform_covariance = nullptr);
 

@@ -69,6 +69,13 @@ class Estimator {
   /// Moves the state into another frame, p_new = T_new_old p_old, with the transform's covariance
   /// (left perturbation in the new frame) folded in (StateHelper::reanchor).
   void reanchor(const Eigen::Isometry3d& T_new_old, const Eigen::Matrix<double, 6, 6>& covariance);
+  /// The same for a transform whose error holds the error of the state's pose of `pose_frame`
+  /// besides an independent part of covariance `independent` (StateHelper::reanchor's
+  /// correlated form); `covariance` is the error's whole covariance. When that pose has left
+  /// the window the move takes `covariance` as independent of the state (counting that pose's
+  /// error twice, on the safe side) and returns false, as it does for pose_frame -1.
+  bool reanchor(const Eigen::Isometry3d& T_new_old, const Eigen::Matrix<double, 6, 6>& covariance,
+                int pose_frame, const Eigen::Matrix<double, 6, 6>& independent);
   /// Forgets the neighbours' earlier claims (ConsensusOptions::claim_history_rounds), as
   /// reanchor does: for when neighbours moved into another frame, or within one.
   void forget_claims();

@@ -65,8 +65,18 @@ class StateHelper {
   /// J stacking I (poses) and [I, -[p']_x] (landmarks): every estimate shares the transform's
   /// error. Archived objects get their own 3x3 share of it. Used when a robot that started at an
   /// unknown pose joins its team's frame.
+  ///
+  /// With correlated_slot >= 0 the transform was found from the state's own map as it stood
+  /// relative to the pose in that slot, so its error holds that pose's error:
+  /// e = e_ind - Ad(T_hat) eps_slot, with e_ind independent of the state, of covariance
+  /// `independent` (a robot's map drifts with its pose; docs/association.md, "A move that keeps
+  /// the map's drift"). Then G becomes G - J Ad(T_hat) S_slot: that pose's error becomes e_ind,
+  /// and every other estimate keeps what the state knew of it relative to that pose, plus e_ind.
+  /// Archived objects keep no correlation with the poses and take `covariance`, which must be
+  /// e's whole covariance (e_ind's and the pose's, turned).
   static void reanchor(State& state, const Eigen::Isometry3d& T_new_old,
-                       const lie::Matrix6d& covariance);
+                       const lie::Matrix6d& covariance, int correlated_slot = -1,
+                       const lie::Matrix6d& independent = lie::Matrix6d::Zero());
 
   /// Enforces symmetry of the covariance after an update.
   static void symmetrize(State& state);
