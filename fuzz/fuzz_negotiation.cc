@@ -89,6 +89,8 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
       check((move->covariance - move->covariance.transpose()).cwiseAbs().maxCoeff() <=
                 1e-9 * (1.0 + move->covariance.cwiseAbs().maxCoeff()),
             "a move's covariance is symmetric");
+      check(move->independent.allFinite(), "a move's independent covariance is finite");
+      check(move->pose_frame >= -1, "a move's correlated pose frame is -1 or a frame");
     }
     check(negotiator.T_frame_start().matrix().allFinite(), "the start frame's transform is finite");
     check(negotiator.covariance_frame_start().allFinite(),

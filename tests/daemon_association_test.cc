@@ -264,6 +264,11 @@ TEST(NegotiationWire, MalformedDescriptionsAreRefusedNamingTheProblem) {
          m.mutable_records(0)->mutable_frame_edges(0)->set_drift_b(0, -1.0);
        },
        "frame edge drift malformed"},
+      {"edge drift beyond any use",
+       [&](v1::Negotiation& m) {
+         m.mutable_records(0)->mutable_frame_edges(0)->set_drift_a(0, 1e300);
+       },
+       "frame edge drift malformed"},
       {"edge to its own robot",
        [&](v1::Negotiation& m) { m.mutable_records(0)->mutable_frame_edges(0)->set_robot_b(0); },
        "frame edge drift malformed"},

@@ -21,6 +21,53 @@ Eigen::Isometry3d transform(double yaw, const Eigen::Vector3d& t) {
   return T;
 }
 
+/// Sample covariances of a moved state's errors (the joint state's, and archived object 9's):
+/// true state = exp(eps) T_hat for poses, p_hat + p~ for landmarks, the archived object with its
+/// own error; the true transform from `true_transform(x, y)`, x the state's error draw and y a
+/// standard normal 6-vector. The moved truth's error against `moved`, in the state's convention.
+struct MovedSample {
+  Eigen::MatrixXd state;
+  Eigen::Matrix3d archived;
+};
+
+template <typename TrueTransform>
+MovedSample sample_moved(const State& state, const State& moved, TrueTransform true_transform,
+                         std::mt19937& random) {
+  const int n = state.dimension();
+  const Eigen::LLT<Eigen::MatrixXd> state_llt(state.covariance);
+  const Eigen::LLT<Eigen::Matrix3d> archived_llt(state.archived.at(9).covariance);
+  std::normal_distribution<double> normal;
+  MovedSample sample{Eigen::MatrixXd::Zero(n, n), Eigen::Matrix3d::Zero()};
+  const int draws = 20000;
+  for (int draw = 0; draw < draws; ++draw) {
+    const Eigen::VectorXd x = state_llt.matrixL() * testing::random_vector(n, random);
+    lie::Vector6d y;
+    for (int k = 0; k < 6; ++k) y(k) = normal(random);
+    const Eigen::Isometry3d T_true = true_transform(x, y);
+    Eigen::VectorXd error(n);
+    for (int i = 0; i < state.num_poses(); ++i) {
+      const int index = state.pose_index(i);
+      const Eigen::Isometry3d truth =
+          T_true * lie::se3_exp(x.segment<6>(index)) * state.poses[i].T_world_body;
+      error.segment<6>(index) = lie::se3_log(truth * moved.poses[i].T_world_body.inverse());
+    }
+    for (int j = 0; j < state.num_landmarks(); ++j) {
+      const int index = state.landmark_index(j);
+      const Eigen::Vector3d truth = T_true * (state.landmarks[j].p_world + x.segment<3>(index));
+      error.segment<3>(index) = truth - moved.landmarks[j].p_world;
+    }
+    sample.state += error * error.transpose();
+    Eigen::Vector3d z{normal(random), normal(random), normal(random)};  // in order
+    const Eigen::Vector3d archived_truth =
+        T_true * (state.archived.at(9).p_world + archived_llt.matrixL() * z);
+    const Eigen::Vector3d archived_error = archived_truth - moved.archived.at(9).p_world;
+    sample.archived += archived_error * archived_error.transpose();
+  }
+  sample.state /= draws;
+  sample.archived /= draws;
+  return sample;
+}
+
 TEST(ReanchorTest, MovesMeansAndLinearizationPoints) {
   std::mt19937 random(1);
   State state = testing::random_state(3, 2, random);
@@ -56,44 +103,16 @@ TEST(ReanchorTest, CovarianceMatchesMonteCarlo) {
   State moved = state;
   StateHelper::reanchor(moved, T, sigma);
 
-  // Sample: true state = exp(eps) T_hat for poses, p_hat + p~ for landmarks; true transform
-  // exp(e) T. The moved truth's error against the moved estimate, in the state's convention.
-  const int n = state.dimension();
-  const Eigen::LLT<Eigen::MatrixXd> state_llt(state.covariance);
+  // The true transform exp(e) T, e of covariance sigma.
   const Eigen::LLT<lie::Matrix6d> transform_llt(sigma);
-  std::normal_distribution<double> normal;
-  Eigen::MatrixXd sample = Eigen::MatrixXd::Zero(n, n);
-  Eigen::Matrix3d archived_sample = Eigen::Matrix3d::Zero();
-  const Eigen::LLT<Eigen::Matrix3d> archived_llt(state.archived.at(9).covariance);
-  const int draws = 20000;
-  for (int draw = 0; draw < draws; ++draw) {
-    const Eigen::VectorXd x = state_llt.matrixL() * testing::random_vector(n, random);
-    lie::Vector6d y;
-    for (int k = 0; k < 6; ++k) y(k) = normal(random);
-    const Eigen::Isometry3d T_true = lie::se3_exp(transform_llt.matrixL() * y) * T;
-    Eigen::VectorXd error(n);
-    for (int i = 0; i < state.num_poses(); ++i) {
-      const int index = state.pose_index(i);
-      const Eigen::Isometry3d truth =
-          T_true * lie::se3_exp(x.segment<6>(index)) * state.poses[i].T_world_body;
-      error.segment<6>(index) = lie::se3_log(truth * moved.poses[i].T_world_body.inverse());
-    }
-    for (int j = 0; j < state.num_landmarks(); ++j) {
-      const int index = state.landmark_index(j);
-      const Eigen::Vector3d truth = T_true * (state.landmarks[j].p_world + x.segment<3>(index));
-      error.segment<3>(index) = truth - moved.landmarks[j].p_world;
-    }
-    sample += error * error.transpose();
-    Eigen::Vector3d z{normal(random), normal(random), normal(random)};  // in order
-    const Eigen::Vector3d archived_truth =
-        T_true * (state.archived.at(9).p_world + archived_llt.matrixL() * z);
-    const Eigen::Vector3d archived_error = archived_truth - moved.archived.at(9).p_world;
-    archived_sample += archived_error * archived_error.transpose();
-  }
-  sample /= draws;
-  archived_sample /= draws;
-  EXPECT_LT((sample - moved.covariance).norm() / moved.covariance.norm(), 0.05);
-  EXPECT_LT((archived_sample - moved.archived.at(9).covariance).norm() /
+  const MovedSample sample = sample_moved(
+      state, moved,
+      [&](const Eigen::VectorXd&, const lie::Vector6d& y) {
+        return Eigen::Isometry3d(lie::se3_exp(transform_llt.matrixL() * y) * T);
+      },
+      random);
+  EXPECT_LT((sample.state - moved.covariance).norm() / moved.covariance.norm(), 0.05);
+  EXPECT_LT((sample.archived - moved.archived.at(9).covariance).norm() /
                 moved.archived.at(9).covariance.norm(),
             0.05);
 }
@@ -120,49 +139,22 @@ TEST(ReanchorTest, ATransformFoundFromTheStatesOwnMapCarriesItsPosesErrorNotTwic
   const lie::Matrix6d at_pose = moved.covariance.block<6, 6>(pose, pose);
   EXPECT_TRUE(at_pose.isApprox(independent, 1e-9));
 
-  const int n = state.dimension();
-  const Eigen::LLT<Eigen::MatrixXd> state_llt(state.covariance);
   const Eigen::LLT<lie::Matrix6d> transform_llt(independent);
-  const Eigen::LLT<Eigen::Matrix3d> archived_llt(state.archived.at(9).covariance);
-  std::normal_distribution<double> normal;
-  Eigen::MatrixXd sample = Eigen::MatrixXd::Zero(n, n);
-  Eigen::Matrix3d archived_sample = Eigen::Matrix3d::Zero();
-  const int draws = 20000;
-  for (int draw = 0; draw < draws; ++draw) {
-    const Eigen::VectorXd x = state_llt.matrixL() * testing::random_vector(n, random);
-    lie::Vector6d y;
-    for (int k = 0; k < 6; ++k) y(k) = normal(random);
-    const Eigen::Isometry3d T_true =
-        lie::se3_exp(transform_llt.matrixL() * y) * T * lie::se3_exp(-x.segment<6>(pose));
-    Eigen::VectorXd error(n);
-    for (int i = 0; i < state.num_poses(); ++i) {
-      const int index = state.pose_index(i);
-      const Eigen::Isometry3d truth =
-          T_true * lie::se3_exp(x.segment<6>(index)) * state.poses[i].T_world_body;
-      error.segment<6>(index) = lie::se3_log(truth * moved.poses[i].T_world_body.inverse());
-    }
-    for (int j = 0; j < state.num_landmarks(); ++j) {
-      const int index = state.landmark_index(j);
-      const Eigen::Vector3d truth = T_true * (state.landmarks[j].p_world + x.segment<3>(index));
-      error.segment<3>(index) = truth - moved.landmarks[j].p_world;
-    }
-    sample += error * error.transpose();
-    const Eigen::Vector3d z{normal(random), normal(random), normal(random)};
-    const Eigen::Vector3d archived_truth =
-        T_true * (state.archived.at(9).p_world + archived_llt.matrixL() * z);
-    const Eigen::Vector3d archived_error = archived_truth - moved.archived.at(9).p_world;
-    archived_sample += archived_error * archived_error.transpose();
-  }
-  sample /= draws;
-  archived_sample /= draws;
-  EXPECT_LT((sample - moved.covariance).norm() / moved.covariance.norm(), 0.05);
-  EXPECT_LT((archived_sample - moved.archived.at(9).covariance).norm() /
+  const MovedSample sample = sample_moved(
+      state, moved,
+      [&](const Eigen::VectorXd& x, const lie::Vector6d& y) {
+        return Eigen::Isometry3d(lie::se3_exp(transform_llt.matrixL() * y) * T *
+                                 lie::se3_exp(-x.segment<6>(pose)));
+      },
+      random);
+  EXPECT_LT((sample.state - moved.covariance).norm() / moved.covariance.norm(), 0.05);
+  EXPECT_LT((sample.archived - moved.archived.at(9).covariance).norm() /
                 moved.archived.at(9).covariance.norm(),
             0.05);
   // Taking the same transform as independent of the state counts the pose's error twice.
   State twice = state;
   StateHelper::reanchor(twice, T, whole);
-  EXPECT_GT((sample - twice.covariance).norm() / twice.covariance.norm(), 0.2);
+  EXPECT_GT((sample.state - twice.covariance).norm() / twice.covariance.norm(), 0.2);
   EXPECT_THROW(StateHelper::reanchor(twice, T, whole, 3, independent), std::invalid_argument);
 }
 

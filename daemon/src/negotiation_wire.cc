@@ -22,7 +22,13 @@ void add_upper(const Eigen::Matrix<double, N, N>& matrix,
     for (int column = row; column < N; ++column) out.Add(matrix(row, column));
 }
 
-/// A symmetric matrix from its packed upper triangle; false unless finite and positive definite.
+/// The largest magnitude of a covariance entry a peer may send (m^2, rad^2, m rad): a standard
+/// deviation of 10^6 m. Larger values say nothing a robot can use, and sums of them (a move
+/// composes several) could overflow.
+constexpr double kMaxCovarianceEntry = 1e12;
+
+/// A symmetric matrix from its packed upper triangle; false unless finite, bounded
+/// (kMaxCovarianceEntry) and positive definite.
 template <int N>
 bool read_upper(const google::protobuf::RepeatedField<double>& values,
                 Eigen::Matrix<double, N, N>& out) {
@@ -31,7 +37,8 @@ bool read_upper(const google::protobuf::RepeatedField<double>& values,
   for (int row = 0; row < N; ++row)
     for (int column = row; column < N; ++column)
       out(row, column) = out(column, row) = values.Get(index++);
-  return out.allFinite() && Eigen::LLT<Eigen::Matrix<double, N, N>>(out).info() == Eigen::Success;
+  return out.allFinite() && out.cwiseAbs().maxCoeff() <= kMaxCovarianceEntry &&
+         Eigen::LLT<Eigen::Matrix<double, N, N>>(out).info() == Eigen::Success;
 }
 
 /// A covariance that may be zero: none (zero), or 21 finite values of a positive semi-definite
@@ -45,7 +52,7 @@ bool read_upper_or_zero(const google::protobuf::RepeatedField<double>& values,
   for (int row = 0; row < 6; ++row)
     for (int column = row; column < 6; ++column)
       out(row, column) = out(column, row) = values.Get(index++);
-  if (!out.allFinite()) return false;
+  if (!out.allFinite() || out.cwiseAbs().maxCoeff() > kMaxCovarianceEntry) return false;
   const Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> solver(out,
                                                                           Eigen::EigenvaluesOnly);
   return solver.info() == Eigen::Success &&
