@@ -1726,6 +1726,73 @@ TEST(NegotiationTest, InOneFrameTheMapsAreMatchedUnderTheirFittedRelativePose) {
   EXPECT_FALSE(holds(as_they_stand, {100, 100}));
 }
 
+/// Robots 0 and 2 in one frame (robot 0 owns the pair), linked on nine objects of a grid where
+/// their maps agree. 30 m on, both map objects C (0 and 1), and robot 2's copies sit 0.6 m off
+/// robot 0's: the maps have drifted apart there. Each robot is 0.3 m uncertain (standard
+/// deviation an axis) of its objects in the frame (marginals) and 5 cm relative to itself
+/// (local). Robot 2 also archived an object A 0.3 m from robot 0's C0 (1 m uncertain), as a
+/// false detection could be.
+std::vector<std::pair<LandmarkId, LandmarkId>> links_where_the_maps_drifted(bool current_pass) {
+  NegotiationOptions options;
+  options.description_interval = 1;
+  options.confirmations = 2;
+  options.association.distance_noise = 0.0;
+  options.in_frame_current_pass = current_pass;
+  Negotiator zero(0, kWorldFrame, options), two(2, kWorldFrame, options);
+  const auto object = [](LandmarkId id, const Eigen::Vector3d& position, bool archived) {
+    ObjectDescription o;
+    o.id = id;
+    o.position = position;
+    o.covariance = (archived ? 1.0 : 0.09) * Eigen::Matrix3d::Identity();
+    o.local_covariance = 0.0025 * Eigen::Matrix3d::Identity();
+    o.archived = archived;
+    o.observations = 10;
+    return o;
+  };
+  const auto map_of = [&](int robot, int round) {
+    MapDescription map;
+    map.robot = robot;
+    map.frame = kWorldFrame;
+    for (int i = 0; i < 3; ++i) {
+      for (int j = 0; j < 3; ++j) {
+        const Eigen::Vector3d grid(10.0 * i, 10.0 * j, 0.5 * ((i + j) % 2));
+        map.objects.push_back(object(3 * i + j, grid, false));
+      }
+    }
+    if (round >= 3) {
+      const Eigen::Vector3d drift =
+          robot == 2 ? Eigen::Vector3d(0.0, 0.6, 0.0) : Eigen::Vector3d::Zero();
+      map.objects.push_back(object(100, Eigen::Vector3d(40.0, 5.0, 0.0) + drift, false));  // C0
+      map.objects.push_back(object(101, Eigen::Vector3d(44.0, 9.0, 1.0) + drift, false));  // C1
+      if (robot == 2) map.objects.push_back(object(102, Eigen::Vector3d(40.3, 5.0, 0.0), true));
+    }
+    return map;
+  };
+  for (int round = 0; round < 8; ++round) {
+    exchange_round(zero, two, map_of(0, round), map_of(2, round), round);
+  }
+  return zero.shared_objects(2);
+}
+
+TEST(NegotiationTest, InOneFrameObjectsInViewAreMatchedOnTheirMarginalsWhereTheFitLeftThem) {
+  using Link = std::pair<LandmarkId, LandmarkId>;
+  const auto holds = [](const std::vector<Link>& links, Link link) {
+    return std::find(links.begin(), links.end(), link) != links.end();
+  };
+  // Under the fit on the grid (the identity) their 0.6 m offset is far beyond the local gate:
+  // without the pass, the objects in view stay apart.
+  const std::vector<Link> fit_only = links_where_the_maps_drifted(false);
+  for (LandmarkId id = 0; id < 9; ++id) EXPECT_TRUE(holds(fit_only, {id, id})) << id;
+  EXPECT_EQ(fit_only.size(), 9u);
+  // With it, each is linked with its copy on their marginals; the archived A takes no part
+  // (it would be C0's best partner: 0.3 m against 0.6 m).
+  const std::vector<Link> with_pass = links_where_the_maps_drifted(true);
+  EXPECT_EQ(with_pass.size(), 11u);
+  EXPECT_TRUE(holds(with_pass, {100, 100}));
+  EXPECT_TRUE(holds(with_pass, {101, 101}));
+  EXPECT_FALSE(holds(with_pass, {100, 102}));
+}
+
 TEST(NegotiationTest, OptionsAreValidatedNamingTheKey) {
   NegotiationOptions options;
   options.confirmations = 0;

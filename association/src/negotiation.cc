@@ -598,14 +598,44 @@ bool Negotiator::match_in_frame(PairState& pair, const MapDescription& theirs) {
     }
   }
   // 2. New correspondences, confirmed over consecutive descriptions: under the maps' relative
-  //    pose fitted to the accepted ones where there are enough (in_frame_fit), else as the maps
-  //    stand in the common frame.
+  //    pose fitted to the accepted ones where there are enough (in_frame_fit; then 3.), else as the
+  //    maps stand in the common frame.
   const std::optional<RigidAlignment> relative = relative_pose(pair, theirs);
-  const std::vector<Match> matches =
+  std::vector<Match> matches =
       relative ? match_with_transform(own, theirs, relative->T_target_source, Covariances::kLocal,
                                       options_.association, &relative->covariance)
                : match_with_transform(own, theirs, Eigen::Isometry3d::Identity(),
                                       Covariances::kMarginal, options_.association);
+  if (relative && options_.in_frame_current_pass) {
+    // 3. Objects in both joint states that the fit's pass left without a partner, as the maps
+    //    stand, on their marginals (NegotiationOptions::in_frame_current_pass).
+    std::set<LandmarkId> own_taken, their_taken;
+    for (const Match& match : matches) {
+      own_taken.insert(match.id_a);
+      their_taken.insert(match.id_b);
+    }
+    for (const auto& [ids, d2] : pair.accepted) {
+      own_taken.insert(ids.first);
+      their_taken.insert(ids.second);
+    }
+    const auto current = [](const MapDescription& map, const std::set<LandmarkId>& taken) {
+      MapDescription left;
+      left.robot = map.robot;
+      left.frame = map.frame;
+      for (const ObjectDescription& object : map.objects) {
+        if (!object.archived && !taken.contains(object.id)) left.objects.push_back(object);
+      }
+      return left;
+    };
+    const std::vector<Match> more = match_with_transform(
+        current(own, own_taken), current(theirs, their_taken), Eigen::Isometry3d::Identity(),
+        Covariances::kMarginal, options_.association);
+    if (!more.empty()) {
+      matches.insert(matches.end(), more.begin(), more.end());
+      std::sort(matches.begin(), matches.end(),
+                [](const Match& x, const Match& y) { return x.id_a < y.id_a; });
+    }
+  }
   // The objects already linked on either side, ascending (`accepted` is ordered by own id).
   std::vector<LandmarkId> own_linked, their_linked;
   own_linked.reserve(pair.accepted.size());

@@ -61,6 +61,7 @@ void for_each_association_field(Negotiation& options, Visitor&& visit) {
   visit("max_corrections", options.max_corrections);
   visit("relay_delay", options.relay_delay);
   visit("in_frame_fit", options.in_frame_fit);
+  visit("in_frame_current_pass", options.in_frame_current_pass);
 }
 
 /// Calls visit(key, field) for every field of ConsensusOptions (const or not): the one list of

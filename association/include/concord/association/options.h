@@ -153,6 +153,17 @@ struct NegotiationOptions {
   /// move): a gate that wide lets unrelated objects match, and a robot whose map is shifted
   /// against the other's misses its true partners. Off until 2026-11-30 (docs/association.md).
   bool in_frame_fit = true;
+  /// in_frame_current_pass: after matching under the fit, the objects both robots still hold in
+  /// their joint states (in view now) that it left without a partner, and that no accepted
+  /// correspondence holds, are matched again as the maps stand in the common frame, on their
+  /// marginal covariances. The fit rests on the pair's accepted links, often parts of the maps
+  /// mapped long before; where the robots are now, their maps may have drifted apart since by
+  /// more than the fit's gate allows, and a robot that is not linked there is not corrected
+  /// there either. An in-state object's marginal is its robot's current uncertainty in the
+  /// frame (since moves carry the maps' drift, session 75), which is what the two maps' offset
+  /// there is made of. Archived objects take no part: their marginals are wide enough to take in
+  /// false detections (docs/association.md, Results).
+  bool in_frame_current_pass = true;
 
   /// Every problem with the values (and with association's), naming the key; empty when valid.
   std::vector<std::string> validate() const;
