@@ -1660,6 +1660,29 @@ TEST(NegotiationTest, AWrongMergeIsSplitAndCounted) {
 
 /// In-frame matching with and without in_frame_fit (NegotiationTest below): the neighbour's
 /// description of each object its owner holds (true, shared_objects of robot 0 with robot 2).
+/// Options for two robots negotiating in one frame, a description every round, exact distances.
+NegotiationOptions in_frame_options() {
+  NegotiationOptions options;
+  options.description_interval = 1;
+  options.confirmations = 2;
+  options.association.distance_noise = 0.0;
+  return options;
+}
+
+/// An object described with a marginal variance (an axis), 5 cm relative to the robot, ten
+/// observations.
+ObjectDescription in_frame_object(LandmarkId id, const Eigen::Vector3d& position, double variance,
+                                  bool archived = false) {
+  ObjectDescription o;
+  o.id = id;
+  o.position = position;
+  o.covariance = variance * Eigen::Matrix3d::Identity();
+  o.local_covariance = 0.0025 * Eigen::Matrix3d::Identity();
+  o.archived = archived;
+  o.observations = 10;
+  return o;
+}
+
 std::vector<std::pair<LandmarkId, LandmarkId>> in_frame_links(bool in_frame_fit) {
   // Robots 0 and 2 in one frame (robot 0 owns the pair). Robot 2's map is shifted 3 m along x
   // against robot 0's, as after a move into the team frame with an error of that size, and each
@@ -1667,21 +1690,12 @@ std::vector<std::pair<LandmarkId, LandmarkId>> in_frame_links(bool in_frame_fit)
   // relative to the robot (local). Nine objects on a 10 m grid are seen by both from the start.
   // From round 3 on, robot 0 maps object T at (25, 5, 0) and robot 2 maps T (3 m off, as all of
   // its map) and another object D, which its shift puts 10 cm from robot 0's T.
-  NegotiationOptions options;
-  options.description_interval = 1;
-  options.confirmations = 2;
-  options.association.distance_noise = 0.0;
+  NegotiationOptions options = in_frame_options();
   options.in_frame_fit = in_frame_fit;
   Negotiator zero(0, kWorldFrame, options), two(2, kWorldFrame, options);
   const Eigen::Vector3d shift(3.0, 0.0, 0.0);
   const auto object = [](LandmarkId id, const Eigen::Vector3d& position) {
-    ObjectDescription o;
-    o.id = id;
-    o.position = position;
-    o.covariance = Eigen::Matrix3d::Identity();
-    o.local_covariance = 0.0025 * Eigen::Matrix3d::Identity();
-    o.observations = 10;
-    return o;
+    return in_frame_object(id, position, 1.0);
   };
   const auto map_of = [&](int robot, int round) {
     MapDescription map;
@@ -1733,21 +1747,11 @@ TEST(NegotiationTest, InOneFrameTheMapsAreMatchedUnderTheirFittedRelativePose) {
 /// (local). Robot 2 also archived an object A 0.3 m from robot 0's C0 (1 m uncertain), as a
 /// false detection could be.
 std::vector<std::pair<LandmarkId, LandmarkId>> links_where_the_maps_drifted(bool current_pass) {
-  NegotiationOptions options;
-  options.description_interval = 1;
-  options.confirmations = 2;
-  options.association.distance_noise = 0.0;
+  NegotiationOptions options = in_frame_options();
   options.in_frame_current_pass = current_pass;
   Negotiator zero(0, kWorldFrame, options), two(2, kWorldFrame, options);
   const auto object = [](LandmarkId id, const Eigen::Vector3d& position, bool archived) {
-    ObjectDescription o;
-    o.id = id;
-    o.position = position;
-    o.covariance = (archived ? 1.0 : 0.09) * Eigen::Matrix3d::Identity();
-    o.local_covariance = 0.0025 * Eigen::Matrix3d::Identity();
-    o.archived = archived;
-    o.observations = 10;
-    return o;
+    return in_frame_object(id, position, archived ? 1.0 : 0.09, archived);
   };
   const auto map_of = [&](int robot, int round) {
     MapDescription map;
