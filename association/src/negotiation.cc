@@ -72,14 +72,18 @@ std::vector<std::string> NegotiationOptions::validate() const {
   return problems;
 }
 
-lie::Matrix6d FrameEdge::full_covariance(bool omit_a, bool omit_b) const {
-  lie::Matrix6d full = covariance;
-  if (!omit_a) full += drift_a;
-  if (!omit_b) {
-    const lie::Matrix6d adjoint = lie::adjoint(T_a_b);
-    full += adjoint * drift_b * adjoint.transpose();
-  }
+lie::Matrix6d transform_error_covariance(const Eigen::Isometry3d& T_a_b, const lie::Matrix6d& fit,
+                                         const lie::Matrix6d& drift_a,
+                                         const lie::Matrix6d& drift_b) {
+  const lie::Matrix6d adjoint = lie::adjoint(T_a_b);
+  const lie::Matrix6d full = fit + drift_a + adjoint * drift_b * adjoint.transpose();
   return 0.5 * (full + full.transpose());
+}
+
+lie::Matrix6d FrameEdge::full_covariance(bool omit_a, bool omit_b) const {
+  return transform_error_covariance(T_a_b, covariance,
+                                    omit_a ? lie::Matrix6d::Zero().eval() : drift_a,
+                                    omit_b ? lie::Matrix6d::Zero().eval() : drift_b);
 }
 
 std::size_t OwnerRecord::wire_size() const {
@@ -452,10 +456,8 @@ bool Negotiator::revisit_edge(PairState& pair, const MapDescription& theirs, int
   // found.T_a_b maps the neighbour's map onto this robot's: the neighbour's side moves by it, or
   // this robot's side by its inverse. Its error holds both maps' drift in the frame (their
   // poses' covariances), as a search's does (FrameEdge::full_covariance).
-  const lie::Matrix6d found_adjoint = lie::adjoint(found.T_a_b);
-  const lie::Matrix6d found_covariance =
-      found.covariance + own.pose_covariance +
-      found_adjoint * theirs.pose_covariance * found_adjoint.transpose();
+  const lie::Matrix6d found_covariance = transform_error_covariance(
+      found.T_a_b, found.covariance, own.pose_covariance, theirs.pose_covariance);
   if (staying.contains(start_frame_)) {
     correction.T = found.T_a_b;
     correction.covariance = found_covariance;

@@ -195,9 +195,7 @@ int Estimator::witness(const std::vector<WeightedMarginal>& neighbours) {
 
 void Estimator::reanchor(const Eigen::Isometry3d& T_new_old,
                          const Eigen::Matrix<double, 6, 6>& covariance) {
-  StateHelper::reanchor(state_, T_new_old, covariance);
-  // The neighbours' earlier claims were in the old frame.
-  forget_claims();
+  reanchor(T_new_old, covariance, -1, covariance);
 }
 
 bool Estimator::reanchor(const Eigen::Isometry3d& T_new_old,
@@ -205,6 +203,7 @@ bool Estimator::reanchor(const Eigen::Isometry3d& T_new_old,
                          const Eigen::Matrix<double, 6, 6>& independent) {
   const int slot = state_.pose_slot(pose_frame);
   StateHelper::reanchor(state_, T_new_old, covariance, slot, independent);
+  // The neighbours' earlier claims were in the old frame.
   forget_claims();
   return slot >= 0;
 }

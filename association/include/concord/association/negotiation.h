@@ -79,6 +79,13 @@ struct FrameCorrection {
   int round = 0;
 };
 
+/// The covariance of the error of a transform T_a_b fitted on two maps' local covariances: the
+/// fit's own plus each map's drift (its robot's pose covariance, a left perturbation in its
+/// frame): fit + drift_a + Ad(T_a_b) drift_b Ad(T_a_b)^T, a left perturbation in frame a.
+lie::Matrix6d transform_error_covariance(const Eigen::Isometry3d& T_a_b, const lie::Matrix6d& fit,
+                                         const lie::Matrix6d& drift_a,
+                                         const lie::Matrix6d& drift_b);
+
 /// A transform between two frames, accepted by the owner of the pair whose maps gave it.
 struct FrameEdge {
   int frame_a = 0;
