@@ -428,6 +428,8 @@ int run_replay(const fs::path& dataset_dir, const fs::path& out, bool separate,
            ? static_cast<double>(s.negotiation_bytes) / s.negotiation_robot_rounds
            : 0.0},
       {"searches", s.searches},
+      {"in_frame_searches", s.in_frame_searches},
+      {"in_frame_aligned", s.in_frame_aligned},
       {"ambiguous", s.ambiguous},
       {"tilted", s.tilted},
       {"frame_edges", s.frame_edges},
@@ -459,9 +461,10 @@ int run_replay(const fs::path& dataset_dir, const fs::path& out, bool separate,
     std::cerr << "concord replay: negotiation: " << s.searches << " searches (" << s.ambiguous
               << " ambiguous; " << s.tilted << " tilted), " << s.frame_edges << " frame edges ("
               << s.revisits << " revisits, " << s.revisits_ambiguous << " ambiguous, "
-              << s.frame_corrections << " corrected), " << s.reanchorings << " moves, "
-              << s.links_accepted << " links accepted, " << s.links_split << " split, "
-              << s.link_conflicts << " refused as conflicts, " << s.team_id_conflicts
+              << s.frame_corrections << " corrected), " << s.in_frame_searches
+              << " searches in one frame (" << s.in_frame_aligned << " aligned), " << s.reanchorings
+              << " moves, " << s.links_accepted << " links accepted, " << s.links_split
+              << " split, " << s.link_conflicts << " refused as conflicts, " << s.team_id_conflicts
               << " left out by the team ids; " << s.negotiation_bytes << " bytes in "
               << s.negotiation_messages << " messages\n";
   }

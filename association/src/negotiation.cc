@@ -602,7 +602,22 @@ bool Negotiator::match_in_frame(PairState& pair, const MapDescription& theirs) {
   // 2. New correspondences, confirmed over consecutive descriptions: under the maps' relative
   //    pose fitted to the accepted ones where there are enough (in_frame_fit; then 3.), else as the
   //    maps stand in the common frame.
-  const std::optional<RigidAlignment> relative = relative_pose(pair, theirs);
+  std::optional<RigidAlignment> relative = relative_pose(pair, theirs);
+  if (!relative && options_.in_frame_fit && options_.in_frame_search) {
+    //    Too few to fit: the first ones from a consistent set (in_frame_search), else none yet.
+    ++counters_.in_frame_searches;
+    const PairAlignment found = align_in_frame(
+        own_prepared(), PreparedMap(theirs, options_.association), options_.association);
+    if (found.status != AlignmentStatus::kAligned) {
+      pair.candidate_streak.clear();
+      return changed;
+    }
+    ++counters_.in_frame_aligned;
+    // As relative_pose's: the fit's own uncertainty, not the n-fold one that moves a state.
+    relative = RigidAlignment{};
+    relative->T_target_source = found.T_a_b;
+    relative->covariance = found.covariance / static_cast<double>(std::max(1, found.clique_size));
+  }
   std::vector<Match> matches =
       relative ? match_with_transform(own, theirs, relative->T_target_source, Covariances::kLocal,
                                       options_.association, &relative->covariance)

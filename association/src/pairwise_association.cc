@@ -494,57 +494,19 @@ MapDescription well_placed(const MapDescription& map, double max_sigma) {
   return kept;
 }
 
-}  // namespace
-
-PreparedMap::PreparedMap(const MapDescription& map, const AssociationOptions& options) {
-  // Archived objects take part by their marginals unless archived_local_covariance.
-  MapDescription geometry;
-  const MapDescription* source = &map;
-  if (!options.archived_local_covariance &&
-      std::any_of(map.objects.begin(), map.objects.end(),
-                  [](const ObjectDescription& object) { return object.archived; })) {
-    geometry = map;
-    for (ObjectDescription& object : geometry.objects) {
-      if (object.archived) object.local_covariance = object.covariance;
-    }
-    source = &geometry;
-  }
-  MapDescription placed = well_placed(*source, options.search_max_sigma);
-  DistanceTable table(placed, options.distance_noise);
-  Descriptors descriptors = descriptors_of(placed, table, options);
-  parts_ = std::make_unique<const Parts>(
-      Parts{std::move(placed), std::move(table), std::move(descriptors)});
-}
-
-PreparedMap::~PreparedMap() = default;
-PreparedMap::PreparedMap(PreparedMap&&) noexcept = default;
-PreparedMap& PreparedMap::operator=(PreparedMap&&) noexcept = default;
-
-PairAlignment align_maps(const MapDescription& a, const MapDescription& b,
-                         const AssociationOptions& options) {
-  return align_maps(PreparedMap(a, options), PreparedMap(b, options), options);
-}
-
-PairAlignment align_maps(const PreparedMap& prepared_a, const PreparedMap& prepared_b,
-                         const AssociationOptions& options) {
+/// Steps 2-5 of a search (align_maps, align_in_frame) on its candidates: the consistency graph,
+/// the largest rigid hypothesis and its rival, every correspondence the transform supports.
+PairAlignment align_candidates(const MapDescription& a, const MapDescription& b,
+                               const DistanceTable& table_a, const DistanceTable& table_b,
+                               const std::vector<Candidate>& candidates,
+                               const AssociationOptions& options) {
   PairAlignment result;
   const auto min_inliers = static_cast<std::size_t>(options.min_inliers);
-  // The search and the matching use the well-placed objects.
-  const MapDescription& a = prepared_a.parts_->placed;
-  const MapDescription& b = prepared_b.parts_->placed;
-  if (a.objects.size() < min_inliers || b.objects.size() < min_inliers) return result;
-
-  // 1. Candidates from the objects' surroundings.
-  const DistanceTable& table_a = prepared_a.parts_->table;
-  const DistanceTable& table_b = prepared_b.parts_->table;
-  const std::vector<Candidate> candidates = find_candidates(
-      a, b, prepared_a.parts_->descriptors, prepared_b.parts_->descriptors, options);
   result.candidates = static_cast<int>(candidates.size());
   if (candidates.size() < min_inliers) {
     result.status = AlignmentStatus::kTooFewCandidates;
     return result;
   }
-
   // 2. Consistency graph.
   const double bound = UpdaterHelper::chi2_quantile(options.consistency_chi2_probability, 1);
   const ConsistencyGraph graph = consistency_graph(candidates, table_a, table_b, bound);
@@ -658,6 +620,93 @@ PairAlignment align_maps(const PreparedMap& prepared_a, const PreparedMap& prepa
   result.covariance = final_fit->covariance;
   result.matches = std::move(matches);
   return result;
+}
+
+}  // namespace
+
+PreparedMap::PreparedMap(const MapDescription& map, const AssociationOptions& options) {
+  // Archived objects take part by their marginals unless archived_local_covariance.
+  MapDescription geometry;
+  const MapDescription* source = &map;
+  if (!options.archived_local_covariance &&
+      std::any_of(map.objects.begin(), map.objects.end(),
+                  [](const ObjectDescription& object) { return object.archived; })) {
+    geometry = map;
+    for (ObjectDescription& object : geometry.objects) {
+      if (object.archived) object.local_covariance = object.covariance;
+    }
+    source = &geometry;
+  }
+  MapDescription placed = well_placed(*source, options.search_max_sigma);
+  DistanceTable table(placed, options.distance_noise);
+  Descriptors descriptors = descriptors_of(placed, table, options);
+  parts_ = std::make_unique<const Parts>(
+      Parts{std::move(placed), std::move(table), std::move(descriptors)});
+}
+
+PreparedMap::~PreparedMap() = default;
+PreparedMap::PreparedMap(PreparedMap&&) noexcept = default;
+PreparedMap& PreparedMap::operator=(PreparedMap&&) noexcept = default;
+
+PairAlignment align_maps(const MapDescription& a, const MapDescription& b,
+                         const AssociationOptions& options) {
+  return align_maps(PreparedMap(a, options), PreparedMap(b, options), options);
+}
+
+PairAlignment align_maps(const PreparedMap& prepared_a, const PreparedMap& prepared_b,
+                         const AssociationOptions& options) {
+  const auto min_inliers = static_cast<std::size_t>(options.min_inliers);
+  // The search and the matching use the well-placed objects.
+  const MapDescription& a = prepared_a.parts_->placed;
+  const MapDescription& b = prepared_b.parts_->placed;
+  if (a.objects.size() < min_inliers || b.objects.size() < min_inliers) return {};
+  // 1. Candidates from the objects' surroundings.
+  return align_candidates(a, b, prepared_a.parts_->table, prepared_b.parts_->table,
+                          find_candidates(a, b, prepared_a.parts_->descriptors,
+                                          prepared_b.parts_->descriptors, options),
+                          options);
+}
+
+PairAlignment align_in_frame(const PreparedMap& prepared_a, const PreparedMap& prepared_b,
+                             const AssociationOptions& options) {
+  const auto min_inliers = static_cast<std::size_t>(options.min_inliers);
+  const MapDescription& a = prepared_a.parts_->placed;
+  const MapDescription& b = prepared_b.parts_->placed;
+  if (a.objects.size() < min_inliers || b.objects.size() < min_inliers) return {};
+  // 1. Candidates: the pairs whose positions agree in the common frame on their marginals (a
+  //    marginal is the object's uncertainty in the frame, the move's included).
+  const double gate = UpdaterHelper::chi2_quantile(options.match_chi2_probability, 3);
+  const double noise = options.distance_noise * options.distance_noise;
+  std::vector<Candidate> candidates;
+  for (std::size_t i = 0; i < a.objects.size(); ++i) {
+    const ObjectDescription& x = a.objects[i];
+    for (std::size_t j = 0; j < b.objects.size(); ++j) {
+      const ObjectDescription& y = b.objects[j];
+      if (!classes_compatible(x.object_class, y.object_class, options)) continue;
+      const Eigen::Vector3d residual = x.position - y.position;
+      const Eigen::Matrix3d covariance =
+          x.covariance + y.covariance + noise * Eigen::Matrix3d::Identity();
+      // The trace bound first (d^2 >= |r|^2 / trace): most pairs are far apart.
+      if (residual.squaredNorm() > gate * covariance.trace()) continue;
+      const Eigen::LLT<Eigen::Matrix3d> llt(covariance);
+      if (llt.info() != Eigen::Success) continue;
+      const double d2 = residual.dot(llt.solve(residual));
+      // The score orders candidates for max_candidates: the closer, the better.
+      if (d2 <= gate) {
+        candidates.push_back({static_cast<int>(i), static_cast<int>(j), gate - d2});
+      }
+    }
+  }
+  if (static_cast<int>(candidates.size()) > options.max_candidates) {
+    std::stable_sort(candidates.begin(), candidates.end(),
+                     [](const Candidate& x, const Candidate& y) { return x.score > y.score; });
+    candidates.resize(static_cast<std::size_t>(options.max_candidates));
+    std::sort(candidates.begin(), candidates.end(), [](const Candidate& x, const Candidate& y) {
+      return x.a != y.a ? x.a < y.a : x.b < y.b;
+    });
+  }
+  return align_candidates(a, b, prepared_a.parts_->table, prepared_b.parts_->table, candidates,
+                          options);
 }
 
 }  // namespace concord::association

@@ -62,6 +62,7 @@ void for_each_association_field(Negotiation& options, Visitor&& visit) {
   visit("relay_delay", options.relay_delay);
   visit("in_frame_fit", options.in_frame_fit);
   visit("in_frame_current_pass", options.in_frame_current_pass);
+  visit("in_frame_search", options.in_frame_search);
 }
 
 /// Calls visit(key, field) for every field of ConsensusOptions (const or not): the one list of

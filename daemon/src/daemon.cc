@@ -1160,6 +1160,8 @@ json Daemon::Impl::stats_json() const {
                             {"frame_edges", n.frame_edges},
                             {"revisits", n.revisits},
                             {"revisits_ambiguous", n.revisits_ambiguous},
+                            {"in_frame_searches", n.in_frame_searches},
+                            {"in_frame_aligned", n.in_frame_aligned},
                             {"records_redundant", n.records_redundant},
                             {"frame_corrections", n.frame_corrections},
                             {"reanchorings", n.reanchorings},

@@ -491,6 +491,8 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
       statistics.negotiation_bytes += counters.bytes_sent;
       statistics.description_bytes += counters.description_bytes;
       statistics.searches += counters.searches;
+      statistics.in_frame_searches += counters.in_frame_searches;
+      statistics.in_frame_aligned += counters.in_frame_aligned;
       statistics.ambiguous += counters.ambiguous;
       statistics.tilted += counters.tilted;
       statistics.frame_edges += counters.frame_edges;

@@ -148,6 +148,8 @@ struct ReplayStatistics {
   long long edge_rounds = 0;
   /// Sums of the negotiators' counters (association::NegotiationCounters).
   long long searches = 0;
+  long long in_frame_searches = 0;
+  long long in_frame_aligned = 0;
   long long ambiguous = 0;
   long long tilted = 0;
   long long frame_edges = 0;

@@ -174,6 +174,10 @@ struct NegotiationCounters {
   long long tilted = 0;             ///< of which tilted the start frames (start_up_axis)
   long long frame_edges = 0;        ///< transforms accepted (as owner)
   long long revisits = 0;           ///< align_maps calls on pairs already in one frame
+  /// align_in_frame calls: pairs in one frame with too few accepted correspondences to fit
+  /// (NegotiationOptions::in_frame_search).
+  long long in_frame_searches = 0;
+  long long in_frame_aligned = 0;  ///< of which found a transform
   /// Revisits beyond the gate left alone because the accepted alignment matched as many
   /// correspondences (NegotiationOptions::revisit_ambiguity_ratio).
   long long revisits_ambiguous = 0;

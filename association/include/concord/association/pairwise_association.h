@@ -88,6 +88,8 @@ class PreparedMap {
  private:
   friend PairAlignment align_maps(const PreparedMap& a, const PreparedMap& b,
                                   const AssociationOptions& options);
+  friend PairAlignment align_in_frame(const PreparedMap& a, const PreparedMap& b,
+                                      const AssociationOptions& options);
   struct Parts;
   std::unique_ptr<const Parts> parts_;
 };
@@ -95,6 +97,17 @@ class PreparedMap {
 /// align_maps on prepared maps (the same result as on the maps they were prepared from).
 PairAlignment align_maps(const PreparedMap& a, const PreparedMap& b,
                          const AssociationOptions& options);
+
+/// The search of align_maps for two maps already in one frame: the candidates are the pairs of
+/// compatible classes whose positions agree as the maps stand, within the match gate of their
+/// marginal covariances (not the descriptors', which assume nothing of the transform); the
+/// consistency graph, its cliques, the rival check and the final matching are align_maps'. A
+/// common shift of one map against the other (the error of a move into the team frame) keeps the
+/// distances within each map, so the largest consistent set finds it where matching object by
+/// object would pair each object with the neighbour the shift brought closest; in a repetitive
+/// layout the shifted set is a rival and the result is ambiguous.
+PairAlignment align_in_frame(const PreparedMap& a, const PreparedMap& b,
+                             const AssociationOptions& options);
 
 /// Which of an object's covariances a comparison of two maps takes (ObjectDescription):
 /// kMarginal, the marginal (maps compared as they stand in one frame); kTransform,
