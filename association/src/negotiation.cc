@@ -604,19 +604,24 @@ bool Negotiator::match_in_frame(PairState& pair, const MapDescription& theirs) {
   //    maps stand in the common frame.
   std::optional<RigidAlignment> relative = relative_pose(pair, theirs);
   if (!relative && options_.in_frame_fit && options_.in_frame_search) {
-    //    Too few to fit: the first ones from a consistent set (in_frame_search), else none yet.
+    //    Too few to fit: the first ones from a consistent set (in_frame_search). Without one, as
+    //    the maps stand only while no map has been moved into the frame (known starts): a move
+    //    gives a map an error that all its objects share, which the marginals cannot tell from a
+    //    neighbour's place.
     ++counters_.in_frame_searches;
     const PairAlignment found = align_in_frame(
         own_prepared(), PreparedMap(theirs, options_.association), options_.association);
-    if (found.status != AlignmentStatus::kAligned) {
+    if (found.status == AlignmentStatus::kAligned) {
+      ++counters_.in_frame_aligned;
+      // As relative_pose's: the fit's own uncertainty, not the n-fold one that moves a state.
+      relative = RigidAlignment{};
+      relative->T_target_source = found.T_a_b;
+      relative->covariance = found.covariance / static_cast<double>(std::max(1, found.clique_size));
+    } else if (found.status == AlignmentStatus::kAmbiguous ||
+               found.status == AlignmentStatus::kTilted || component_of(own.frame).size() > 1) {
       pair.candidate_streak.clear();
       return changed;
     }
-    ++counters_.in_frame_aligned;
-    // As relative_pose's: the fit's own uncertainty, not the n-fold one that moves a state.
-    relative = RigidAlignment{};
-    relative->T_target_source = found.T_a_b;
-    relative->covariance = found.covariance / static_cast<double>(std::max(1, found.clique_size));
   }
   std::vector<Match> matches =
       relative ? match_with_transform(own, theirs, relative->T_target_source, Covariances::kLocal,

@@ -167,12 +167,15 @@ struct NegotiationOptions {
   /// in_frame_search: with in_frame_fit, a pair in one frame without min_inliers accepted
   /// correspondences to fit finds its first ones by a search (align_in_frame: the candidates
   /// that agree as the maps stand on their marginals, then align_maps' consistency graph,
-  /// largest clique and rival check), and matches under its transform as under the fit. Off,
-  /// they are matched object by object as the maps stand. After a move into the team frame both
-  /// maps carry the move's error, common to all their objects: object by object, a shift of a
-  /// few metres pairs an object with the neighbour the shift brought closest (two robots' parked
-  /// cars one car apart), and consensus then pulls the wrong objects together, which makes
-  /// the error look consistent to every later test (docs/association.md, Results, session 76).
+  /// largest clique and rival check), and matches under its transform as under the fit. Where
+  /// the search finds no consistent set (too few objects, not ambiguous), objects are matched
+  /// one by one as the maps stand only while no map can have been moved into the frame (no
+  /// frame edge joins it: known starts). Off, always one by one. After a move into the team
+  /// frame both maps carry the move's error, common to all their objects: one by one, a shift of
+  /// a metre or more pairs an object whose partner the other robot does not hold with the
+  /// neighbour the shift brought closest, and consensus then pulls the wrong objects together,
+  /// which makes the error look consistent to every later test (docs/association.md, Results,
+  /// session 76).
   bool in_frame_search = true;
 
   /// Every problem with the values (and with association's), naming the key; empty when valid.
