@@ -1744,7 +1744,26 @@ ObjectDescription in_frame_object(LandmarkId id, const Eigen::Vector3d& position
   return o;
 }
 
-std::vector<std::pair<LandmarkId, LandmarkId>> in_frame_links(bool in_frame_fit) {
+using Link = std::pair<LandmarkId, LandmarkId>;
+
+/// Whether `links` (shared_objects) holds `link`.
+bool holds(const std::vector<Link>& links, Link link) {
+  return std::find(links.begin(), links.end(), link) != links.end();
+}
+
+/// The in-frame tests' nine objects on a 10 m grid (ids 0-8, heights alternating 0 and 0.5 m),
+/// each made by `object(id, position)`.
+template <typename Make>
+void add_grid(MapDescription& map, const Eigen::Vector3d& offset, Make&& object) {
+  for (int i = 0; i < 3; ++i) {
+    for (int j = 0; j < 3; ++j) {
+      const Eigen::Vector3d grid(10.0 * i, 10.0 * j, 0.5 * ((i + j) % 2));
+      map.objects.push_back(object(3 * i + j, grid + offset));
+    }
+  }
+}
+
+std::vector<Link> in_frame_links(bool in_frame_fit) {
   // Robots 0 and 2 in one frame (robot 0 owns the pair). Robot 2's map is shifted 3 m along x
   // against robot 0's, as after a move into the team frame with an error of that size, and each
   // says so: marginal covariances of 1 m^2 an axis (the team frame's uncertainty), 5 cm
@@ -1763,12 +1782,7 @@ std::vector<std::pair<LandmarkId, LandmarkId>> in_frame_links(bool in_frame_fit)
     map.robot = robot;
     map.frame = kWorldFrame;
     const Eigen::Vector3d offset = robot == 2 ? shift : Eigen::Vector3d::Zero();
-    for (int i = 0; i < 3; ++i) {
-      for (int j = 0; j < 3; ++j) {
-        const Eigen::Vector3d grid(10.0 * i, 10.0 * j, 0.5 * ((i + j) % 2));
-        map.objects.push_back(object(3 * i + j, grid + offset));
-      }
-    }
+    add_grid(map, offset, object);
     if (round >= 3) {
       map.objects.push_back(object(100, Eigen::Vector3d(25.0, 5.0, 0.0) + offset));         // T
       if (robot == 2) map.objects.push_back(object(101, Eigen::Vector3d(25.1, 5.0, 0.0)));  // D
@@ -1783,10 +1797,6 @@ std::vector<std::pair<LandmarkId, LandmarkId>> in_frame_links(bool in_frame_fit)
 
 TEST(NegotiationTest, InOneFrameTheMapsAreMatchedUnderTheirFittedRelativePose) {
   ASSERT_TRUE(owns_pair(0, 2));
-  using Link = std::pair<LandmarkId, LandmarkId>;
-  const auto holds = [](const std::vector<Link>& links, Link link) {
-    return std::find(links.begin(), links.end(), link) != links.end();
-  };
   // With the fit, the grid's nine links give the 3 m shift, and T is linked with T.
   const std::vector<Link> fitted = in_frame_links(true);
   EXPECT_EQ(fitted.size(), 10u);
@@ -1807,7 +1817,7 @@ TEST(NegotiationTest, InOneFrameTheMapsAreMatchedUnderTheirFittedRelativePose) {
 /// deviation an axis) of its objects in the frame (marginals) and 5 cm relative to itself
 /// (local). Robot 2 also archived an object A 0.3 m from robot 0's C0 (1 m uncertain), as a
 /// false detection could be.
-std::vector<std::pair<LandmarkId, LandmarkId>> links_where_the_maps_drifted(bool current_pass) {
+std::vector<Link> links_where_the_maps_drifted(bool current_pass) {
   NegotiationOptions options = in_frame_options();
   options.in_frame_current_pass = current_pass;
   Negotiator zero(0, kWorldFrame, options), two(2, kWorldFrame, options);
@@ -1818,12 +1828,8 @@ std::vector<std::pair<LandmarkId, LandmarkId>> links_where_the_maps_drifted(bool
     MapDescription map;
     map.robot = robot;
     map.frame = kWorldFrame;
-    for (int i = 0; i < 3; ++i) {
-      for (int j = 0; j < 3; ++j) {
-        const Eigen::Vector3d grid(10.0 * i, 10.0 * j, 0.5 * ((i + j) % 2));
-        map.objects.push_back(object(3 * i + j, grid, false));
-      }
-    }
+    add_grid(map, Eigen::Vector3d::Zero(),
+             [&](LandmarkId id, const Eigen::Vector3d& p) { return object(id, p, false); });
     if (round >= 3) {
       const Eigen::Vector3d drift =
           robot == 2 ? Eigen::Vector3d(0.0, 0.6, 0.0) : Eigen::Vector3d::Zero();
@@ -1840,10 +1846,6 @@ std::vector<std::pair<LandmarkId, LandmarkId>> links_where_the_maps_drifted(bool
 }
 
 TEST(NegotiationTest, InOneFrameObjectsInViewAreMatchedOnTheirMarginalsWhereTheFitLeftThem) {
-  using Link = std::pair<LandmarkId, LandmarkId>;
-  const auto holds = [](const std::vector<Link>& links, Link link) {
-    return std::find(links.begin(), links.end(), link) != links.end();
-  };
   // Under the fit on the grid (the identity) their 0.6 m offset is far beyond the local gate:
   // without the pass, the objects in view stay apart.
   const std::vector<Link> fit_only = links_where_the_maps_drifted(false);
@@ -1866,7 +1868,7 @@ TEST(NegotiationTest, InOneFrameObjectsInViewAreMatchedOnTheirMarginalsWhereTheF
 /// X and Y have left the robots' joint states (archived): in the states, the second pass on
 /// marginals (in_frame_current_pass) would take them up where the fit left them, a limit of that
 /// pass (docs/association.md).
-std::vector<std::pair<LandmarkId, LandmarkId>> first_links_after_a_move(bool in_frame_search) {
+std::vector<Link> first_links_after_a_move(bool in_frame_search) {
   NegotiationOptions options = in_frame_options();
   options.in_frame_search = in_frame_search;
   Negotiator zero(0, kWorldFrame, options), two(2, kWorldFrame, options);
@@ -1876,12 +1878,8 @@ std::vector<std::pair<LandmarkId, LandmarkId>> first_links_after_a_move(bool in_
     map.robot = robot;
     map.frame = kWorldFrame;
     const Eigen::Vector3d offset = robot == 2 ? shift : Eigen::Vector3d::Zero();
-    for (int i = 0; i < 3; ++i) {
-      for (int j = 0; j < 3; ++j) {
-        const Eigen::Vector3d grid(10.0 * i, 10.0 * j, 0.5 * ((i + j) % 2));
-        map.objects.push_back(in_frame_object(3 * i + j, grid + offset, 1.0));
-      }
-    }
+    add_grid(map, offset,
+             [](LandmarkId id, const Eigen::Vector3d& p) { return in_frame_object(id, p, 1.0); });
     const Eigen::Vector3d other = robot == 0 ? Eigen::Vector3d(30.0, 0.0, 0.0)            // X
                                              : Eigen::Vector3d(27.5, 1.0, 0.0) + offset;  // Y
     map.objects.push_back(in_frame_object(100, other, 1.0, true));
@@ -1893,10 +1891,6 @@ std::vector<std::pair<LandmarkId, LandmarkId>> first_links_after_a_move(bool in_
 
 TEST(NegotiationTest, InOneFrameThePairsFirstLinksComeFromAConsistentSet) {
   ASSERT_TRUE(owns_pair(0, 2));
-  using Link = std::pair<LandmarkId, LandmarkId>;
-  const auto holds = [](const std::vector<Link>& links, Link link) {
-    return std::find(links.begin(), links.end(), link) != links.end();
-  };
   // Object by object as the maps stand, X and Y are each other's only partner within the gate
   // (1.4 m on marginals of 1 m): a wrong link.
   const std::vector<Link> one_by_one = first_links_after_a_move(false);
@@ -1912,7 +1906,7 @@ TEST(NegotiationTest, InOneFrameThePairsFirstLinksComeFromAConsistentSet) {
 /// Robots 0 and 2 in frame 0, not linked yet, mapping the same three objects (fewer than
 /// min_inliers: no search can align them), 5 cm apart on marginals of 10 cm. With `moved_in`,
 /// a record of robot 1's joins frame 1 to frame 0: a map may have been moved into the frame.
-std::vector<std::pair<LandmarkId, LandmarkId>> links_of_a_few_objects(bool moved_in) {
+std::vector<Link> links_of_a_few_objects(bool moved_in) {
   NegotiationOptions options = in_frame_options();
   Negotiator zero(0, 0, options), two(2, 0, options);
   if (moved_in) {
