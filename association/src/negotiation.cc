@@ -600,8 +600,8 @@ bool Negotiator::match_in_frame(PairState& pair, const MapDescription& theirs) {
     }
   }
   // 2. New correspondences, confirmed over consecutive descriptions: under the maps' relative
-  //    pose fitted to the accepted ones where there are enough (in_frame_fit; then 3.), else as the
-  //    maps stand in the common frame.
+  //    pose fitted to the accepted ones where there are enough (in_frame_fit; then 3.), else under
+  //    a search's transform (in_frame_search) or as the maps stand in the common frame.
   std::optional<RigidAlignment> relative = relative_pose(pair, theirs);
   if (!relative && options_.in_frame_fit && options_.in_frame_search) {
     //    Too few to fit: the first ones from a consistent set (in_frame_search). Without one, as
@@ -613,10 +613,11 @@ bool Negotiator::match_in_frame(PairState& pair, const MapDescription& theirs) {
         own_prepared(), PreparedMap(theirs, options_.association), options_.association);
     if (found.status == AlignmentStatus::kAligned) {
       ++counters_.in_frame_aligned;
-      // As relative_pose's: the fit's own uncertainty, not the n-fold one that moves a state.
+      // As relative_pose's: the fit's own uncertainty, not the n-fold one that moves a state
+      // (align_maps fits its final transform to all its matches).
       relative = RigidAlignment{};
       relative->T_target_source = found.T_a_b;
-      relative->covariance = found.covariance / static_cast<double>(std::max(1, found.clique_size));
+      relative->covariance = found.covariance / static_cast<double>(found.matches.size());
     } else if (found.status == AlignmentStatus::kAmbiguous ||
                found.status == AlignmentStatus::kTilted || component_of(own.frame).size() > 1) {
       pair.candidate_streak.clear();
