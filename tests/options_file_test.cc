@@ -379,12 +379,13 @@ TEST(OptionsValidateTest, ReportsEveryProblem) {
 TEST(NegotiationOptionsFileTest, TheAssociationSectionReadsWritesAndRefusesBadValues) {
   const association::NegotiationOptions read = parse_negotiation_options(
       "window_size: 9\nassociation:\n  start_up_axis: \"-y\"\n  max_start_tilt: 7.5\n"
-      "  confirmations: 4\n  confirmation_new_matches: 2\n",
+      "  confirmations: 4\n  confirmation_new_matches: 2\n  in_frame_search: false\n",
       "test.yaml");
   EXPECT_EQ(read.association.start_up_axis, "-y");
   EXPECT_EQ(read.association.max_start_tilt, 7.5);
   EXPECT_EQ(read.confirmations, 4);
   EXPECT_EQ(read.confirmation_new_matches, 2);
+  EXPECT_FALSE(read.in_frame_search);
   // Written and read back, every key included.
   const std::string text = to_yaml(read);
   EXPECT_THAT(text, HasSubstr("  start_up_axis: -y\n"));
@@ -392,6 +393,7 @@ TEST(NegotiationOptionsFileTest, TheAssociationSectionReadsWritesAndRefusesBadVa
   EXPECT_EQ(again.association.start_up_axis, "-y");
   EXPECT_EQ(again.association.max_start_tilt, 7.5);
   EXPECT_EQ(again.confirmation_new_matches, 2);
+  EXPECT_FALSE(again.in_frame_search);
   // An override, and values that are refused with their key.
   EXPECT_EQ(apply_association_overrides(read, {"association.start_up_axis=+z"})
                 .association.start_up_axis,
