@@ -1746,6 +1746,14 @@ ObjectDescription in_frame_object(LandmarkId id, const Eigen::Vector3d& position
 
 using Link = std::pair<LandmarkId, LandmarkId>;
 
+/// An empty description of `robot`'s map in `frame`.
+MapDescription in_frame_map(int robot, int frame) {
+  MapDescription map;
+  map.robot = robot;
+  map.frame = frame;
+  return map;
+}
+
 /// Whether `links` (shared_objects) holds `link`.
 bool holds(const std::vector<Link>& links, Link link) {
   return std::find(links.begin(), links.end(), link) != links.end();
@@ -1778,9 +1786,7 @@ std::vector<Link> in_frame_links(bool in_frame_fit) {
     return in_frame_object(id, position, 1.0);
   };
   const auto map_of = [&](int robot, int round) {
-    MapDescription map;
-    map.robot = robot;
-    map.frame = kWorldFrame;
+    MapDescription map = in_frame_map(robot, kWorldFrame);
     const Eigen::Vector3d offset = robot == 2 ? shift : Eigen::Vector3d::Zero();
     add_grid(map, offset, object);
     if (round >= 3) {
@@ -1825,9 +1831,7 @@ std::vector<Link> links_where_the_maps_drifted(bool current_pass) {
     return in_frame_object(id, position, archived ? 1.0 : 0.09, archived);
   };
   const auto map_of = [&](int robot, int round) {
-    MapDescription map;
-    map.robot = robot;
-    map.frame = kWorldFrame;
+    MapDescription map = in_frame_map(robot, kWorldFrame);
     add_grid(map, Eigen::Vector3d::Zero(),
              [&](LandmarkId id, const Eigen::Vector3d& p) { return object(id, p, false); });
     if (round >= 3) {
@@ -1874,9 +1878,7 @@ std::vector<Link> first_links_after_a_move(bool in_frame_search) {
   Negotiator zero(0, kWorldFrame, options), two(2, kWorldFrame, options);
   const Eigen::Vector3d shift(1.5, 0.0, 0.0);
   const auto map_of = [&](int robot) {
-    MapDescription map;
-    map.robot = robot;
-    map.frame = kWorldFrame;
+    MapDescription map = in_frame_map(robot, kWorldFrame);
     const Eigen::Vector3d offset = robot == 2 ? shift : Eigen::Vector3d::Zero();
     add_grid(map, offset,
              [](LandmarkId id, const Eigen::Vector3d& p) { return in_frame_object(id, p, 1.0); });
@@ -1928,9 +1930,7 @@ std::vector<Link> links_of_a_few_objects(bool moved_in) {
     two.receive(message, 0);
   }
   const auto map_of = [](int robot) {
-    MapDescription map;
-    map.robot = robot;
-    map.frame = 0;
+    MapDescription map = in_frame_map(robot, 0);
     const Eigen::Vector3d offset =
         robot == 2 ? Eigen::Vector3d(0.05, 0.0, 0.0) : Eigen::Vector3d::Zero();
     const std::vector<Eigen::Vector3d> positions{{0, 0, 0}, {8, 1, 0}, {3, 9, 1}};

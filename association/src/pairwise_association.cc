@@ -141,6 +141,17 @@ Descriptors descriptors_of(const MapDescription& map, const DistanceTable& table
   return descriptors;
 }
 
+/// At most `max_candidates` of them, the best scored (ties in their order), in (a, b) order.
+void keep_best_candidates(std::vector<Candidate>& candidates, int max_candidates) {
+  if (static_cast<int>(candidates.size()) <= max_candidates) return;
+  std::stable_sort(candidates.begin(), candidates.end(),
+                   [](const Candidate& x, const Candidate& y) { return x.score > y.score; });
+  candidates.resize(static_cast<std::size_t>(max_candidates));
+  std::sort(candidates.begin(), candidates.end(), [](const Candidate& x, const Candidate& y) {
+    return x.a != y.a ? x.a < y.a : x.b < y.b;
+  });
+}
+
 std::vector<Candidate> find_candidates(const MapDescription& a, const MapDescription& b,
                                        const Descriptors& descriptors_a,
                                        const Descriptors& descriptors_b,
@@ -185,14 +196,7 @@ std::vector<Candidate> find_candidates(const MapDescription& a, const MapDescrip
           {static_cast<int>(cell / nb), static_cast<int>(cell % nb), scores[cell]});
     }
   }
-  if (static_cast<int>(candidates.size()) > options.max_candidates) {
-    std::stable_sort(candidates.begin(), candidates.end(),
-                     [](const Candidate& x, const Candidate& y) { return x.score > y.score; });
-    candidates.resize(options.max_candidates);
-    std::sort(candidates.begin(), candidates.end(), [](const Candidate& x, const Candidate& y) {
-      return x.a != y.a ? x.a < y.a : x.b < y.b;
-    });
-  }
+  keep_best_candidates(candidates, options.max_candidates);
   return candidates;
 }
 
@@ -683,28 +687,17 @@ PairAlignment align_in_frame(const PreparedMap& prepared_a, const PreparedMap& p
     for (std::size_t j = 0; j < b.objects.size(); ++j) {
       const ObjectDescription& y = b.objects[j];
       if (!classes_compatible(x.object_class, y.object_class, options)) continue;
-      const Eigen::Vector3d residual = x.position - y.position;
-      const Eigen::Matrix3d covariance =
-          x.covariance + y.covariance + noise * Eigen::Matrix3d::Identity();
       // The trace bound first (d^2 >= |r|^2 / trace): most pairs are far apart.
-      if (residual.squaredNorm() > gate * covariance.trace()) continue;
-      const Eigen::LLT<Eigen::Matrix3d> llt(covariance);
-      if (llt.info() != Eigen::Success) continue;
-      const double d2 = residual.dot(llt.solve(residual));
+      const double trace = x.covariance.trace() + y.covariance.trace() + 3.0 * noise;
+      if ((x.position - y.position).squaredNorm() > gate * trace) continue;
+      const double d2 = mahalanobis_squared(x, y, options);
       // The score orders candidates for max_candidates: the closer, the better.
       if (d2 <= gate) {
         candidates.push_back({static_cast<int>(i), static_cast<int>(j), gate - d2});
       }
     }
   }
-  if (static_cast<int>(candidates.size()) > options.max_candidates) {
-    std::stable_sort(candidates.begin(), candidates.end(),
-                     [](const Candidate& x, const Candidate& y) { return x.score > y.score; });
-    candidates.resize(static_cast<std::size_t>(options.max_candidates));
-    std::sort(candidates.begin(), candidates.end(), [](const Candidate& x, const Candidate& y) {
-      return x.a != y.a ? x.a < y.a : x.b < y.b;
-    });
-  }
+  keep_best_candidates(candidates, options.max_candidates);
   return align_candidates(a, b, prepared_a.parts_->table, prepared_b.parts_->table, candidates,
                           options);
 }
