@@ -1818,11 +1818,12 @@ TEST(NegotiationTest, InOneFrameTheMapsAreMatchedUnderTheirFittedRelativePose) {
 }
 
 /// Robots 0 and 2 in one frame (robot 0 owns the pair), linked on nine objects of a grid where
-/// their maps agree. 30 m on, both map objects C (0 and 1), and robot 2's copies sit 0.6 m off
-/// robot 0's: the maps have drifted apart there. Each robot is 0.3 m uncertain (standard
-/// deviation an axis) of its objects in the frame (marginals) and 5 cm relative to itself
-/// (local). Robot 2 also archived an object A 0.3 m from robot 0's C0 (1 m uncertain), as a
-/// false detection could be.
+/// their maps agree, mapped at the start and archived since (5 cm in the frame). 30 m on, both
+/// map objects C (0 and 1), and robot 2's copies sit 0.6 m off robot 0's: the maps have drifted
+/// apart there. Each robot is 0.3 m uncertain (standard deviation an axis) of the objects it
+/// holds in its state in the frame (marginals) and 5 cm relative to itself (local). Robot 2
+/// also archived an object A 0.3 m from robot 0's C0 (1 m uncertain), as a false detection could
+/// be.
 std::vector<Link> links_where_the_maps_drifted(bool current_pass) {
   NegotiationOptions options = in_frame_options();
   options.in_frame_current_pass = current_pass;
@@ -1832,8 +1833,9 @@ std::vector<Link> links_where_the_maps_drifted(bool current_pass) {
   };
   const auto map_of = [&](int robot, int round) {
     MapDescription map = in_frame_map(robot, kWorldFrame);
-    add_grid(map, Eigen::Vector3d::Zero(),
-             [&](LandmarkId id, const Eigen::Vector3d& p) { return object(id, p, false); });
+    add_grid(map, Eigen::Vector3d::Zero(), [](LandmarkId id, const Eigen::Vector3d& p) {
+      return in_frame_object(id, p, 0.0025, true);
+    });
     if (round >= 3) {
       const Eigen::Vector3d drift =
           robot == 2 ? Eigen::Vector3d(0.0, 0.6, 0.0) : Eigen::Vector3d::Zero();
@@ -1862,6 +1864,57 @@ TEST(NegotiationTest, InOneFrameObjectsInViewAreMatchedOnTheirMarginalsWhereTheF
   EXPECT_TRUE(holds(with_pass, {100, 100}));
   EXPECT_TRUE(holds(with_pass, {101, 101}));
   EXPECT_FALSE(holds(with_pass, {100, 102}));
+}
+
+/// Robots 0 and 2 in one frame (robot 0 owns the pair), linked on the archived grid of
+/// links_where_the_maps_drifted (1 cm in the frame), where their maps agree. 30 m on, from
+/// round 3, both hold five objects K in their states, robot 2's copies 1.5 m off robot 0's (the
+/// maps' drift there), on marginals of 0.5 m an axis and 5 cm relative to each robot. From round
+/// 6 robot 0 maps T beside them; robot 2 maps T (1.5 m off, as all its objects there) and F,
+/// which robot 0 has not seen (a false detection), 0.3 m from robot 0's T.
+std::vector<Link> links_under_the_offset_where_the_robots_are() {
+  NegotiationOptions options = in_frame_options();
+  Negotiator zero(0, kWorldFrame, options), two(2, kWorldFrame, options);
+  const auto map_of = [&](int robot, int round) {
+    MapDescription map = in_frame_map(robot, kWorldFrame);
+    add_grid(map, Eigen::Vector3d::Zero(), [](LandmarkId id, const Eigen::Vector3d& p) {
+      return in_frame_object(id, p, 1e-4, true);
+    });
+    const Eigen::Vector3d drift =
+        robot == 2 ? Eigen::Vector3d(0.0, 1.5, 0.0) : Eigen::Vector3d::Zero();
+    if (round >= 3) {
+      const std::vector<Eigen::Vector3d> ks{
+          {40.0, 2.0, 0.0}, {44.0, 5.0, 1.0}, {48.0, 2.0, 0.0}, {40.0, 9.0, 1.0}, {48.0, 9.0, 0.0}};
+      for (std::size_t k = 0; k < ks.size(); ++k) {
+        map.objects.push_back(
+            in_frame_object(100 + static_cast<LandmarkId>(k), ks[k] + drift, 0.25));
+      }
+    }
+    if (round >= 6) {
+      map.objects.push_back(in_frame_object(200, Eigen::Vector3d(44.0, 12.0, 0.0) + drift, 0.25));
+      if (robot == 2) {
+        map.objects.push_back(in_frame_object(201, Eigen::Vector3d(44.0, 11.7, 0.0), 0.25));
+      }
+    }
+    return map;
+  };
+  for (int round = 0; round < 10; ++round) {
+    exchange_round(zero, two, map_of(0, round), map_of(2, round), round);
+  }
+  return zero.shared_objects(2);
+}
+
+TEST(NegotiationTest, InViewObjectsAreMatchedUnderTheMapsOffsetWhereTheRobotsAre) {
+  const std::vector<Link> links = links_under_the_offset_where_the_robots_are();
+  for (LandmarkId id = 0; id < 9; ++id) EXPECT_TRUE(holds(links, {id, id})) << id;
+  // The first objects in view are linked on their marginals (no links there yet to measure the
+  // offset by) ...
+  for (LandmarkId id = 100; id < 105; ++id) EXPECT_TRUE(holds(links, {id, id})) << id;
+  // ... then T under the offset they give, 1.5 m. As the maps stand F would be T's partner
+  // (0.3 m against 1.5 m on marginals of 0.5 m an axis); under the offset it lies 1.8 m off.
+  EXPECT_TRUE(holds(links, {200, 200}));
+  EXPECT_FALSE(holds(links, {200, 201}));
+  EXPECT_EQ(links.size(), 15u);
 }
 
 /// Robots 0 and 2 in one frame (robot 0 owns the pair), not linked yet, as just after a move into

@@ -578,6 +578,39 @@ std::optional<RigidAlignment> Negotiator::relative_pose(const PairState& pair,
   return fit;
 }
 
+std::optional<RigidAlignment> Negotiator::current_offset(const PairState& pair,
+                                                         const std::vector<Match>& matches,
+                                                         const MapDescription& theirs) const {
+  const MapDescription& own = *own_map_;
+  std::vector<Eigen::Vector3d> offsets;
+  const auto add = [&](LandmarkId mine_id, LandmarkId other_id) {
+    const ObjectDescription* mine = find_object(own, mine_id);
+    const ObjectDescription* other = find_object(theirs, other_id);
+    if (mine == nullptr || other == nullptr || mine->archived || other->archived) return;
+    offsets.push_back(mine->position - other->position);
+  };
+  for (const auto& [ids, d2] : pair.accepted) add(ids.first, ids.second);
+  for (const Match& match : matches) {
+    if (!pair.accepted.contains({match.id_a, match.id_b})) add(match.id_a, match.id_b);
+  }
+  if (static_cast<int>(offsets.size()) < options_.association.min_inliers) return std::nullopt;
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  for (const Eigen::Vector3d& offset : offsets) mean += offset;
+  mean /= static_cast<double>(offsets.size());
+  Eigen::Matrix3d spread = Eigen::Matrix3d::Zero();
+  for (const Eigen::Vector3d& offset : offsets) {
+    spread += (offset - mean) * (offset - mean).transpose();
+  }
+  // The spread of one more object's offset about the mean: the sample covariance and the mean's.
+  const auto n = static_cast<double>(offsets.size());
+  spread *= (1.0 + 1.0 / n) / (n - 1.0);
+  RigidAlignment found;
+  found.T_target_source = Eigen::Translation3d(mean) * Eigen::Isometry3d::Identity();
+  found.covariance.setZero();
+  found.covariance.topLeftCorner<3, 3>() = spread;
+  return found;
+}
+
 bool Negotiator::match_in_frame(PairState& pair, const MapDescription& theirs) {
   const MapDescription& own = *own_map_;
   bool changed = false;
@@ -650,9 +683,14 @@ bool Negotiator::match_in_frame(PairState& pair, const MapDescription& theirs) {
       }
       return left;
     };
-    const std::vector<Match> more = match_with_transform(
-        current(own, own_taken), current(theirs, their_taken), Eigen::Isometry3d::Identity(),
-        Covariances::kMarginal, options_.association);
+    const std::optional<RigidAlignment> offset = current_offset(pair, matches, theirs);
+    const std::vector<Match> more =
+        offset ? match_with_transform(current(own, own_taken), current(theirs, their_taken),
+                                      offset->T_target_source, Covariances::kLocal,
+                                      options_.association, &offset->covariance)
+               : match_with_transform(current(own, own_taken), current(theirs, their_taken),
+                                      Eigen::Isometry3d::Identity(), Covariances::kMarginal,
+                                      options_.association);
     if (!more.empty()) {
       matches.insert(matches.end(), more.begin(), more.end());
       std::sort(matches.begin(), matches.end(),

@@ -316,6 +316,13 @@ class Negotiator {
   bool accept_frames(PairState& pair, const MapDescription& theirs, const PairAlignment& found,
                      int round);
   bool match_in_frame(PairState& pair, const MapDescription& theirs);
+  /// The offset of the neighbour's map from this robot's where both robots are now: the mean
+  /// difference of the positions of the objects both hold in their joint states among the
+  /// pair's accepted correspondences and `matches`, with their spread as the translation's
+  /// covariance; none with fewer than min_inliers such objects.
+  std::optional<RigidAlignment> current_offset(const PairState& pair,
+                                               const std::vector<Match>& matches,
+                                               const MapDescription& theirs) const;
   /// The pose of the neighbour's map relative to this robot's in their common frame, fitted to
   /// the pair's accepted correspondences on the covariances relative to each robot
   /// (NegotiationOptions::in_frame_fit); nullopt when off, with fewer than min_inliers of them

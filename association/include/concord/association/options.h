@@ -155,14 +155,19 @@ struct NegotiationOptions {
   bool in_frame_fit = true;
   /// in_frame_current_pass: after matching under the fit, the objects both robots still hold in
   /// their joint states (in view now) that it left without a partner, and that no accepted
-  /// correspondence holds, are matched again as the maps stand in the common frame, on their
-  /// marginal covariances. The fit rests on the pair's accepted links, often parts of the maps
-  /// mapped long before; where the robots are now, their maps may have drifted apart since by
-  /// more than the fit's gate allows, and a robot that is not linked there is not corrected
-  /// there either. An in-state object's marginal is its robot's current uncertainty in the
-  /// frame (since moves carry the maps' drift, session 75), which is what the two maps' offset
-  /// there is made of. Archived objects take no part: their marginals are wide enough to take in
-  /// false detections (docs/association.md, Results).
+  /// correspondence holds, are matched again where the robots are now. The fit rests on the
+  /// pair's accepted links, often parts of the maps mapped long before; where the robots are
+  /// now, their maps may have drifted apart since by more than the fit's gate allows, and a
+  /// robot that is not linked there is not corrected there either. Where the pair has
+  /// min_inliers links (accepted or just matched) between objects both hold in their states,
+  /// under the maps' offset there: the mean difference of those links' positions, on the local
+  /// covariances plus the offsets' spread (Negotiator::current_offset). Otherwise as the maps
+  /// stand, on their marginals: an in-state object's marginal is its robot's current
+  /// uncertainty in the frame (since moves carry the maps' drift, session 75), which is what the
+  /// two maps' offset there is made of, but a gate that wide pairs an object with a neighbour's
+  /// false detection that the offset brought closer than its true partner (session 77).
+  /// Archived objects take no part: their marginals are wide enough to take in false detections
+  /// (docs/association.md, Results).
   bool in_frame_current_pass = true;
   /// in_frame_search: with in_frame_fit, a pair in one frame without min_inliers accepted
   /// correspondences to fit finds its first ones by a search (align_in_frame: the candidates
