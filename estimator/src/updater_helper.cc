@@ -2,6 +2,7 @@
 
 #include <Eigen/Cholesky>
 #include <Eigen/QR>
+#include <array>
 #include <boost/math/distributions/chi_squared.hpp>
 #include <cassert>
 #include <cmath>
@@ -282,7 +283,24 @@ void UpdaterHelper::measurement_compress_inplace(Eigen::MatrixXd& H, Eigen::Vect
 double UpdaterHelper::chi2_quantile(double probability, int dof) {
   if (dof <= 0 || probability <= 0.0) return 0.0;
   if (probability >= 1.0) return std::numeric_limits<double>::infinity();
-  return boost::math::quantile(boost::math::chi_squared(static_cast<double>(dof)), probability);
+  // The gates ask for a handful of (probability, dof) pairs thousands of times a second, and each
+  // quantile is an iterative inversion of the incomplete gamma function (about 1.5 % of a
+  // 15-robot replay): the last few answers are kept, per thread.
+  struct Answer {
+    double probability = 0.0;
+    int dof = 0;  // 0: empty (dof > 0 here)
+    double quantile = 0.0;
+  };
+  thread_local std::array<Answer, 8> answers{};
+  thread_local std::size_t next = 0;
+  for (const Answer& answer : answers) {
+    if (answer.dof == dof && answer.probability == probability) return answer.quantile;
+  }
+  const double quantile =
+      boost::math::quantile(boost::math::chi_squared(static_cast<double>(dof)), probability);
+  answers[next] = {probability, dof, quantile};
+  next = (next + 1) % answers.size();
+  return quantile;
 }
 
 }  // namespace concord
