@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <random>
+#include <tuple>
 
 #include "concord/estimator/feature_updater.h"
 #include "concord/estimator/lie.h"
@@ -192,6 +193,24 @@ TEST(ChiSquare, QuantilesMatchTables) {
   EXPECT_NEAR(UpdaterHelper::chi2_quantile(0.95, 100), 124.342, 1e-3);
   EXPECT_NEAR(UpdaterHelper::chi2_quantile(0.99, 3), 11.345, 1e-3);
   EXPECT_NEAR(UpdaterHelper::chi2_quantile(0.05, 5), 1.1455, 1e-4);
+}
+
+TEST(ChiSquare, RepeatedQuestionsGetTheTableAnswersWhateverCameBefore) {
+  // The quantiles are kept between calls (a few, per thread): more distinct questions than it
+  // keeps, asked twice over in two orders, each time the table's answer.
+  const std::vector<std::tuple<double, int, double>> table{
+      {0.95, 1, 3.8415},  {0.95, 2, 5.9915},   {0.95, 3, 7.8147}, {0.95, 4, 9.4877},
+      {0.95, 10, 18.307}, {0.99, 3, 11.345},   {0.99, 1, 6.6349}, {0.999, 3, 16.266},
+      {0.05, 5, 1.1455},  {0.9999, 1, 15.137}, {0.5, 2, 1.3863}};
+  for (int pass = 0; pass < 2; ++pass) {
+    for (std::size_t k = 0; k < table.size(); ++k) {
+      const auto& [probability, dof, expected] = table[pass == 0 ? k : table.size() - 1 - k];
+      EXPECT_NEAR(UpdaterHelper::chi2_quantile(probability, dof), expected, 1e-3 * expected)
+          << probability << " " << dof;
+      EXPECT_NEAR(UpdaterHelper::chi2_quantile(probability, dof), expected, 1e-3 * expected)
+          << probability << " " << dof << " (again)";
+    }
+  }
 }
 
 TEST(Triangulation, RecoversAPointFromNoiselessStereo) {
