@@ -665,21 +665,27 @@ bool Negotiator::match_in_frame(PairState& pair, const MapDescription& theirs) {
   if (relative && options_.in_frame_current_pass) {
     // 3. Objects in both joint states that the fit's pass left without a partner, as the maps
     //    stand, on their marginals (NegotiationOptions::in_frame_current_pass).
-    std::set<LandmarkId> own_taken, their_taken;
+    std::vector<LandmarkId> own_taken, their_taken;
+    own_taken.reserve(matches.size() + pair.accepted.size());
+    their_taken.reserve(matches.size() + pair.accepted.size());
     for (const Match& match : matches) {
-      own_taken.insert(match.id_a);
-      their_taken.insert(match.id_b);
+      own_taken.push_back(match.id_a);
+      their_taken.push_back(match.id_b);
     }
     for (const auto& [ids, d2] : pair.accepted) {
-      own_taken.insert(ids.first);
-      their_taken.insert(ids.second);
+      own_taken.push_back(ids.first);
+      their_taken.push_back(ids.second);
     }
-    const auto current = [](const MapDescription& map, const std::set<LandmarkId>& taken) {
+    std::sort(own_taken.begin(), own_taken.end());
+    std::sort(their_taken.begin(), their_taken.end());
+    const auto current = [](const MapDescription& map, const std::vector<LandmarkId>& taken) {
       MapDescription left;
       left.robot = map.robot;
       left.frame = map.frame;
       for (const ObjectDescription& object : map.objects) {
-        if (!object.archived && !taken.contains(object.id)) left.objects.push_back(object);
+        if (!object.archived && !std::binary_search(taken.begin(), taken.end(), object.id)) {
+          left.objects.push_back(object);
+        }
       }
       return left;
     };

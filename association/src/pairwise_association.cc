@@ -490,10 +490,22 @@ MapDescription well_placed(const MapDescription& map, double max_sigma) {
   MapDescription kept;
   kept.robot = map.robot;
   kept.frame = map.frame;
+  const double bound = max_sigma * max_sigma;
   for (const ObjectDescription& object : map.objects) {
-    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> solver(object.local_covariance,
-                                                                Eigen::EigenvaluesOnly);
-    if (solver.eigenvalues()(2) <= max_sigma * max_sigma) kept.objects.push_back(object);
+    // A symmetric matrix's largest eigenvalue is at least its largest diagonal entry and at most
+    // its largest Gershgorin row bound: most objects are decided without the eigenvalues.
+    const Eigen::Matrix3d& C = object.local_covariance;
+    const double largest_diagonal = C.diagonal().maxCoeff();
+    const double gershgorin =
+        (C.diagonal() + C.cwiseAbs().rowwise().sum() - C.diagonal().cwiseAbs()).maxCoeff();
+    bool placed = false;
+    if (gershgorin <= bound) {
+      placed = true;
+    } else if (!(largest_diagonal > bound)) {
+      const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> solver(C, Eigen::EigenvaluesOnly);
+      placed = solver.eigenvalues()(2) <= bound;
+    }
+    if (placed) kept.objects.push_back(object);
   }
   return kept;
 }
