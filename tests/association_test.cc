@@ -679,6 +679,40 @@ TEST(PairwiseAssociationTest, InOneFrameTheSearchFindsTheShiftOfAWholeMap) {
   for (const Match& match : found.matches) EXPECT_EQ(match.id_a, match.id_b);
 }
 
+TEST(PairwiseAssociationTest, ASearchLeavesOutObjectsPlacedWorseThanTheLimitAlongAnyAxis) {
+  // The twelve scattered objects of the test above, b's map 1.6 m off. Three of b's objects get
+  // other local covariances, each axis at most 0.45 m (search_max_sigma 0.5):
+  // 0: 0.6 m along x (out); 1: 0.45 m an axis, nearly fully correlated (out: 0.76 m along the
+  // diagonal); 2: 0.45 m an axis, correlated with mixed signs (in: at most 0.49 m along any
+  // direction, though a row sum of its entries exceeds the limit).
+  std::mt19937 random(3);
+  std::uniform_real_distribution<double> along(0.0, 40.0), height(0.0, 2.0);
+  std::vector<Eigen::Vector3d> positions;
+  for (int n = 0; n < 12; ++n) positions.emplace_back(along(random), along(random), height(random));
+  auto [a, b] = in_one_frame(positions, Eigen::Vector3d(1.2, -1.0, 0.3), 1.0);
+  const AssociationOptions options = test_options();
+  ASSERT_DOUBLE_EQ(options.search_max_sigma, 0.5);
+  b.objects[0].local_covariance = Eigen::Vector3d(0.36, 0.01, 0.01).asDiagonal();
+  Eigen::Matrix3d correlated = Eigen::Matrix3d::Constant(0.95);
+  correlated.diagonal().setOnes();
+  b.objects[1].local_covariance = 0.2 * correlated;
+  Eigen::Matrix3d mixed;
+  mixed << 0.2, 0.04, 0.04, 0.04, 0.2, -0.04, 0.04, -0.04, 0.2;
+  b.objects[2].local_covariance = mixed;
+  const PairAlignment found =
+      align_in_frame(PreparedMap(a, options), PreparedMap(b, options), options);
+  ASSERT_EQ(found.status, AlignmentStatus::kAligned) << to_string(found.status);
+  std::set<LandmarkId> matched;
+  for (const Match& match : found.matches) {
+    EXPECT_EQ(match.id_a, match.id_b);
+    matched.insert(match.id_b);
+  }
+  EXPECT_FALSE(matched.contains(0));
+  EXPECT_FALSE(matched.contains(1));
+  EXPECT_TRUE(matched.contains(2));
+  EXPECT_EQ(matched.size(), positions.size() - 2);
+}
+
 TEST(PairwiseAssociationTest, InOneFrameARowShiftedByHalfItsSpacingIsAmbiguous) {
   // Cars parked every 5 m in two rows; b's map 2.5 m off along them, with marginals (1.5 m an
   // axis) that take in both neighbours. Shifted one way or the other, the rows explain each
