@@ -663,8 +663,9 @@ bool Negotiator::match_in_frame(PairState& pair, const MapDescription& theirs) {
                : match_with_transform(own, theirs, Eigen::Isometry3d::Identity(),
                                       Covariances::kMarginal, options_.association);
   if (relative && options_.in_frame_current_pass) {
-    // 3. Objects in both joint states that the fit's pass left without a partner, as the maps
-    //    stand, on their marginals (NegotiationOptions::in_frame_current_pass).
+    // 3. Objects in both joint states that the fit's pass left without a partner, under the maps'
+    //    offset where the robots are, or as the maps stand on their marginals while too few
+    //    links there measure it (NegotiationOptions::in_frame_current_pass).
     std::vector<LandmarkId> own_taken, their_taken;
     own_taken.reserve(matches.size() + pair.accepted.size());
     their_taken.reserve(matches.size() + pair.accepted.size());
@@ -691,12 +692,10 @@ bool Negotiator::match_in_frame(PairState& pair, const MapDescription& theirs) {
     };
     const std::optional<RigidAlignment> offset = current_offset(pair, matches, theirs);
     const std::vector<Match> more =
-        offset ? match_with_transform(current(own, own_taken), current(theirs, their_taken),
-                                      offset->T_target_source, Covariances::kLocal,
-                                      options_.association, &offset->covariance)
-               : match_with_transform(current(own, own_taken), current(theirs, their_taken),
-                                      Eigen::Isometry3d::Identity(), Covariances::kMarginal,
-                                      options_.association);
+        match_with_transform(current(own, own_taken), current(theirs, their_taken),
+                             offset ? offset->T_target_source : Eigen::Isometry3d::Identity(),
+                             offset ? Covariances::kLocal : Covariances::kMarginal,
+                             options_.association, offset ? &offset->covariance : nullptr);
     if (!more.empty()) {
       matches.insert(matches.end(), more.begin(), more.end());
       std::sort(matches.begin(), matches.end(),
