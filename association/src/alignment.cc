@@ -4,6 +4,8 @@
 #include <Eigen/SVD>
 #include <cassert>
 
+#include "concord/estimator/symmetric3.h"
+
 namespace concord::association {
 
 Eigen::Isometry3d weighted_horn(const std::vector<PointPair>& pairs,
@@ -58,20 +60,25 @@ std::optional<RigidAlignment> align_points(const std::vector<PointPair>& pairs,
     lie::Vector6d gradient = lie::Vector6d::Zero();
     chi2 = 0.0;
     largest = 0.0;
+    const Eigen::Matrix3d& R = T.linear();
     for (const PointPair& pair : pairs) {
       const Eigen::Vector3d transformed = T * pair.p_source;
       const Eigen::Vector3d residual = pair.p_target - transformed;
-      const Eigen::Matrix3d covariance =
-          pair.covariance_target + T.linear() * pair.covariance_source * T.linear().transpose();
-      const Eigen::LLT<Eigen::Matrix3d> llt(covariance);
-      if (llt.info() != Eigen::Success) return std::nullopt;
-      Eigen::Matrix<double, 3, 6> jacobian;
-      jacobian.leftCols<3>() = -Eigen::Matrix3d::Identity();
-      jacobian.rightCols<3>() = lie::skew(transformed);
-      const Eigen::Matrix<double, 3, 6> whitened_jacobian = llt.solve(jacobian);
-      information += jacobian.transpose() * whitened_jacobian;
-      gradient += whitened_jacobian.transpose() * residual;
-      const double squared = residual.dot(llt.solve(residual));
+      const auto weight = symmetric3::positive_definite_inverse(
+          pair.covariance_target + R * pair.covariance_source * R.transpose());
+      if (!weight) return std::nullopt;
+      // J = [-I, X], X = [T p_s]_x, W = S^-1:
+      //   J^T W J = [W, -W X; -(W X)^T, X^T W X],  J^T W r = [-W r; X^T W r].
+      const Eigen::Matrix3d X = lie::skew(transformed);
+      const Eigen::Matrix3d WX = *weight * X;
+      const Eigen::Vector3d Wr = *weight * residual;
+      information.topLeftCorner<3, 3>() += *weight;
+      information.topRightCorner<3, 3>() -= WX;
+      information.bottomLeftCorner<3, 3>() -= WX.transpose();
+      information.bottomRightCorner<3, 3>() += X.transpose() * WX;
+      gradient.head<3>() -= Wr;
+      gradient.tail<3>() += X.transpose() * Wr;
+      const double squared = residual.dot(Wr);
       chi2 += squared;
       largest = std::max(largest, squared);
     }

@@ -1,6 +1,5 @@
 #include "concord/association/pairwise_association.h"
 
-#include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <array>
@@ -12,6 +11,7 @@
 #include "concord/association/alignment.h"
 #include "concord/association/max_clique.h"
 #include "concord/estimator/options.h"
+#include "concord/estimator/symmetric3.h"
 #include "concord/estimator/updater_helper.h"
 
 namespace concord::association {
@@ -369,10 +369,8 @@ double mahalanobis_squared(const ObjectDescription& a, const ObjectDescription& 
   const Eigen::Matrix3d covariance =
       a.covariance + b.covariance +
       options.distance_noise * options.distance_noise * Eigen::Matrix3d::Identity();
-  const Eigen::LLT<Eigen::Matrix3d> llt(covariance);
-  if (llt.info() != Eigen::Success) return kInfinity;
-  const Eigen::Vector3d difference = a.position - b.position;
-  return difference.dot(llt.solve(difference));
+  return symmetric3::inverse_quadratic(symmetric3::lower_of(covariance), a.position - b.position)
+      .value_or(kInfinity);
 }
 
 std::vector<Match> match_with_transform(const MapDescription& a, const MapDescription& b,
@@ -459,11 +457,13 @@ std::vector<Match> match_with_transform(const MapDescription& a, const MapDescri
       if (!classes_compatible(x.object_class, y.object_class, options)) continue;
       const Eigen::Vector3d residual = x.position - transformed[j];
       if (residual.squaredNorm() > relevant * (trace_x + trace_b[j])) continue;
-      const Eigen::Matrix3d covariance =
-          covariance_x + covariance_b[j] + noise * Eigen::Matrix3d::Identity();
-      const Eigen::LLT<Eigen::Matrix3d> llt(covariance);
-      if (llt.info() != Eigen::Success) continue;
-      const double d2 = residual.dot(llt.solve(residual));
+      symmetric3::Lower covariance = symmetric3::lower_of_sum(covariance_x, covariance_b[j]);
+      covariance[0] += noise;
+      covariance[3] += noise;
+      covariance[5] += noise;
+      const auto distance = symmetric3::inverse_quadratic(covariance, residual);
+      if (!distance) continue;
+      const double d2 = *distance;
       if (d2 > relevant) continue;
       note(d2, static_cast<int>(j), best_a[i], second_a[i], partner_a[i]);
       note(d2, static_cast<int>(i), best_b[j], second_b[j], partner_b[j]);
@@ -538,9 +538,9 @@ PairAlignment align_candidates(const MapDescription& a, const MapDescription& b,
         point_pair(a.objects[candidate.a], b.objects[candidate.b], true, options.distance_noise);
     const Eigen::Matrix3d& R = T.linear();
     const Eigen::Vector3d residual = pair.p_target - T * pair.p_source;
-    const Eigen::LLT<Eigen::Matrix3d> llt(pair.covariance_target +
-                                          R * pair.covariance_source * R.transpose());
-    return llt.info() == Eigen::Success && residual.dot(llt.solve(residual)) <= gate;
+    const auto distance = symmetric3::inverse_quadratic(
+        pair.covariance_target, R * pair.covariance_source * R.transpose(), residual);
+    return distance && *distance <= gate;
   };
   // The largest rigid hypothesis among the allowed candidates: its transform and how many of its
   // clique's members it brings within the gate.

@@ -15,6 +15,7 @@
 
 #include "concord/estimator/marginal_sharing.h"
 #include "concord/estimator/state_helper.h"
+#include "concord/estimator/symmetric3.h"
 #include "concord/estimator/updater_helper.h"
 
 namespace concord {
@@ -22,6 +23,11 @@ namespace concord {
 // Helpers of this file. A named namespace, not an anonymous one: ConsensusWorkspace::Buffers
 // (declared in the header) holds them.
 namespace consensus_internal {
+
+using symmetric3::inverse_quadratic;
+using symmetric3::Lower;
+using symmetric3::lower_of;
+using symmetric3::positive_definite_inverse;
 
 using MatrixMap = Eigen::Map<Eigen::MatrixXd>;
 using VectorMap = Eigen::Map<Eigen::VectorXd>;
@@ -197,69 +203,18 @@ bool checked_inverse(const Eigen::Ref<const Eigen::MatrixXd>& covariance,
   return condition <= max_condition_number;
 }
 
-/// The inverse of a symmetric 3x3 matrix given by its lower triangle, in closed form, if it is
-/// positive definite (Sylvester: its leading principal minors are positive; false for NaN too).
-/// The adjugate of a symmetric matrix is symmetric: so is the inverse, exactly.
-std::optional<Eigen::Matrix3d> positive_definite_inverse3(const Eigen::Matrix3d& P) {
-  const double a = P(0, 0), b = P(1, 0), c = P(2, 0), d = P(1, 1), e = P(2, 1), f = P(2, 2);
-  const double minor2 = a * d - b * b;
-  const double c00 = d * f - e * e, c10 = c * e - b * f, c20 = b * e - c * d;
-  const double determinant = a * c00 + b * c10 + c * c20;
-  if (!(a > 0.0 && minor2 > 0.0 && determinant > 0.0)) return std::nullopt;
-  const double scale = 1.0 / determinant;
-  const double c11 = a * f - c * c, c21 = b * c - a * e;
-  Eigen::Matrix3d inverse;
-  inverse << c00, c10, c20,  //
-      c10, c11, c21,         //
-      c20, c21, minor2;
-  inverse *= scale;
-  return inverse;
-}
-
 /// The largest absolute column sum of a 3x3 matrix (its 1-norm).
 double norm1(const Eigen::Matrix3d& A) { return A.cwiseAbs().colwise().sum().maxCoeff(); }
 
 /// checked_inverse for one landmark's 3x3 covariance (read as symmetric, from its lower
-/// triangle), in closed form (positive_definite_inverse3).
+/// triangle), in closed form (positive_definite_inverse).
 std::optional<Eigen::Matrix3d> checked_inverse3(const Eigen::Matrix3d& covariance,
                                                 double max_condition_number) {
-  auto inverse = positive_definite_inverse3(covariance);
+  auto inverse = positive_definite_inverse(covariance);
   if (!inverse) return std::nullopt;
   const double condition = norm1(covariance.selfadjointView<Eigen::Lower>()) * norm1(*inverse);
   if (!(condition <= max_condition_number)) return std::nullopt;
   return inverse;
-}
-
-/// A symmetric 3x3 matrix by its lower triangle, row by row: (0,0), (1,0), (2,0), (1,1), (2,1),
-/// (2,2).
-using Lower3 = std::array<double, 6>;
-
-Lower3 lower_of(const Eigen::Matrix3d& M) {
-  return {M(0, 0), M(1, 0), M(2, 0), M(1, 1), M(2, 1), M(2, 2)};
-}
-
-/// r^T S^-1 r for a symmetric 3x3 S given by its lower triangle, through S = L diag(p) L^T in
-/// closed form; nullopt when a pivot p is not positive (S not positive definite, or NaN).
-std::optional<double> inverse_quadratic3(const Lower3& S, const Eigen::Vector3d& r) {
-  const auto [s00, s10, s20, s11, s21, s22] = S;
-  const double p0 = s00;
-  if (!(p0 > 0.0)) return std::nullopt;
-  const double l10 = s10 / p0, l20 = s20 / p0;
-  const double p1 = s11 - l10 * s10;
-  if (!(p1 > 0.0)) return std::nullopt;
-  const double l21 = (s21 - l20 * s10) / p1;
-  const double p2 = s22 - l20 * s20 - l21 * l21 * p1;
-  if (!(p2 > 0.0)) return std::nullopt;
-  const double y0 = r(0), y1 = r(1) - l10 * y0, y2 = r(2) - l20 * y0 - l21 * y1;
-  return y0 * y0 / p0 + y1 * y1 / p1 + y2 * y2 / p2;
-}
-
-/// r^T S^-1 r for S = A + B, two symmetric 3x3 matrices read from their lower triangles.
-std::optional<double> inverse_quadratic3(const Eigen::Matrix3d& A, const Eigen::Matrix3d& B,
-                                         const Eigen::Vector3d& r) {
-  return inverse_quadratic3(Lower3{A(0, 0) + B(0, 0), A(1, 0) + B(1, 0), A(2, 0) + B(2, 0),
-                                   A(1, 1) + B(1, 1), A(2, 1) + B(2, 1), A(2, 2) + B(2, 2)},
-                            r);
 }
 
 /// What each neighbour claimed about each landmark in recent rounds
@@ -297,16 +252,16 @@ class ClaimHistory {
     // Not claimed within the window: forgotten (the neighbour may have lost and found it again).
     if (expired(entry.last)) entry.count = 0;
     entry.last = round_;
-    const Lower3 claimed = lower_of(covariance);
+    const Lower claimed = lower_of(covariance);
     for (int k = 0; k < entry.count; ++k) {
       const Claim& earlier = entry.claims[k];
-      Lower3 sum;  // 2 (P_earlier + P): the factor 2 is exact in floating point
+      Lower sum;  // 2 (P_earlier + P): the factor 2 is exact in floating point
       for (std::size_t e = 0; e < sum.size(); ++e) {
         sum[e] = 2.0 * earlier.covariance[e] + 2.0 * claimed[e];
       }
       const Eigen::Vector3d difference(mean(0) - earlier.mean[0], mean(1) - earlier.mean[1],
                                        mean(2) - earlier.mean[2]);
-      const auto distance = inverse_quadratic3(sum, difference);
+      const auto distance = inverse_quadratic(sum, difference);
       if (!distance || !(*distance <= bound)) return false;
     }
     // Consistent: claims older than the window give way (only now, so that a neighbour that
@@ -334,7 +289,7 @@ class ClaimHistory {
   static constexpr int kLadder = 8;
   struct Claim {
     std::array<double, 3> mean{};
-    Lower3 covariance{};
+    Lower covariance{};
     std::uint64_t round = 0;
     double trace() const { return covariance[0] + covariance[3] + covariance[5]; }
   };
@@ -652,13 +607,13 @@ struct NeighbourShare {
 
   /// The average (eq. 19) of this share and the robot's own marginal (mean, information), the
   /// robot weighing what the holders leave; nullopt when not positive definite. Every
-  /// information here is exactly symmetric (positive_definite_inverse3), and so are their sums.
+  /// information here is exactly symmetric (positive_definite_inverse), and so are their sums.
   std::optional<ObjectEstimate> average_with(LandmarkId id, const Eigen::Vector3d& own_mean,
                                              const Eigen::Matrix3d& own_information) const {
     const double own_weight = 1.0 - weight;
     const Eigen::Matrix3d information = matrix + own_weight * own_information;
     const Eigen::Vector3d information_vector = vector + own_weight * (own_information * own_mean);
-    const auto covariance = positive_definite_inverse3(information);
+    const auto covariance = positive_definite_inverse(information);
     if (!covariance) return std::nullopt;
     return ObjectEstimate{id, *covariance * information_vector, *covariance};
   }
@@ -1147,7 +1102,7 @@ const ConsensusReport& consensus_internal::fuse_members(State& state,
       }
       if (options.neighbour_chi2_probability > 0.0) {
         const auto distance =
-            inverse_quadratic3(own_covariance, their_covariance, their_mean - own_mean);
+            inverse_quadratic(own_covariance, their_covariance, their_mean - own_mean);
         if (!distance || !(*distance <= refusal_bound)) {
           ++report.landmarks_refused;
           ++report.refused_per_neighbour[neighbour.index];
@@ -1291,7 +1246,7 @@ const ConsensusReport& consensus_internal::fuse_members(State& state,
           in_joint_state
               ? Eigen::Matrix3d(union_covariance.block<3, 3>(c, c).selfadjointView<Eigen::Lower>())
               : archived->covariance;
-      const auto own_information = positive_definite_inverse3(own_covariance);
+      const auto own_information = positive_definite_inverse(own_covariance);
       if (!own_information) continue;
       const auto average = share.average_with(id, own_mean, *own_information);
       if (!average) continue;
