@@ -45,6 +45,7 @@ TEST(Symmetric3, TheInverseAndTheQuadraticFormAgreeWithCholesky) {
     const auto quadratic = symmetric3::inverse_quadratic(symmetric3::lower_of(S), r);
     ASSERT_TRUE(quadratic.has_value());
     EXPECT_NEAR(*quadratic, expected_quadratic, 1e-12 * condition * expected_quadratic);
+    EXPECT_TRUE(symmetric3::positive_definite(symmetric3::lower_of(S))) << "trial " << trial;
     // The sum form reads A + B.
     const Eigen::Matrix3d half = 0.5 * S;
     const auto of_sum = symmetric3::inverse_quadratic(half, S - half, r);
@@ -84,6 +85,13 @@ TEST(Symmetric3, MatricesThatAreNotPositiveDefiniteAreRefused) {
                                    Eigen::Matrix3d(-Eigen::Matrix3d::Identity())}) {
     EXPECT_FALSE(symmetric3::positive_definite_inverse(S).has_value()) << S;
     EXPECT_FALSE(symmetric3::inverse_quadratic(symmetric3::lower_of(S), r).has_value()) << S;
+    EXPECT_FALSE(symmetric3::positive_definite(symmetric3::lower_of(S))) << S;
+    // As a Cholesky factorization says (which does not look for NaN).
+    if (S.allFinite()) {
+      EXPECT_NE(Eigen::LLT<Eigen::Matrix3d>(S.selfadjointView<Eigen::Lower>()).info(),
+                Eigen::Success)
+          << S;
+    }
   }
 }
 

@@ -71,10 +71,19 @@ class DistanceTable {
 }  // namespace pairwise_detail
 
 /// What a prepared map holds: the objects a search uses, their distance table and descriptors.
+/// The well-placed objects at once; their distances and descriptors when a search first needs
+/// them (a search in one frame needs no descriptors, and no distances when it has too few
+/// candidates).
 struct PreparedMap::Parts {
   MapDescription placed;
-  pairwise_detail::DistanceTable table;
-  std::vector<std::vector<pairwise_detail::DistanceTable::Entry>> descriptors;
+  double distance_noise = 0.0;
+  int descriptor_neighbours = 0;
+  mutable std::optional<pairwise_detail::DistanceTable> table_made;
+  mutable std::optional<std::vector<std::vector<pairwise_detail::DistanceTable::Entry>>>
+      descriptors_made;
+
+  const pairwise_detail::DistanceTable& table() const;
+  const std::vector<std::vector<pairwise_detail::DistanceTable::Entry>>& descriptors() const;
 };
 
 namespace {
@@ -132,12 +141,11 @@ using Descriptors = std::vector<std::vector<DistanceTable::Entry>>;
 
 /// Each object's descriptor: its descriptor_neighbours nearest other objects as (distance,
 /// variance), by distance.
-Descriptors descriptors_of(const MapDescription& map, const DistanceTable& table,
-                           const AssociationOptions& options) {
+Descriptors descriptors_of(const MapDescription& map, const DistanceTable& table, int neighbours) {
   Descriptors descriptors;
   descriptors.reserve(map.objects.size());
   for (std::size_t i = 0; i < map.objects.size(); ++i)
-    descriptors.push_back(table.neighbours(i, options.descriptor_neighbours));
+    descriptors.push_back(table.neighbours(i, neighbours));
   return descriptors;
 }
 
@@ -485,16 +493,19 @@ std::vector<Match> match_with_transform(const MapDescription& a, const MapDescri
 
 namespace {
 
-/// The objects of a map whose local covariance's largest standard deviation is at most max_sigma.
-MapDescription well_placed(const MapDescription& map, double max_sigma) {
+/// The objects of a map whose local covariance's largest standard deviation is at most max_sigma;
+/// with archived_by_marginal, an archived object's local covariance is its marginal (in the test
+/// and in the copy kept).
+MapDescription well_placed(const MapDescription& map, double max_sigma, bool archived_by_marginal) {
   MapDescription kept;
   kept.robot = map.robot;
   kept.frame = map.frame;
   const double bound = max_sigma * max_sigma;
   for (const ObjectDescription& object : map.objects) {
+    const bool by_marginal = archived_by_marginal && object.archived;
     // A symmetric matrix's largest eigenvalue is at least its largest diagonal entry and at most
     // its largest Gershgorin row bound: most objects are decided without the eigenvalues.
-    const Eigen::Matrix3d& C = object.local_covariance;
+    const Eigen::Matrix3d& C = by_marginal ? object.covariance : object.local_covariance;
     const double largest_diagonal = C.diagonal().maxCoeff();
     const double gershgorin =
         (C.diagonal() + C.cwiseAbs().rowwise().sum() - C.diagonal().cwiseAbs()).maxCoeff();
@@ -505,9 +516,20 @@ MapDescription well_placed(const MapDescription& map, double max_sigma) {
       const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> solver(C, Eigen::EigenvaluesOnly);
       placed = solver.eigenvalues()(2) <= bound;
     }
-    if (placed) kept.objects.push_back(object);
+    if (placed) {
+      kept.objects.push_back(object);
+      if (by_marginal) kept.objects.back().local_covariance = object.covariance;
+    }
   }
   return kept;
+}
+
+/// The outcome of a search with fewer candidates than min_inliers.
+PairAlignment too_few_candidates(std::size_t candidates) {
+  PairAlignment result;
+  result.candidates = static_cast<int>(candidates);
+  result.status = AlignmentStatus::kTooFewCandidates;
+  return result;
 }
 
 /// Steps 2-5 of a search (align_maps, align_in_frame) on its candidates: the consistency graph,
@@ -516,13 +538,10 @@ PairAlignment align_candidates(const MapDescription& a, const MapDescription& b,
                                const DistanceTable& table_a, const DistanceTable& table_b,
                                const std::vector<Candidate>& candidates,
                                const AssociationOptions& options) {
-  PairAlignment result;
   const auto min_inliers = static_cast<std::size_t>(options.min_inliers);
+  if (candidates.size() < min_inliers) return too_few_candidates(candidates.size());
+  PairAlignment result;
   result.candidates = static_cast<int>(candidates.size());
-  if (candidates.size() < min_inliers) {
-    result.status = AlignmentStatus::kTooFewCandidates;
-    return result;
-  }
   // 2. Consistency graph.
   const double bound = UpdaterHelper::chi2_quantile(options.consistency_chi2_probability, 1);
   const ConsistencyGraph graph = consistency_graph(candidates, table_a, table_b, bound);
@@ -640,24 +659,20 @@ PairAlignment align_candidates(const MapDescription& a, const MapDescription& b,
 
 }  // namespace
 
-PreparedMap::PreparedMap(const MapDescription& map, const AssociationOptions& options) {
-  // Archived objects take part by their marginals unless archived_local_covariance.
-  MapDescription geometry;
-  const MapDescription* source = &map;
-  if (!options.archived_local_covariance &&
-      std::any_of(map.objects.begin(), map.objects.end(),
-                  [](const ObjectDescription& object) { return object.archived; })) {
-    geometry = map;
-    for (ObjectDescription& object : geometry.objects) {
-      if (object.archived) object.local_covariance = object.covariance;
-    }
-    source = &geometry;
-  }
-  MapDescription placed = well_placed(*source, options.search_max_sigma);
-  DistanceTable table(placed, options.distance_noise);
-  Descriptors descriptors = descriptors_of(placed, table, options);
-  parts_ = std::make_unique<const Parts>(
-      Parts{std::move(placed), std::move(table), std::move(descriptors)});
+PreparedMap::PreparedMap(const MapDescription& map, const AssociationOptions& options)
+    // Archived objects take part by their marginals unless archived_local_covariance.
+    : parts_(std::make_unique<const Parts>(Parts{
+          well_placed(map, options.search_max_sigma, !options.archived_local_covariance),
+          options.distance_noise, options.descriptor_neighbours, std::nullopt, std::nullopt})) {}
+
+const DistanceTable& PreparedMap::Parts::table() const {
+  if (!table_made) table_made.emplace(placed, distance_noise);
+  return *table_made;
+}
+
+const Descriptors& PreparedMap::Parts::descriptors() const {
+  if (!descriptors_made) descriptors_made = descriptors_of(placed, table(), descriptor_neighbours);
+  return *descriptors_made;
 }
 
 PreparedMap::~PreparedMap() = default;
@@ -677,9 +692,9 @@ PairAlignment align_maps(const PreparedMap& prepared_a, const PreparedMap& prepa
   const MapDescription& b = prepared_b.parts_->placed;
   if (a.objects.size() < min_inliers || b.objects.size() < min_inliers) return {};
   // 1. Candidates from the objects' surroundings.
-  return align_candidates(a, b, prepared_a.parts_->table, prepared_b.parts_->table,
-                          find_candidates(a, b, prepared_a.parts_->descriptors,
-                                          prepared_b.parts_->descriptors, options),
+  return align_candidates(a, b, prepared_a.parts_->table(), prepared_b.parts_->table(),
+                          find_candidates(a, b, prepared_a.parts_->descriptors(),
+                                          prepared_b.parts_->descriptors(), options),
                           options);
 }
 
@@ -710,7 +725,8 @@ PairAlignment align_in_frame(const PreparedMap& prepared_a, const PreparedMap& p
     }
   }
   keep_best_candidates(candidates, options.max_candidates);
-  return align_candidates(a, b, prepared_a.parts_->table, prepared_b.parts_->table, candidates,
+  if (candidates.size() < min_inliers) return too_few_candidates(candidates.size());
+  return align_candidates(a, b, prepared_a.parts_->table(), prepared_b.parts_->table(), candidates,
                           options);
 }
 

@@ -275,7 +275,8 @@ void ConsensusExchange::on_message(int robot, const v1::Envelope& envelope) {
         std::string error;
         const double decode_start = thread_cpu_seconds();
         negotiation = from_wire(message.negotiation(), robot, config_.negotiation_limits, error);
-        counters_.negotiation_seconds += thread_cpu_seconds() - decode_start;
+        count_negotiation_seconds(&ExchangeCounters::negotiation_decode_seconds,
+                                  thread_cpu_seconds() - decode_start);
         if (!negotiation) {
           // Refused whole; the LandmarkSet still answers the round, so nobody waits for it.
           ++counters_.negotiations_refused;
@@ -480,30 +481,39 @@ RoundReport ConsensusExchange::run_round(std::uint64_t round, Estimator& estimat
   return report;
 }
 
-void ConsensusExchange::send_landmark_set(int robot, std::uint64_t round,
-                                          const std::vector<LandmarkId>& ids) {
-  v1::Envelope envelope;
-  envelope.set_round(round);
-  v1::LandmarkSet* message = envelope.mutable_landmark_set();
-  message->set_round(round);
-  message->mutable_ids()->Assign(ids.begin(), ids.end());
-  if (association_) {
+void ConsensusExchange::send_landmark_sets(const std::vector<int>& robots, std::uint64_t round,
+                                           const std::vector<LandmarkId>& ids) {
+  std::vector<v1::Envelope> envelopes(robots.size());
+  for (v1::Envelope& envelope : envelopes) {
+    envelope.set_round(round);
+    v1::LandmarkSet* message = envelope.mutable_landmark_set();
+    message->set_round(round);
+    message->mutable_ids()->Assign(ids.begin(), ids.end());
+  }
+  if (association_ && !robots.empty()) {
+    // Every neighbour's negotiation in one timed pass (a thread-CPU clock read costs about as
+    // much as a small message).
     const double negotiation_start = thread_cpu_seconds();
-    const association::NegotiationMessage negotiation = association_->negotiation_for(robot, round);
-    if (negotiation.map && negotiation.map != wired_map_source_) {
-      if (!wired_map_) wired_map_ = std::make_unique<v1::MapDescription>();
-      to_wire(*negotiation.map, *wired_map_);
-      wired_map_source_ = negotiation.map;
+    std::size_t bytes = 0;
+    for (std::size_t n = 0; n < robots.size(); ++n) {
+      const association::NegotiationMessage negotiation =
+          association_->negotiation_for(robots[n], round);
+      if (negotiation.map && negotiation.map != wired_map_source_) {
+        if (!wired_map_) wired_map_ = std::make_unique<v1::MapDescription>();
+        to_wire(*negotiation.map, *wired_map_);
+        wired_map_source_ = negotiation.map;
+      }
+      v1::Negotiation* out = envelopes[n].mutable_landmark_set()->mutable_negotiation();
+      to_wire(negotiation, negotiation.map ? *wired_map_ : v1::MapDescription::default_instance(),
+              *out);
+      bytes += out->ByteSizeLong();
     }
-    to_wire(negotiation, negotiation.map ? *wired_map_ : v1::MapDescription::default_instance(),
-            *message->mutable_negotiation());
-    const std::size_t bytes = message->negotiation().ByteSizeLong();
     const double seconds = thread_cpu_seconds() - negotiation_start;
     std::lock_guard lock(mutex_);
     counters_.negotiation_bytes += bytes;
-    counters_.negotiation_seconds += seconds;
+    count_negotiation_seconds(&ExchangeCounters::negotiation_encode_seconds, seconds);
   }
-  send_counted(robot, std::move(envelope));
+  for (std::size_t n = 0; n < robots.size(); ++n) send_counted(robots[n], std::move(envelopes[n]));
 }
 
 bool ConsensusExchange::send_counted(int robot, v1::Envelope&& envelope) {
@@ -637,9 +647,10 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
     const double negotiation_start = thread_cpu_seconds();
     for (int robot : reconnected) association_->missed(robot);
     association_->begin_round(round, estimator);
-    add_negotiation_seconds(thread_cpu_seconds() - negotiation_start);
+    add_negotiation_seconds(&ExchangeCounters::negotiation_decide_seconds,
+                            thread_cpu_seconds() - negotiation_start);
   }
-  for (int robot : candidates) send_landmark_set(robot, round, ids);
+  send_landmark_sets(candidates, round, ids);
 
   // Phase 1: every waited-for candidate's LandmarkSet(k), or evidence it is not in round k.
   std::vector<int> neighbours;
@@ -682,7 +693,8 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
   if (association_) {
     const double negotiation_start = thread_cpu_seconds();
     negotiate(round, estimator, candidates, neighbours);
-    add_negotiation_seconds(thread_cpu_seconds() - negotiation_start);
+    add_negotiation_seconds(&ExchangeCounters::negotiation_decide_seconds,
+                            thread_cpu_seconds() - negotiation_start);
   }
   // The marginal of everything the robot holds, once; each neighbour's is cut out of it.
   const double send_start = thread_cpu_seconds();
@@ -693,7 +705,8 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
     const double relabel_start = thread_cpu_seconds();
     shared_cuts_.clear();
     for (int robot : neighbours) shared_cuts_[robot] = association_->shared_cut(robot, held_);
-    add_negotiation_seconds(thread_cpu_seconds() - relabel_start);
+    add_negotiation_seconds(&ExchangeCounters::negotiation_relabel_seconds,
+                            thread_cpu_seconds() - relabel_start);
   }
   for (int robot : neighbours) {
     send_marginal(robot, round, estimator, ids, neighbour_ids[robot], degree, links_left--);
@@ -749,7 +762,8 @@ RoundReport ConsensusExchange::lockstep_round(std::uint64_t round, Estimator& es
             robot, std::move(it->second.marginal), it->second.relabelling->first,
             it->second.relabelling->second);
         // Work there only because the ids are private: the negotiation's (mutex_ is held).
-        counters_.negotiation_seconds += thread_cpu_seconds() - relabel_start;
+        count_negotiation_seconds(&ExchangeCounters::negotiation_relabel_seconds,
+                                  thread_cpu_seconds() - relabel_start);
         if (!relabelled) continue;
         it->second.marginal = std::move(*relabelled);
       }
@@ -812,7 +826,7 @@ RoundReport ConsensusExchange::async_round(std::uint64_t round, Estimator& estim
   const int degree = static_cast<int>(live.size());
   report.live = report.neighbours = degree;
   budget_->refill(Clock::now());
-  for (int robot : live) send_landmark_set(robot, round, ids);
+  send_landmark_sets(live, round, ids);
   auto links_left = static_cast<int>(known_ids.size());
   const double send_start = thread_cpu_seconds();
   if (!known_ids.empty()) estimator.marginal(ids, held_);
@@ -957,9 +971,14 @@ void ConsensusExchange::promote_deferred() {
   }
 }
 
-void ConsensusExchange::add_negotiation_seconds(double seconds) {
-  std::lock_guard lock(mutex_);
+void ConsensusExchange::count_negotiation_seconds(double ExchangeCounters::*part, double seconds) {
+  counters_.*part += seconds;
   counters_.negotiation_seconds += seconds;
+}
+
+void ConsensusExchange::add_negotiation_seconds(double ExchangeCounters::*part, double seconds) {
+  std::lock_guard lock(mutex_);
+  count_negotiation_seconds(part, seconds);
 }
 
 void ConsensusExchange::negotiate(std::uint64_t round, Estimator& estimator,

@@ -1172,6 +1172,11 @@ json Daemon::Impl::stats_json() const {
                             {"messages", n.messages},
                             {"bytes_sent", c.negotiation_bytes},
                             {"seconds", c.negotiation_seconds},
+                            {"seconds_by_part",
+                             {{"encode", c.negotiation_encode_seconds},
+                              {"decode", c.negotiation_decode_seconds},
+                              {"decide", c.negotiation_decide_seconds},
+                              {"relabel", c.negotiation_relabel_seconds}}},
                             {"negotiations_refused", c.negotiations_refused},
                             {"relabellings_refused", c.relabellings_refused},
                             {"frame", live_.alignment.frame}};

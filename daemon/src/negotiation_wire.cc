@@ -6,6 +6,7 @@
 #include <cmath>
 #include <limits>
 
+#include "concord/estimator/symmetric3.h"
 #include "concord/v1/concord.pb.h"
 
 namespace concord::daemon {
@@ -37,8 +38,11 @@ bool read_upper(const google::protobuf::RepeatedField<double>& values,
   for (int row = 0; row < N; ++row)
     for (int column = row; column < N; ++column)
       out(row, column) = out(column, row) = values.Get(index++);
-  return out.allFinite() && out.cwiseAbs().maxCoeff() <= kMaxCovarianceEntry &&
-         Eigen::LLT<Eigen::Matrix<double, N, N>>(out).info() == Eigen::Success;
+  if (!out.allFinite() || out.cwiseAbs().maxCoeff() > kMaxCovarianceEntry) return false;
+  // An object's covariance (two per described object) in closed form, as often as descriptions
+  // come.
+  if constexpr (N == 3) return symmetric3::positive_definite(symmetric3::lower_of(out));
+  return Eigen::LLT<Eigen::Matrix<double, N, N>>(out).info() == Eigen::Success;
 }
 
 /// A covariance that may be zero: none (zero), or 21 finite values of a positive semi-definite
@@ -120,37 +124,38 @@ bool read_map(const v1::MapDescription& message, int sender, const NegotiationLi
   for (const v1::ObjectDescription& object : message.objects()) {
     association::ObjectDescription entry;
     entry.id = object.id();
-    const std::string what = "description object " + std::to_string(entry.id);
+    // The error's prefix, made only for an error (a description holds hundreds of objects).
+    const auto what = [&entry] { return "description object " + std::to_string(entry.id); };
     if (entry.id < 0 || entry.id > kMaxPrivateId) {
-      error = what + ": id out of range";
+      error = what() + ": id out of range";
       return false;
     }
     if (!map.objects.empty() && entry.id <= map.objects.back().id) {
-      error = what + ": ids not sorted and unique";
+      error = what() + ": ids not sorted and unique";
       return false;
     }
     if (object.object_class() < association::kUnknownClass) {
-      error = what + ": class " + std::to_string(object.object_class());
+      error = what() + ": class " + std::to_string(object.object_class());
       return false;
     }
     entry.object_class = object.object_class();
     if (object.observations() > static_cast<std::uint32_t>(std::numeric_limits<int>::max())) {
-      error = what + ": observation count out of range";
+      error = what() + ": observation count out of range";
       return false;
     }
     entry.observations = static_cast<int>(object.observations());
     if (object.position_size() != 3) {
-      error = what + ": position of " + std::to_string(object.position_size()) + " values";
+      error = what() + ": position of " + std::to_string(object.position_size()) + " values";
       return false;
     }
     entry.position = Eigen::Vector3d(object.position(0), object.position(1), object.position(2));
     if (!entry.position.allFinite()) {
-      error = what + ": non-finite position";
+      error = what() + ": non-finite position";
       return false;
     }
     if (!read_upper<3>(object.covariance(), entry.covariance) ||
         !read_upper<3>(object.local_covariance(), entry.local_covariance)) {
-      error = what + ": covariance not 6 finite values of a positive definite matrix";
+      error = what() + ": covariance not 6 finite values of a positive definite matrix";
       return false;
     }
     entry.archived = object.archived();

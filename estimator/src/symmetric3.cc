@@ -23,7 +23,14 @@ std::optional<Eigen::Matrix3d> positive_definite_inverse(const Eigen::Matrix3d& 
   return inverse;
 }
 
-std::optional<double> inverse_quadratic(const Lower& S, const Eigen::Vector3d& r) {
+namespace {
+
+/// S = L diag(p) L^T with a unit lower-triangular L; nullopt when a pivot is not positive (or NaN).
+struct Ldl {
+  double l10, l20, l21, p0, p1, p2;
+};
+
+std::optional<Ldl> factor(const Lower& S) {
   const auto [s00, s10, s20, s11, s21, s22] = S;
   const double p0 = s00;
   if (!(p0 > 0.0)) return std::nullopt;
@@ -33,8 +40,18 @@ std::optional<double> inverse_quadratic(const Lower& S, const Eigen::Vector3d& r
   const double l21 = (s21 - l20 * s10) / p1;
   const double p2 = s22 - l20 * s20 - l21 * l21 * p1;
   if (!(p2 > 0.0)) return std::nullopt;
-  const double y0 = r(0), y1 = r(1) - l10 * y0, y2 = r(2) - l20 * y0 - l21 * y1;
-  return y0 * y0 / p0 + y1 * y1 / p1 + y2 * y2 / p2;
+  return Ldl{l10, l20, l21, p0, p1, p2};
+}
+
+}  // namespace
+
+bool positive_definite(const Lower& S) { return factor(S).has_value(); }
+
+std::optional<double> inverse_quadratic(const Lower& S, const Eigen::Vector3d& r) {
+  const std::optional<Ldl> f = factor(S);
+  if (!f) return std::nullopt;
+  const double y0 = r(0), y1 = r(1) - f->l10 * y0, y2 = r(2) - f->l20 * y0 - f->l21 * y1;
+  return y0 * y0 / f->p0 + y1 * y1 / f->p1 + y2 * y2 / f->p2;
 }
 
 }  // namespace concord::symmetric3

@@ -113,10 +113,17 @@ struct ExchangeCounters {
   std::uint64_t negotiation_bytes = 0;
   /// Negotiated association: CPU seconds of the threads doing it (not wall-clock: on a busy
   /// machine that counts other processes' turns), as concord replay's negotiation phase plus the
-  /// wire: describing the map, building and encoding the messages out, decoding and checking the
-  /// messages in (network thread), taking them in, the decisions and the move into the team frame.
-  /// Not the marginals' relabelling, which belongs to consensus as in the replay.
+  /// wire: the sum of the four parts below.
   double negotiation_seconds = 0.0;
+  /// Building and encoding the messages out.
+  double negotiation_encode_seconds = 0.0;
+  /// Decoding and checking the messages in (network thread).
+  double negotiation_decode_seconds = 0.0;
+  /// Describing the map, taking the messages in, the decisions and the move into the team frame.
+  double negotiation_decide_seconds = 0.0;
+  /// Work there only because ids are private: each neighbour's cut of the marginal and the
+  /// relabelling of the marginals in.
+  double negotiation_relabel_seconds = 0.0;
 };
 
 /// Per-peer poisoning-defence counters (for /metrics and /peers).
@@ -212,7 +219,9 @@ class ConsensusExchange {
   struct Peer;
   using Clock = std::chrono::steady_clock;
 
-  void send_landmark_set(int robot, std::uint64_t round, const std::vector<LandmarkId>& ids);
+  /// Each robot's LandmarkSet of the round, with its negotiation when association is on.
+  void send_landmark_sets(const std::vector<int>& robots, std::uint64_t round,
+                          const std::vector<LandmarkId>& ids);
   RoundReport lockstep_round(std::uint64_t round, Estimator& estimator);
   RoundReport async_round(std::uint64_t round, Estimator& estimator);
   /// `links_left`: marginals still to send this round, this one included (their budget share).
@@ -249,8 +258,10 @@ class ConsensusExchange {
   /// Negotiated rounds: phase 1's negotiation messages in, the move into the team frame.
   void negotiate(std::uint64_t round, Estimator& estimator, const std::vector<int>& candidates,
                  const std::vector<int>& neighbours);
-  /// Adds to counters_.negotiation_seconds (takes the mutex).
-  void add_negotiation_seconds(double seconds);
+  /// Adds to one part of the negotiation's seconds and to their sum (the caller holds mutex_).
+  void count_negotiation_seconds(double ExchangeCounters::*part, double seconds);
+  /// The same, taking the mutex.
+  void add_negotiation_seconds(double ExchangeCounters::*part, double seconds);
 
   /// Whether `robot` takes part this round: restrict_to() and the radio's links allow it.
   bool takes_part(int robot, const std::optional<std::set<int>>& in_range) const;

@@ -32,6 +32,10 @@ inline Lower lower_of_sum(const Eigen::Matrix3d& A, const Eigen::Matrix3d& B) {
 /// definite (Sylvester: its leading principal minors are positive). Exactly symmetric.
 std::optional<Eigen::Matrix3d> positive_definite_inverse(const Eigen::Matrix3d& P);
 
+/// Whether the matrix is positive definite: the pivots of S = L diag(p) L^T are positive (what
+/// a Cholesky factorization's success says, without one).
+bool positive_definite(const Lower& S);
+
 /// r^T S^-1 r through S = L diag(p) L^T in closed form; nullopt when a pivot p is not positive.
 std::optional<double> inverse_quadratic(const Lower& S, const Eigen::Vector3d& r);
 
