@@ -631,6 +631,14 @@ TEST(DaemonAssociation, DaemonsInLockstepMatchTheNegotiatedReplay) {
     EXPECT_GT(negotiation_seconds, 0.0);
     EXPECT_LT(negotiation_seconds,
               stats["cpu_user_seconds"].get<double>() + stats["cpu_system_seconds"].get<double>());
+    // Its parts add up to it; each was counted (every robot sends, receives and decides).
+    double parts = 0.0;
+    for (const char* part : {"encode", "decode", "decide", "relabel"}) {
+      const double seconds = stats["negotiation"]["seconds_by_part"][part].get<double>();
+      EXPECT_GT(seconds, 0.0) << part;
+      parts += seconds;
+    }
+    EXPECT_NEAR(parts, negotiation_seconds, 1e-9 * (1.0 + negotiation_seconds));
   }
   expect_same_partition(objects, team_ids, reference_ids);
   EXPECT_GE(moved, 1);
