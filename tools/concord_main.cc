@@ -223,7 +223,8 @@ dataset::AlignmentRecord alignment_record(const replay::RobotOutput& output) {
 /// Where a replay writes what its negotiators' searches saw (each empty: nothing).
 struct SearchDiagnostics {
   /// One line a search: round, pair, map sizes, candidates, consistency edges, cliques, status
-  /// (and, for a revisit, how far from the accepted alignment it found the maps).
+  /// (and, for a revisit, how far from the accepted alignment it found the maps); an aligned
+  /// search adds a line with the two frames and the transform found (12 numbers, row by row).
   fs::path log;
   /// Both descriptions of every search, one file a search (r<round>_<owner>_<neighbour>.txt):
   /// one object a line, robot id observations x y z, then the local and the marginal covariance
@@ -254,6 +255,15 @@ std::function<void(const association::SearchTrace&)> search_writer(
                    trace.theirs->objects.size(), found.candidates, found.consistency_edges,
                    found.clique_size, found.rival_clique_size, found.clique_fit_chi2,
                    found.clique_fit_largest_residual, association::to_string(found.status).c_str());
+      if (found.status == association::AlignmentStatus::kAligned) {
+        // The transform found (own frame <- the neighbour's), so that a search can be judged
+        // against the truth (bench/label_searches.py).
+        std::fprintf(log.get(), "  frames %d <- %d, T_a_b:", trace.own->frame, trace.theirs->frame);
+        for (int r = 0; r < 3; ++r) {
+          for (int k = 0; k < 4; ++k) std::fprintf(log.get(), " %.6f", found.T_a_b.matrix()(r, k));
+        }
+        std::fprintf(log.get(), "\n");
+      }
     } else if (log) {
       std::fprintf(log.get(),
                    "round %d pair %d-%d: revisit: %s, clique %d, %.2f deg off the accepted "
