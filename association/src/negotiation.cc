@@ -129,7 +129,7 @@ NegotiationMessage Negotiator::message_for(int neighbour, int round) {
   message.sender = robot_;
   message.frame = frame_;
   if (describes(round) && own_map_ && own_map_round_ == round) message.map = own_map_;
-  std::map<int, int>& sent = sent_versions_[neighbour];
+  boost::container::flat_map<int, int>& sent = sent_versions_[neighbour];
   message.held.reserve(records_.size());
   // records_ and sent both ascend by owner: one walk along both.
   auto known = sent.begin();  // the first entry of `sent` not below the current owner
@@ -177,9 +177,11 @@ void Negotiator::receive(const NegotiationMessage& message, int round) {
   }
   // The sender has every record it sent and every one it says it holds: it need not get them
   // (or older ones) from this robot.
-  std::map<int, int>& sent = sent_versions_[message.sender];
+  boost::container::flat_map<int, int>& sent = sent_versions_[message.sender];
   for (const auto& record : message.records) {
-    if (record) sent[record->owner] = std::max(sent[record->owner], record->version);
+    if (!record) continue;
+    int& version = sent[record->owner];
+    version = std::max(version, record->version);
   }
   // Claims on owners this robot holds no record of are left out: it has nothing of theirs to
   // send, and a peer must not grow the table with owners that do not exist (it says what it
@@ -621,9 +623,14 @@ bool Negotiator::match_in_frame(PairState& pair, const MapDescription& theirs) {
     const ObjectDescription* other = find_object(theirs, it->first.second);
     const bool disagree = mine != nullptr && other != nullptr &&
                           mahalanobis_squared(*mine, *other, options_.association) > split_bound;
+    // Only links that disagree now have a count (most agree: no entry to look up or make).
+    if (!disagree) {
+      if (!pair.disagreement.empty()) pair.disagreement.erase(it->first);
+      ++it;
+      continue;
+    }
     int& count = pair.disagreement[it->first];
-    count = disagree ? count + 1 : 0;
-    if (count >= options_.split_after) {
+    if (++count >= options_.split_after) {
       pair.disagreement.erase(it->first);
       it = pair.accepted.erase(it);
       ++counters_.links_split;

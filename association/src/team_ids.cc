@@ -107,10 +107,14 @@ double strongest_of(const std::vector<std::pair<int, double>>& sources) {
 }  // namespace
 
 void TeamIdIndex::add(int source, const ObjectLink& link) {
-  Edge* forward = edge(link.a, link.b);
+  // (A reference to a's edges survives the insertion of b's: rehashing moves no element.)
+  std::vector<Edge>& edges_a = adjacent_[link.a];
+  const auto found = std::find_if(edges_a.begin(), edges_a.end(),
+                                  [&](const Edge& e) { return e.other == link.b; });
+  Edge* forward = found == edges_a.end() ? nullptr : &*found;
   if (forward == nullptr) {
     adjacent_[link.b].push_back({link.a, link.mahalanobis_squared, false, {}});
-    forward = &adjacent_[link.a].emplace_back(Edge{link.b, link.mahalanobis_squared, false, {}});
+    forward = &edges_a.emplace_back(Edge{link.b, link.mahalanobis_squared, false, {}});
     added_.push_back(link);
   } else {
     only_added_ = false;

@@ -42,6 +42,7 @@
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
+#include <boost/container/flat_map.hpp>
 #include <cstddef>
 #include <functional>
 #include <map>
@@ -305,7 +306,7 @@ class Negotiator {
     std::optional<PairAlignment> revisit_last;
     /// Accepted correspondences with their squared Mahalanobis distance when accepted.
     std::map<std::pair<LandmarkId, LandmarkId>, double> accepted;
-    /// Consecutive disagreements of accepted correspondences.
+    /// Consecutive disagreements of accepted correspondences (those that disagree now only).
     std::map<std::pair<LandmarkId, LandmarkId>, int> disagreement;
   };
 
@@ -372,12 +373,14 @@ class Negotiator {
   std::map<int, NeighbourMap> neighbour_maps_;
   std::map<int, int> neighbour_frames_;
   std::map<int, PairState> pairs_;
+  // The tables every message walks are sorted vectors (a team's worth of owners): a tree's
+  // nodes, scattered over the heap, cost a cache miss a step.
   /// Newest record of every owner heard of (including its own).
-  std::map<int, std::shared_ptr<const OwnerRecord>> records_;
+  boost::container::flat_map<int, std::shared_ptr<const OwnerRecord>> records_;
   /// Per neighbour: version of each owner's record last sent to it, or that it said it holds.
-  std::map<int, std::map<int, int>> sent_versions_;
+  boost::container::flat_map<int, boost::container::flat_map<int, int>> sent_versions_;
   /// Round in which the record held of each other owner arrived (relay_delay).
-  std::map<int, int> record_round_;
+  boost::container::flat_map<int, int> record_round_;
   std::vector<FrameEdge> own_frame_edges_;
   /// Corrections already seen: (owner, edge round, frame_a, frame_b, index).
   std::set<std::tuple<int, int, int, int, std::size_t>> corrections_seen_;
