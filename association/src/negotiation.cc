@@ -724,7 +724,8 @@ bool Negotiator::match_in_frame(PairState& pair, const MapDescription& theirs) {
   const auto insert = [](std::vector<LandmarkId>& sorted, LandmarkId id) {
     sorted.insert(std::lower_bound(sorted.begin(), sorted.end(), id), id);
   };
-  std::map<std::pair<LandmarkId, LandmarkId>, int> streaks;
+  IdPairTable<int> streaks;
+  streaks.reserve(matches.size());
   for (const Match& match : matches) {
     const std::pair<LandmarkId, LandmarkId> ids{match.id_a, match.id_b};
     if (pair.accepted.contains(ids)) continue;

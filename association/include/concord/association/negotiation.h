@@ -43,6 +43,7 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 #include <boost/container/flat_map.hpp>
+#include <boost/container/flat_set.hpp>
 #include <cstddef>
 #include <functional>
 #include <map>
@@ -288,15 +289,20 @@ class Negotiator {
     int round = -1;
     std::shared_ptr<const MapDescription> map;
   };
+  /// Tables keyed by a correspondence (own id, their id), as sorted vectors: match_in_frame
+  /// walks them several times a description.
+  using IdPair = std::pair<LandmarkId, LandmarkId>;
+  template <typename T>
+  using IdPairTable = boost::container::flat_map<IdPair, T>;
   /// What the owner of a pair remembers between descriptions.
   struct PairState {
     int streak = 0;  ///< consecutive agreeing transforms across frames
     /// The correspondences of the streak's first transform (confirmation_new_matches).
-    std::set<std::pair<LandmarkId, LandmarkId>> streak_first_matches;
+    boost::container::flat_set<IdPair> streak_first_matches;
     std::optional<PairAlignment> last;
     int last_frame_a = kWorldFrame, last_frame_b = kWorldFrame;
     /// In one frame: consecutive sightings of each candidate correspondence (own id, their id).
-    std::map<std::pair<LandmarkId, LandmarkId>, int> candidate_streak;
+    IdPairTable<int> candidate_streak;
     /// The frame edge this pair's owner accepted (index in own_frame_edges_), -1 before.
     int edge = -1;
     /// Descriptions of the pair since its edge was accepted or corrected (revisit_descriptions).
@@ -305,9 +311,9 @@ class Negotiator {
     int revisit_streak = 0;
     std::optional<PairAlignment> revisit_last;
     /// Accepted correspondences with their squared Mahalanobis distance when accepted.
-    std::map<std::pair<LandmarkId, LandmarkId>, double> accepted;
+    IdPairTable<double> accepted;
     /// Consecutive disagreements of accepted correspondences (those that disagree now only).
-    std::map<std::pair<LandmarkId, LandmarkId>, int> disagreement;
+    IdPairTable<int> disagreement;
   };
 
   /// Owner work for one neighbour; true when the robot's record changed.
