@@ -552,15 +552,12 @@ void Negotiator::adopt_matches(PairState& pair, const std::vector<Match>& matche
   }
 }
 
-std::optional<RigidAlignment> Negotiator::relative_pose(const PairState& pair,
-                                                        const MapDescription& theirs) const {
+std::optional<RigidAlignment> Negotiator::relative_pose(
+    const std::vector<LinkedObjects>& linked) const {
   if (!options_.in_frame_fit) return std::nullopt;
-  const MapDescription& own = *own_map_;
   std::vector<PointPair> points;
-  points.reserve(pair.accepted.size());
-  for (const auto& [ids, d2] : pair.accepted) {
-    const ObjectDescription* mine = find_object(own, ids.first);
-    const ObjectDescription* other = find_object(theirs, ids.second);
+  points.reserve(linked.size());
+  for (const auto& [mine, other] : linked) {
     if (mine == nullptr || other == nullptr) continue;
     // As a search fits its transform: the covariances relative to each robot's current pose
     // (an archived object's marginal stands for its drift since; on the recorded covariances
@@ -581,19 +578,20 @@ std::optional<RigidAlignment> Negotiator::relative_pose(const PairState& pair,
 }
 
 std::optional<RigidAlignment> Negotiator::current_offset(const PairState& pair,
+                                                         const std::vector<LinkedObjects>& linked,
                                                          const std::vector<Match>& matches,
                                                          const MapDescription& theirs) const {
   const MapDescription& own = *own_map_;
   std::vector<Eigen::Vector3d> offsets;
-  const auto add = [&](LandmarkId mine_id, LandmarkId other_id) {
-    const ObjectDescription* mine = find_object(own, mine_id);
-    const ObjectDescription* other = find_object(theirs, other_id);
+  const auto add = [&](const ObjectDescription* mine, const ObjectDescription* other) {
     if (mine == nullptr || other == nullptr || mine->archived || other->archived) return;
     offsets.push_back(mine->position - other->position);
   };
-  for (const auto& [ids, d2] : pair.accepted) add(ids.first, ids.second);
+  for (const auto& [mine, other] : linked) add(mine, other);
   for (const Match& match : matches) {
-    if (!pair.accepted.contains({match.id_a, match.id_b})) add(match.id_a, match.id_b);
+    if (!pair.accepted.contains({match.id_a, match.id_b})) {
+      add(find_object(own, match.id_a), find_object(theirs, match.id_b));
+    }
   }
   if (static_cast<int>(offsets.size()) < options_.association.min_inliers) return std::nullopt;
   Eigen::Vector3d mean = Eigen::Vector3d::Zero();
@@ -617,15 +615,25 @@ bool Negotiator::match_in_frame(PairState& pair, const MapDescription& theirs) {
   const MapDescription& own = *own_map_;
   bool changed = false;
   // 1. Accepted correspondences whose objects now disagree are undone after split_after times.
+  //    The objects of the links kept, in the order of `accepted`, for the steps below. `accepted`
+  //    ascends by own id, as the description's objects do: the own side is a forward search.
   const double split_bound = split_bound_;
+  std::vector<LinkedObjects> linked;
+  linked.reserve(pair.accepted.size());
+  auto own_from = own.objects.begin();
   for (auto it = pair.accepted.begin(); it != pair.accepted.end();) {
-    const ObjectDescription* mine = find_object(own, it->first.first);
+    own_from = std::lower_bound(
+        own_from, own.objects.end(), it->first.first,
+        [](const ObjectDescription& object, LandmarkId key) { return object.id < key; });
+    const ObjectDescription* mine =
+        own_from != own.objects.end() && own_from->id == it->first.first ? &*own_from : nullptr;
     const ObjectDescription* other = find_object(theirs, it->first.second);
     const bool disagree = mine != nullptr && other != nullptr &&
                           mahalanobis_squared(*mine, *other, options_.association) > split_bound;
     // Only links that disagree now have a count (most agree: no entry to look up or make).
     if (!disagree) {
       if (!pair.disagreement.empty()) pair.disagreement.erase(it->first);
+      linked.push_back({mine, other});
       ++it;
       continue;
     }
@@ -636,13 +644,14 @@ bool Negotiator::match_in_frame(PairState& pair, const MapDescription& theirs) {
       ++counters_.links_split;
       changed = true;
     } else {
+      linked.push_back({mine, other});
       ++it;
     }
   }
   // 2. New correspondences, confirmed over consecutive descriptions: under the maps' relative
   //    pose fitted to the accepted ones where there are enough (in_frame_fit; then 3.), else under
   //    a search's transform (in_frame_search) or as the maps stand in the common frame.
-  std::optional<RigidAlignment> relative = relative_pose(pair, theirs);
+  std::optional<RigidAlignment> relative = relative_pose(linked);
   if (!relative && options_.in_frame_fit && options_.in_frame_search) {
     //    Too few to fit: the first ones from a consistent set (in_frame_search). Without one, as
     //    the maps stand only while no map has been moved into the frame (known starts): a move
@@ -697,7 +706,7 @@ bool Negotiator::match_in_frame(PairState& pair, const MapDescription& theirs) {
       }
       return left;
     };
-    const std::optional<RigidAlignment> offset = current_offset(pair, matches, theirs);
+    const std::optional<RigidAlignment> offset = current_offset(pair, linked, matches, theirs);
     const std::vector<Match> more =
         match_with_transform(current(own, own_taken), current(theirs, their_taken),
                              offset ? offset->T_target_source : Eigen::Isometry3d::Identity(),

@@ -323,19 +323,25 @@ class Negotiator {
   bool accept_frames(PairState& pair, const MapDescription& theirs, const PairAlignment& found,
                      int round);
   bool match_in_frame(PairState& pair, const MapDescription& theirs);
+  /// An accepted correspondence's two objects in this round's descriptions (nullptr: not
+  /// described), looked up once a description for the steps of match_in_frame.
+  struct LinkedObjects {
+    const ObjectDescription* mine = nullptr;
+    const ObjectDescription* other = nullptr;
+  };
   /// The offset of the neighbour's map from this robot's where both robots are now: the mean
   /// difference of the positions of the objects both hold in their joint states among the
-  /// pair's accepted correspondences and `matches`, with their spread as the translation's
-  /// covariance; none with fewer than min_inliers such objects.
+  /// pair's accepted correspondences (`linked`) and `matches`, with their spread as the
+  /// translation's covariance; none with fewer than min_inliers such objects.
   std::optional<RigidAlignment> current_offset(const PairState& pair,
+                                               const std::vector<LinkedObjects>& linked,
                                                const std::vector<Match>& matches,
                                                const MapDescription& theirs) const;
   /// The pose of the neighbour's map relative to this robot's in their common frame, fitted to
-  /// the pair's accepted correspondences on the covariances relative to each robot
+  /// the pair's accepted correspondences (`linked`) on the covariances relative to each robot
   /// (NegotiationOptions::in_frame_fit); nullopt when off, with fewer than min_inliers of them
   /// in both maps, or when their layout does not fix it.
-  std::optional<RigidAlignment> relative_pose(const PairState& pair,
-                                              const MapDescription& theirs) const;
+  std::optional<RigidAlignment> relative_pose(const std::vector<LinkedObjects>& linked) const;
   /// Accepts the matches (only those also in pair.last when also_in_last) that conflict with no
   /// accepted correspondence.
   void adopt_matches(PairState& pair, const std::vector<Match>& matches, bool also_in_last);
