@@ -64,7 +64,10 @@ TEST(LiveMap, HeadlessChromiumDrawsEveryRobotsPathFromOneRobotsPage) {
 
   const fs::path out = testing::fresh_folder("live-map");
   auto options = testing::kitti_team_options(out, live_map_port(0), live_map_port(10));
-  options.rate_hz = 10.0;  // the camera rate: 30 s of data, the page is taken after about 10
+  // Half the camera rate: 60 s of data, the page taken after about 20. The team must outlive
+  // the wait for frame 100 and the screenshot; at the camera rate (30 s of data) a CI run on a
+  // loaded machine saw the wait end at 29 s and the daemons gone before Chromium loaded the page.
+  options.rate_hz = 5.0;
   fs::create_directories(out / "configs");
   launch::ensure_team_key(options);
   std::vector<ChildProcess> daemons;
