@@ -88,12 +88,15 @@ void TeamIdIndex::stage(int source, std::vector<ObjectLink> links) {
   }
 }
 
+TeamIdIndex::Edge* TeamIdIndex::edge_in(std::vector<Edge>& edges, ObjectKey to) {
+  const auto it =
+      std::find_if(edges.begin(), edges.end(), [&](const Edge& e) { return e.other == to; });
+  return it == edges.end() ? nullptr : &*it;
+}
+
 TeamIdIndex::Edge* TeamIdIndex::edge(ObjectKey from, ObjectKey to) {
   const auto edges = adjacent_.find(from);
-  if (edges == adjacent_.end()) return nullptr;
-  const auto it = std::find_if(edges->second.begin(), edges->second.end(),
-                               [&](const Edge& e) { return e.other == to; });
-  return it == edges->second.end() ? nullptr : &*it;
+  return edges == adjacent_.end() ? nullptr : edge_in(edges->second, to);
 }
 
 namespace {
@@ -109,9 +112,7 @@ double strongest_of(const std::vector<std::pair<int, double>>& sources) {
 void TeamIdIndex::add(int source, const ObjectLink& link) {
   // (A reference to a's edges survives the insertion of b's: rehashing moves no element.)
   std::vector<Edge>& edges_a = adjacent_[link.a];
-  const auto found = std::find_if(edges_a.begin(), edges_a.end(),
-                                  [&](const Edge& e) { return e.other == link.b; });
-  Edge* forward = found == edges_a.end() ? nullptr : &*found;
+  Edge* forward = edge_in(edges_a, link.b);
   if (forward == nullptr) {
     adjacent_[link.b].push_back({link.a, link.mahalanobis_squared, false, {}});
     forward = &edges_a.emplace_back(Edge{link.b, link.mahalanobis_squared, false, {}});

@@ -100,6 +100,8 @@ class TeamIdIndex {
   bool part_holds_robot(ObjectKey start, std::unordered_map<ObjectKey, bool>& known) const;
   /// The link's edge on key `from`'s side, or nullptr.
   Edge* edge(ObjectKey from, ObjectKey to);
+  /// The edge to `to` among one key's edges, or nullptr.
+  static Edge* edge_in(std::vector<Edge>& edges, ObjectKey to);
 
   /// The robot whose parts are worked out, or -1 for all.
   int robot_ = -1;
