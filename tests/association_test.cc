@@ -1434,6 +1434,38 @@ TEST(NegotiationTest, OnTheCompleteGraphRecordsComeFromTheirOwnersAlone) {
   EXPECT_LT(bytes_held_back, bytes_at_once);
 }
 
+TEST(NegotiationTest, RecordsOfOwnersOutsideTheMembershipAreRefused) {
+  // Robot 1 (a key holder) sends robot 0 its own record and one it made up for robot 7, which is
+  // not in the team: with the membership set, robot 0 holds and relays robot 1's alone; without
+  // it, both.
+  auto record = [](int owner) {
+    OwnerRecord made{owner, 1, {}, {}};
+    made.links.push_back(ObjectLink::make(object_key(owner, 3), object_key(0, 5), 0.5));
+    return std::make_shared<const OwnerRecord>(std::move(made));
+  };
+  NegotiationMessage from_1;
+  from_1.sender = 1;
+  from_1.frame = kWorldFrame;
+  from_1.records = {record(1), record(7)};
+  from_1.held = {{1, 1}, {7, 1}};
+  NegotiationOptions options;
+  options.relay_delay = 0;
+  auto owners_relayed = [&](bool membership) {
+    Negotiator robot_0(0, kWorldFrame, options);
+    if (membership) robot_0.set_members({2, 0, 1, 1});
+    robot_0.receive(from_1, 1);
+    robot_0.finish_round(1);
+    const NegotiationMessage to_2 = robot_0.message_for(2, 2);
+    std::set<int> owners, held;
+    for (const auto& relayed : to_2.records) owners.insert(relayed->owner);
+    for (const auto& [owner, version] : to_2.held) held.insert(owner);
+    EXPECT_EQ(held, owners) << "membership " << membership;  // holds what it relays
+    return std::make_pair(owners, robot_0.counters().records_refused);
+  };
+  EXPECT_EQ(owners_relayed(true), std::make_pair(std::set<int>{1}, 1LL));
+  EXPECT_EQ(owners_relayed(false), std::make_pair(std::set<int>{1, 7}, 0LL));
+}
+
 TEST(NegotiationTest, ARecordStillCrossesARobotToReachOneItsOwnerDoesNotTalkTo) {
   // Robots 1 and 2 are not linked, robot 0 is linked with both. Robot 1 owns the pair 0-1 and
   // robot 0 the pair 0-2 (owns_pair): robot 0 relays robot 1's record (after relay_delay

@@ -547,6 +547,25 @@ TEST(DaemonAssociation, AnObjectsClassIsTheMostFrequentOfItsDetectionsClasses) {
             (std::vector<int>{3, 5, association::kUnknownClass, association::kUnknownClass}));
 }
 
+TEST(DaemonAssociation, ASessionRefusesOwnerRecordsOfRobotsOutsideItsMembers) {
+  // The daemon hands its session the configured members: a key holder's record made up for a
+  // robot outside them is dropped and counted, a member's is taken.
+  AssociationSession session(0, association::kWorldFrame, association::NegotiationOptions{},
+                             {0, 1, 2});
+  association::NegotiationMessage message;
+  message.sender = 1;
+  message.frame = association::kWorldFrame;
+  for (const int owner : {1, 2, 40, 1 << 20})
+    message.records.push_back(std::make_shared<const association::OwnerRecord>(
+        association::OwnerRecord{owner, 1, {}, {}}));
+  session.receive(message, 0);
+  EXPECT_EQ(session.counters().records_refused, 2);
+  EXPECT_EQ(session.counters().records_redundant, 0);
+  session.receive(message, 1);  // the members' records again: held, so redundant
+  EXPECT_EQ(session.counters().records_refused, 4);
+  EXPECT_EQ(session.counters().records_redundant, 2);
+}
+
 TEST(DaemonAssociation, DaemonsInLockstepMatchTheNegotiatedReplay) {
   const fs::path out =
       fs::path(CONCORD_BINARY_DIR) / "test-out" / ("association-" + std::to_string(getpid()));

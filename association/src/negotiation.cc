@@ -161,11 +161,25 @@ NegotiationMessage Negotiator::message_for(int neighbour, int round) {
   return message;
 }
 
+void Negotiator::set_members(std::vector<int> members) {
+  std::sort(members.begin(), members.end());
+  members.erase(std::unique(members.begin(), members.end()), members.end());
+  members_ = std::move(members);
+}
+
+bool Negotiator::member(int owner) const {
+  return members_.empty() || std::binary_search(members_.begin(), members_.end(), owner);
+}
+
 void Negotiator::receive(const NegotiationMessage& message, int round) {
   neighbour_frames_[message.sender] = message.frame;
   if (message.map) neighbour_maps_[message.sender] = {round, message.map};
   for (const auto& record : message.records) {
     if (!record || record->owner == robot_) continue;  // its own decisions are authoritative here
+    if (!member(record->owner)) {
+      ++counters_.records_refused;
+      continue;
+    }
     auto it = records_.find(record->owner);
     if (it == records_.end() || it->second->version < record->version) {
       records_[record->owner] = record;
@@ -179,7 +193,7 @@ void Negotiator::receive(const NegotiationMessage& message, int round) {
   // (or older ones) from this robot.
   boost::container::flat_map<int, int>& sent = sent_versions_[message.sender];
   for (const auto& record : message.records) {
-    if (!record) continue;
+    if (!record || !member(record->owner)) continue;
     int& version = sent[record->owner];
     version = std::max(version, record->version);
   }

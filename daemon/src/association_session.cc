@@ -10,8 +10,10 @@
 namespace concord::daemon {
 
 AssociationSession::AssociationSession(int robot, int start_frame,
-                                       association::NegotiationOptions options)
+                                       association::NegotiationOptions options,
+                                       std::vector<int> members)
     : negotiator_(robot, start_frame, std::move(options)) {
+  negotiator_.set_members(std::move(members));
   alignment_.frame = start_frame;
 }
 

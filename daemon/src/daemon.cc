@@ -388,7 +388,7 @@ bool Daemon::Impl::load_source() {
     try {
       association_ = std::make_unique<AssociationSession>(
           config_.robot_id, start_known_ ? association::kWorldFrame : config_.robot_id,
-          config_.negotiation);
+          config_.negotiation, config_.members);
     } catch (const std::invalid_argument& error) {
       spdlog::error("association: {}", error.what());
       return false;
@@ -1163,6 +1163,7 @@ json Daemon::Impl::stats_json() const {
                             {"in_frame_searches", n.in_frame_searches},
                             {"in_frame_aligned", n.in_frame_aligned},
                             {"records_redundant", n.records_redundant},
+                            {"records_refused", n.records_refused},
                             {"frame_corrections", n.frame_corrections},
                             {"reanchorings", n.reanchorings},
                             {"links_accepted", n.links_accepted},
@@ -1445,6 +1446,9 @@ void Daemon::Impl::register_routes() {
       text.counter("concord_association_frame_corrections_total",
                    "Accepted frame edges corrected as the owner of a pair", robot,
                    static_cast<double>(live_.negotiation.frame_corrections));
+      text.counter("concord_association_records_refused_total",
+                   "Peers' owner records of robots outside the membership list, dropped", robot,
+                   static_cast<double>(live_.negotiation.records_refused));
       text.gauge("concord_frame_latency_p50_seconds", "Median frame latency (update + round)",
                  robot, 1e-3 * percentile(live_.latencies_ms, 50));
       text.gauge("concord_frame_latency_p99_seconds", "99th percentile frame latency", robot,

@@ -186,6 +186,9 @@ struct NegotiationCounters {
   /// Owner records received that were not newer than the one held (sent before the sender knew
   /// the receiver had it).
   long long records_redundant = 0;
+  /// Owner records received whose owner is not a team member (set_members): dropped, neither
+  /// held, relayed nor counted as held by their sender.
+  long long records_refused = 0;
   long long frame_corrections = 0;  ///< accepted transforms corrected (as owner)
   long long reanchorings = 0;       ///< moves of its own state into another frame
   long long links_accepted = 0;     ///< correspondences accepted (as owner)
@@ -248,6 +251,11 @@ class Negotiator {
   /// The neighbour may not have had what was sent to it (it missed a round, or reconnected): every
   /// owner record goes to it again (receivers ignore versions they have).
   void forget_sent(int neighbour) { sent_versions_.erase(neighbour); }
+  /// The team's membership list (the daemon's `members`): owner records of other owners are
+  /// refused (counters().records_refused). A key holder could otherwise make every robot hold,
+  /// and relay, a record for each of millions of made-up owners, each up to the wire limits'
+  /// links. Empty (the default, `concord replay`): every owner is taken.
+  void set_members(std::vector<int> members);
   /// Pairs, team ids and frame (see the file comment); the move to apply to the state, if any.
   std::optional<Reanchoring> finish_round(int round);
 
@@ -316,6 +324,8 @@ class Negotiator {
     IdPairTable<int> disagreement;
   };
 
+  /// Whether owner records of `owner` are taken (set_members).
+  bool member(int owner) const;
   /// Owner work for one neighbour; true when the robot's record changed.
   bool process_pair(int neighbour, const MapDescription& theirs, int round);
   /// The own map of the round, prepared for align_maps once for all the pairs searched.
@@ -394,6 +404,8 @@ class Negotiator {
   /// Round in which the record held of each other owner arrived (relay_delay).
   boost::container::flat_map<int, int> record_round_;
   std::vector<FrameEdge> own_frame_edges_;
+  /// set_members, sorted and unique (empty: any owner).
+  std::vector<int> members_;
   /// Corrections already seen: (owner, edge round, frame_a, frame_b, index).
   std::set<std::tuple<int, int, int, int, std::size_t>> corrections_seen_;
   /// Team ids over the links of every record in records_, of the parts of the link graph that

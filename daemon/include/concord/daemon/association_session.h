@@ -47,8 +47,10 @@ struct AlignmentState {
 class AssociationSession {
  public:
   /// Robot `robot` starting in `start_frame` (its own id for an unknown start,
-  /// association::kWorldFrame for a known one). Throws std::invalid_argument on bad options.
-  AssociationSession(int robot, int start_frame, association::NegotiationOptions options);
+  /// association::kWorldFrame for a known one), in a team of `members` (owner records of others
+  /// are refused; empty: any). Throws std::invalid_argument on bad options.
+  AssociationSession(int robot, int start_frame, association::NegotiationOptions options,
+                     std::vector<int> members = {});
 
   /// The frame's detections, after the estimator's step on the frame (the tally's misses are
   /// counted at its newest pose).
