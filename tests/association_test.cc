@@ -1466,6 +1466,37 @@ TEST(NegotiationTest, RecordsOfOwnersOutsideTheMembershipAreRefused) {
   EXPECT_EQ(owners_relayed(false), std::make_pair(std::set<int>{1, 7}, 0LL));
 }
 
+TEST(NegotiationTest, CorrectionsOfEdgesNoLongerInAnyRecordAreForgotten) {
+  // A key holder sends a new version of its record every round, each with a made-up edge of a
+  // new round carrying three corrections: every version's corrections are new (counted), but a
+  // robot remembers only those of the edges in the records it holds, not every one ever sent.
+  NegotiationOptions options;
+  Negotiator robot_0(0, 0, options);
+  const int rounds = 40;
+  for (int round = 1; round <= rounds; ++round) {
+    OwnerRecord record{1, round, {}, {}};
+    FrameEdge edge;
+    edge.frame_a = 1;
+    edge.frame_b = 2;
+    edge.round = round;
+    edge.owner = 1;
+    edge.robot_b = 2;
+    FrameCorrection correction;
+    correction.frame = 5;  // another team frame: it moves nobody here
+    edge.corrections.assign(3, correction);
+    record.frame_edges.push_back(edge);
+    NegotiationMessage message;
+    message.sender = 1;
+    message.frame = 1;
+    message.records.push_back(std::make_shared<const OwnerRecord>(std::move(record)));
+    robot_0.receive(message, round);
+    EXPECT_FALSE(robot_0.finish_round(round).has_value()) << "round " << round;
+    EXPECT_EQ(robot_0.corrections_held(), 3u) << "round " << round;
+  }
+  EXPECT_EQ(robot_0.corrections_seen(), static_cast<std::size_t>(3 * rounds));
+  EXPECT_EQ(robot_0.frame(), 0);
+}
+
 TEST(NegotiationTest, ARecordStillCrossesARobotToReachOneItsOwnerDoesNotTalkTo) {
   // Robots 1 and 2 are not linked, robot 0 is linked with both. Robot 1 owns the pair 0-1 and
   // robot 0 the pair 0-2 (owns_pair): robot 0 relays robot 1's record (after relay_delay

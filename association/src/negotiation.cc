@@ -285,13 +285,13 @@ std::optional<Reanchoring> Negotiator::finish_round(int round) {
 
 std::optional<Reanchoring> Negotiator::take_corrections() {
   std::optional<Reanchoring> move;
+  std::set<std::tuple<int, int, int, int, std::size_t>> seen;
   for (const auto& [owner, record] : records_) {
     for (const FrameEdge& edge : record->frame_edges) {
       for (std::size_t k = 0; k < edge.corrections.size(); ++k) {
-        if (!corrections_seen_.emplace(edge.owner, edge.round, edge.frame_a, edge.frame_b, k)
-                 .second) {
-          continue;
-        }
+        const auto key = std::make_tuple(edge.owner, edge.round, edge.frame_a, edge.frame_b, k);
+        if (!seen.insert(key).second || corrections_seen_.contains(key)) continue;
+        ++corrections_count_;
         // A robot in another frame joins through the corrected edge later, if at all.
         const FrameCorrection& correction = edge.corrections[k];
         if (correction.frame != frame_) continue;
@@ -308,6 +308,7 @@ std::optional<Reanchoring> Negotiator::take_corrections() {
       }
     }
   }
+  corrections_seen_ = std::move(seen);
   if (!move) return std::nullopt;
   covariance_frame_start_ =
       compose_covariance(move->T_new_old, move->covariance, covariance_frame_start_);

@@ -277,7 +277,9 @@ class Negotiator {
   /// Corrections of frame edges seen so far, whether or not they moved this robot: when it
   /// grows, some robots may have moved within the team frame (their claims about landmarks
   /// jump; see Estimator::forget_claims).
-  std::size_t corrections_seen() const { return corrections_seen_.size(); }
+  std::size_t corrections_seen() const { return corrections_count_; }
+  /// Corrections it remembers having seen: those of the frame edges in the records it holds.
+  std::size_t corrections_held() const { return corrections_seen_.size(); }
   const NegotiationCounters& counters() const { return counters_; }
   const NegotiationOptions& options() const { return options_; }
   /// Called after every search and revisit this robot makes as a pair's owner (none by
@@ -406,8 +408,12 @@ class Negotiator {
   std::vector<FrameEdge> own_frame_edges_;
   /// set_members, sorted and unique (empty: any owner).
   std::vector<int> members_;
-  /// Corrections already seen: (owner, edge round, frame_a, frame_b, index).
+  /// Corrections already seen: (owner, edge round, frame_a, frame_b, index), of the edges in
+  /// records_ only. An honest owner never drops an edge from its record, so an edge no longer
+  /// there is one a key holder made up, and forgetting it bounds the set by what records_ holds.
   std::set<std::tuple<int, int, int, int, std::size_t>> corrections_seen_;
+  /// Corrections seen over the negotiator's life (corrections_seen()).
+  std::size_t corrections_count_ = 0;
   /// Team ids over the links of every record in records_, of the parts of the link graph that
   /// hold this robot's objects (TeamIdIndex(robot)).
   TeamIdIndex team_ids_;
