@@ -7,7 +7,8 @@
 // the team frame. Never crash or hang, and whatever the negotiator decides stays usable: a move of
 // the state it asks for is a finite rigid motion with a finite, symmetric covariance (the daemon
 // applies it to its estimator), its own frame's transform stays finite, and each of robot 0's
-// objects is shared with a neighbour once at most.
+// objects is shared with a neighbour once at most. Half the inputs meet a negotiator that knows
+// the team's members: it relays no record of any other owner.
 #include <Eigen/Geometry>
 #include <cstddef>
 #include <cstdint>
@@ -70,6 +71,10 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
 
   static const MapDescription map = own_map();
   concord::association::Negotiator negotiator(0, 0, concord::association::NegotiationOptions{});
+  // Half the inputs (by the first byte, the wire's first tag) meet a daemon's negotiator, which
+  // holds owner records of its team's members only.
+  const bool membership = size > 0 && (data[0] & 1) != 0;
+  if (membership) negotiator.set_members({0, 1, 2, 3});
   const int interval = negotiator.options().description_interval;
   for (int k = 0; k < 5; ++k) {
     // Each description leaves out another object, as a robot's map changes: a search's
@@ -91,6 +96,10 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
             "a move's covariance is symmetric");
       check(move->independent.allFinite(), "a move's independent covariance is finite");
       check(move->pose_frame >= -1, "a move's correlated pose frame is -1 or a frame");
+    }
+    if (membership) {
+      for (const auto& record : negotiator.message_for(3, round).records)
+        check(record->owner >= 0 && record->owner <= 3, "a member relays members' records only");
     }
     check(negotiator.T_frame_start().matrix().allFinite(), "the start frame's transform is finite");
     check(negotiator.covariance_frame_start().allFinite(),
