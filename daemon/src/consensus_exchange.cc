@@ -996,7 +996,16 @@ void ConsensusExchange::negotiate(std::uint64_t round, Estimator& estimator,
       peer.negotiations.erase(it);
     }
   }
-  for (const auto& message : messages) association_->receive(message, round);
+  for (const auto& message : messages) {
+    const long long refused = association_->counters().records_refused;
+    association_->receive(message, round);
+    if (const long long now = association_->counters().records_refused; now != refused) {
+      warn_limited(*log_limiter_, message.sender, "records",
+                   "association: robot {} round {}: {} owner records of robots outside this "
+                   "robot's members refused (does every robot list the same members?)",
+                   message.sender, round, now - refused);
+    }
+  }
   for (int robot : candidates) {
     if (std::find(neighbours.begin(), neighbours.end(), robot) == neighbours.end())
       association_->missed(robot);
