@@ -368,13 +368,15 @@ struct TeamRun {
   std::vector<std::vector<LandmarkId>> team_ids;
   std::vector<int> frames;
   std::vector<ExchangeCounters> counters;
+  std::vector<association::NegotiationCounters> negotiation;
   int timed_out = 0;
 };
 
 /// The team on `inputs` with one thread per robot, as concordd's estimator threads do.
 TeamRun run_exchanges(const dataset::TeamInputs& inputs, const EstimatorOptions& options,
                       const association::NegotiationOptions& negotiation,
-                      std::function<void(int, v1::Envelope&)> corrupt = nullptr) {
+                      std::function<void(int, v1::Envelope&)> corrupt = nullptr,
+                      const std::vector<int>& members = {}) {
   ConsensusConfig config;
   config.mode = ConsensusMode::kLockstep;
   config.round_deadline = std::chrono::seconds(30);
@@ -382,7 +384,7 @@ TeamRun run_exchanges(const dataset::TeamInputs& inputs, const EstimatorOptions&
   Team team(robots, config, std::move(corrupt));
   std::vector<std::unique_ptr<AssociationSession>> sessions;
   for (int i = 0; i < robots; ++i) {
-    sessions.push_back(std::make_unique<AssociationSession>(i, i, negotiation));
+    sessions.push_back(std::make_unique<AssociationSession>(i, i, negotiation, members));
     team.exchanges[i]->set_association(sessions[i].get());
   }
   team.connect_all();
@@ -412,7 +414,10 @@ TeamRun run_exchanges(const dataset::TeamInputs& inputs, const EstimatorOptions&
   }
   for (auto& thread : threads) thread.join();
   run.timed_out = timed_out;
-  for (int i = 0; i < robots; ++i) run.counters.push_back(team.exchanges[i]->counters());
+  for (int i = 0; i < robots; ++i) {
+    run.counters.push_back(team.exchanges[i]->counters());
+    run.negotiation.push_back(sessions[i]->counters());
+  }
   return run;
 }
 
@@ -523,6 +528,57 @@ TEST(DaemonAssociation, MalformedDescriptionsAreCountedAndNeverStallTheRound) {
   EXPECT_EQ(run.counters[2].negotiations_refused, 0u);
   for (int i = 0; i < 3; ++i)
     EXPECT_EQ(run.trajectories[i].size(), static_cast<std::size_t>(frames));
+}
+
+TEST(DaemonAssociation, RecordsForgedForARobotOutsideTheMembersChangeNothing) {
+  // Robot 2 (a key holder) adds to every negotiation message a record it made up for robot 9,
+  // which is not in the team: links that would put robot 0's and robot 1's objects of the same
+  // private ids into one team each. Robots 0 and 1 refuse it (counted) and the team ends as the
+  // same team without the forgery does: the same trajectories, objects and team ids.
+  const int frames = kSanitized ? 60 : 80;
+  const dataset::Dataset data = negotiated_team(frames);
+  const dataset::TeamInputs inputs = dataset::sensor_inputs(data);
+  const EstimatorOptions options =
+      config::load_estimator_options(kSource / "configs/sensors/sim.yaml");
+  const association::NegotiationOptions negotiation =
+      config::load_negotiation_options(kSource / "configs/sensors/sim.yaml");
+  const std::vector<int> members{0, 1, 2};
+  const TeamRun honest = run_exchanges(inputs, options, negotiation, nullptr, members);
+  std::atomic<std::uint32_t> version{0};
+  const TeamRun forged = run_exchanges(
+      inputs, options, negotiation,
+      [&version](int sender, v1::Envelope& e) {
+        if (sender != 2 || !e.has_landmark_set() || !e.landmark_set().has_negotiation()) return;
+        v1::OwnerRecord* record = e.mutable_landmark_set()->mutable_negotiation()->add_records();
+        record->set_owner(9);
+        record->set_version(++version);  // newer each time: taken if not refused
+        for (LandmarkId id = 0; id < 20; ++id) {
+          for (const int robot : {0, 1}) {
+            v1::ObjectLink* link = record->add_links();
+            link->set_a(association::object_key(robot, id));
+            link->set_b(association::object_key(9, id));
+            link->set_mahalanobis_squared(0.1);
+          }
+        }
+      },
+      members);
+  EXPECT_EQ(forged.timed_out, 0);
+  for (int i = 0; i < 3; ++i) {
+    EXPECT_EQ(forged.counters[i].negotiations_refused, 0u) << "robot " << i;
+    EXPECT_EQ(honest.negotiation[i].records_refused, 0) << "robot " << i;
+    if (i < 2) {
+      EXPECT_GT(forged.negotiation[i].records_refused, 0) << "robot " << i;
+    } else {
+      EXPECT_EQ(forged.negotiation[i].records_refused, 0);
+    }
+    EXPECT_EQ(forged.frames[i], honest.frames[i]) << "robot " << i;
+    ASSERT_EQ(forged.trajectories[i].size(), honest.trajectories[i].size());
+    for (std::size_t k = 0; k < honest.trajectories[i].size(); ++k)
+      ASSERT_TRUE(forged.trajectories[i][k].isApprox(honest.trajectories[i][k], 1e-9))
+          << "robot " << i << " frame " << k;
+    ASSERT_EQ(forged.objects[i].size(), honest.objects[i].size());
+  }
+  expect_same_partition(honest.objects, honest.team_ids, forged.team_ids);
 }
 
 /// Ports of this test process, below Linux's ephemeral range (as daemon_process_test.cc).
