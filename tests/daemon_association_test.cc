@@ -4,6 +4,7 @@
 // and concordd processes in lockstep reproduce concord replay's negotiated run (team ids, frames,
 // estimates) on a simulated team with private ids and unknown starts.
 #include <gtest/gtest.h>
+#include <spdlog/spdlog.h>
 #include <unistd.h>
 
 #include <atomic>
@@ -388,6 +389,10 @@ TeamRun run_exchanges(const dataset::TeamInputs& inputs, const EstimatorOptions&
     team.exchanges[i]->set_association(sessions[i].get());
   }
   team.connect_all();
+  // spdlog makes its logger registry at first use, inside the library, which ThreadSanitizer does
+  // not see: made here, before the robots' threads (as concordd's main thread makes it before
+  // its own), its making happens before their log lines.
+  spdlog::default_logger_raw();
   TeamRun run;
   run.trajectories.resize(robots);
   run.objects.resize(robots);
