@@ -43,9 +43,9 @@ using testing::kSource;
 constexpr int kNegotiatedFrames = kSanitized ? 80 : 150;
 
 /// A small team with private ids and unknown starts whose robots align within its frames. The
-/// objects are as dense along the paths as the simulator's default count over 150 frames (the state's size, which sets the
-/// filter's cost per frame, does not grow on shorter runs); robots 1 and 2 align at frames 46 and
-/// 61 with 80 frames or more.
+/// objects are as dense along the paths as the simulator's default count over 150 frames (the
+/// state's size, which sets the filter's cost per frame, does not grow on shorter runs); robots 1
+/// and 2 align at frames 46 and 61 with 80 frames or more.
 dataset::Dataset negotiated_team(int frames) {
   sim::SimulationOptions options;
   options.robots = 3;
@@ -158,7 +158,8 @@ TEST(NegotiationWire, RoundTripIsExact) {
   EXPECT_EQ(record.links[0].b, message.records[0]->links[0].b);
   EXPECT_EQ(record.links[0].mahalanobis_squared, 1.25);
   ASSERT_EQ(record.frame_edges.size(), 1u);
-  EXPECT_EQ(record.frame_edges[0].T_a_b.matrix(), message.records[0]->frame_edges[0].T_a_b.matrix());
+  EXPECT_EQ(record.frame_edges[0].T_a_b.matrix(),
+            message.records[0]->frame_edges[0].T_a_b.matrix());
   EXPECT_EQ(record.frame_edges[0].covariance, message.records[0]->frame_edges[0].covariance);
   EXPECT_EQ(record.frame_edges[0].round, 15);
   EXPECT_EQ(record.frame_edges[0].robot_b, 1);
@@ -510,23 +511,32 @@ TEST(DaemonAssociation, ExchangesReproduceTheNegotiatedReplayWithFrameCorrection
   EXPECT_GE(corrections, 1);
 }
 
+/// negotiated_team(frames) as the exchanges take it, with configs/sensors/sim.yaml.
+struct NegotiatedInputs {
+  dataset::TeamInputs inputs;
+  EstimatorOptions options;
+  association::NegotiationOptions negotiation;
+};
+NegotiatedInputs negotiated_inputs(int frames) {
+  const std::filesystem::path config = kSource / "configs/sensors/sim.yaml";
+  return {dataset::sensor_inputs(negotiated_team(frames)), config::load_estimator_options(config),
+          config::load_negotiation_options(config)};
+}
+
 TEST(DaemonAssociation, MalformedDescriptionsAreCountedAndNeverStallTheRound) {
   // Robot 2 sends every description with a NaN position: its neighbours refuse them (counted),
   // the rounds go on without waiting, and robots 0 and 1 still negotiate between themselves.
   // Robots 0 and 1 align at frame 46: 60 frames under the sanitizers, 80 in Release.
   const int frames = kSanitized ? 60 : 80;
-  const dataset::Dataset data = negotiated_team(frames);
-  const dataset::TeamInputs inputs = dataset::sensor_inputs(data);
-  const EstimatorOptions options =
-      config::load_estimator_options(kSource / "configs/sensors/sim.yaml");
-  const association::NegotiationOptions negotiation =
-      config::load_negotiation_options(kSource / "configs/sensors/sim.yaml");
-  const TeamRun run = run_exchanges(inputs, options, negotiation, [](int sender, v1::Envelope& e) {
-    if (sender != 2 || !e.has_landmark_set() || !e.landmark_set().negotiation().has_map()) return;
-    auto* map = e.mutable_landmark_set()->mutable_negotiation()->mutable_map();
-    if (map->objects_size() > 0)
-      map->mutable_objects(0)->set_position(0, std::numeric_limits<double>::quiet_NaN());
-  });
+  const NegotiatedInputs team = negotiated_inputs(frames);
+  const TeamRun run =
+      run_exchanges(team.inputs, team.options, team.negotiation, [](int sender, v1::Envelope& e) {
+        if (sender != 2 || !e.has_landmark_set() || !e.landmark_set().negotiation().has_map())
+          return;
+        auto* map = e.mutable_landmark_set()->mutable_negotiation()->mutable_map();
+        if (map->objects_size() > 0)
+          map->mutable_objects(0)->set_position(0, std::numeric_limits<double>::quiet_NaN());
+      });
   EXPECT_EQ(run.timed_out, 0);
   EXPECT_GT(run.counters[0].negotiations_refused, 0u);
   EXPECT_EQ(run.counters[0].negotiations_refused, run.counters[1].negotiations_refused);
@@ -541,17 +551,13 @@ TEST(DaemonAssociation, RecordsForgedForARobotOutsideTheMembersChangeNothing) {
   // private ids into one team each. Robots 0 and 1 refuse it (counted) and the team ends as the
   // same team without the forgery does: the same trajectories, objects and team ids.
   const int frames = kSanitized ? 60 : 80;
-  const dataset::Dataset data = negotiated_team(frames);
-  const dataset::TeamInputs inputs = dataset::sensor_inputs(data);
-  const EstimatorOptions options =
-      config::load_estimator_options(kSource / "configs/sensors/sim.yaml");
-  const association::NegotiationOptions negotiation =
-      config::load_negotiation_options(kSource / "configs/sensors/sim.yaml");
+  const NegotiatedInputs team = negotiated_inputs(frames);
   const std::vector<int> members{0, 1, 2};
-  const TeamRun honest = run_exchanges(inputs, options, negotiation, nullptr, members);
+  const TeamRun honest =
+      run_exchanges(team.inputs, team.options, team.negotiation, nullptr, members);
   std::atomic<std::uint32_t> version{0};
   const TeamRun forged = run_exchanges(
-      inputs, options, negotiation,
+      team.inputs, team.options, team.negotiation,
       [&version](int sender, v1::Envelope& e) {
         if (sender != 2 || !e.has_landmark_set() || !e.landmark_set().has_negotiation()) return;
         v1::OwnerRecord* record = e.mutable_landmark_set()->mutable_negotiation()->add_records();
