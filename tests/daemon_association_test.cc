@@ -342,6 +342,127 @@ TEST(NegotiationWire, MalformedDescriptionsAreRefusedNamingTheProblem) {
   EXPECT_TRUE(decode(good, error)) << error;
 }
 
+/// Robot `robot`'s identity in these tests, and the keys of robots 0..robots-1.
+std::shared_ptr<const net::RobotIdentity> robot_identity(int robot) {
+  return std::make_shared<const net::RobotIdentity>(
+      net::RobotIdentity::from_seed_for_tests("association robot " + std::to_string(robot)));
+}
+net::MemberKeys robot_keys(int robots) {
+  net::MemberKeys keys;
+  for (int robot = 0; robot < robots; ++robot)
+    keys.emplace(robot, robot_identity(robot)->public_key());
+  return keys;
+}
+
+/// `message` through bytes, as on a connection.
+v1::Negotiation through_bytes(const v1::Negotiation& message) {
+  v1::Negotiation parsed;
+  EXPECT_TRUE(parsed.ParseFromString(message.SerializeAsString()));
+  return parsed;
+}
+
+TEST(NegotiationWire, OwnRecordsGoOutSignedAndRelaysPassTheOwnersSignatureOn) {
+  // sample_message's record is robot 0's: robot 0 signs it, robot 1 reads it and relays it to
+  // robot 2 as it holds it (its own signer leaves another owner's signature as it is).
+  const RecordSigner robot0(0, robot_identity(0), robot_keys(3));
+  const RecordSigner robot1(1, robot_identity(1), robot_keys(3));
+  const RecordSigner robot2(2, robot_identity(2), robot_keys(3));
+  v1::Negotiation wire;
+  to_wire(sample_message(), wire, &robot0);
+  ASSERT_EQ(wire.records(0).signature().size(), net::kSignatureBytes);
+  std::string error;
+  std::uint64_t unsigned_records = 0;
+  const auto at_robot1 = from_wire(through_bytes(wire), 0, {}, error, &robot1, &unsigned_records);
+  ASSERT_TRUE(at_robot1) << error;
+  ASSERT_EQ(at_robot1->records.size(), 1u);
+  EXPECT_EQ(unsigned_records, 0u);
+  association::NegotiationMessage relayed = *at_robot1;
+  relayed.sender = 1;
+  relayed.map.reset();
+  v1::Negotiation relayed_wire;
+  to_wire(relayed, relayed_wire, &robot1);
+  EXPECT_EQ(relayed_wire.records(0).signature(), wire.records(0).signature());
+  const auto at_robot2 =
+      from_wire(through_bytes(relayed_wire), 1, {}, error, &robot2, &unsigned_records);
+  ASSERT_TRUE(at_robot2) << error;
+  EXPECT_EQ(at_robot2->records.size(), 1u);
+  EXPECT_EQ(unsigned_records, 0u);
+  // The same signature for the same version: signed once.
+  v1::Negotiation again;
+  to_wire(sample_message(), again, &robot0);
+  EXPECT_EQ(again.records(0).signature(), wire.records(0).signature());
+}
+
+TEST(NegotiationWire, RecordsNotSignedByTheirOwnerAreLeftOutAndCounted) {
+  const RecordSigner robot0(0, robot_identity(0), robot_keys(3));
+  const RecordSigner robot2(2, robot_identity(2), robot_keys(3));
+  v1::Negotiation signed_wire;
+  to_wire(sample_message(), signed_wire, &robot0);
+  struct Case {
+    const char* name;
+    std::function<void(v1::Negotiation&)> change;
+  };
+  const std::vector<Case> cases = {
+      {"unsigned", [](v1::Negotiation& m) { m.mutable_records(0)->clear_signature(); }},
+      {"a newer version under the old signature",
+       [](v1::Negotiation& m) { m.mutable_records(0)->set_version(5); }},
+      {"a link changed",
+       [](v1::Negotiation& m) {
+         m.mutable_records(0)->mutable_links(0)->set_mahalanobis_squared(0.5);
+       }},
+      {"a frame edge's transform changed",
+       [](v1::Negotiation& m) {
+         auto* t = m.mutable_records(0)->mutable_frame_edges(0)->mutable_t_a_b();
+         t->Set(3, t->Get(3) + 1.0);
+       }},
+      {"a correction's round changed",
+       [](v1::Negotiation& m) {
+         m.mutable_records(0)->mutable_frame_edges(0)->mutable_corrections(0)->set_round(41);
+       }},
+      {"signed by another member (robot 1) for robot 0",
+       [](v1::Negotiation& m) {
+         m.mutable_records(0)->set_signature(robot_identity(1)->sign("anything"));
+       }},
+  };
+  for (const Case& c : cases) {
+    v1::Negotiation wire = signed_wire;
+    c.change(wire);
+    std::string error;
+    std::uint64_t unsigned_records = 0;
+    const auto decoded = from_wire(through_bytes(wire), 1, {}, error, &robot2, &unsigned_records);
+    ASSERT_TRUE(decoded) << c.name << ": " << error;  // the rest of the message is taken
+    EXPECT_TRUE(decoded->records.empty()) << c.name;
+    EXPECT_EQ(unsigned_records, 1u) << c.name;
+    EXPECT_TRUE(decoded->map) << c.name;
+    // Without identities the same bytes are taken (signatures are not checked).
+    const auto unchecked = from_wire(through_bytes(wire), 1, {}, error);
+    ASSERT_TRUE(unchecked) << c.name << ": " << error;
+    EXPECT_EQ(unchecked->records.size(), 1u) << c.name;
+  }
+  // A record of robot 0 that robot 2 made up and signed with its own key.
+  association::OwnerRecord forged = *sample_message().records[0];
+  forged.version = 1000;
+  forged.signature = robot_identity(2)->sign(record_signing_bytes(forged));
+  association::NegotiationMessage message = sample_message();
+  message.records = {std::make_shared<const association::OwnerRecord>(forged)};
+  v1::Negotiation forged_wire;
+  to_wire(message, forged_wire, &robot2);
+  EXPECT_EQ(forged_wire.records(0).signature(), forged.signature);  // relayed as it holds it
+  std::string error;
+  std::uint64_t unsigned_records = 0;
+  const RecordSigner robot1(1, robot_identity(1), robot_keys(3));
+  const auto decoded =
+      from_wire(through_bytes(forged_wire), 2, {}, error, &robot1, &unsigned_records);
+  ASSERT_TRUE(decoded) << error;
+  EXPECT_TRUE(decoded->records.empty());
+  EXPECT_EQ(unsigned_records, 1u);
+  // A signature of the wrong size is malformed whatever the receiver checks.
+  v1::Negotiation short_signature = signed_wire;
+  short_signature.mutable_records(0)->set_signature("short");
+  EXPECT_FALSE(from_wire(short_signature, 1, {}, error));
+  EXPECT_NE(error.find("signature of 5 bytes"), std::string::npos) << error;
+}
+
 /// Exchanges that deliver to each other directly, optionally corrupting what one robot sends.
 struct Team {
   Team(int robots, ConsensusConfig config,
@@ -378,7 +499,7 @@ struct TeamRun {
 TeamRun run_exchanges(const dataset::TeamInputs& inputs, const EstimatorOptions& options,
                       const association::NegotiationOptions& negotiation,
                       std::function<void(int, v1::Envelope&)> corrupt = nullptr,
-                      const std::vector<int>& members = {}) {
+                      const std::vector<int>& members = {}, bool identities = false) {
   ConsensusConfig config;
   config.mode = ConsensusMode::kLockstep;
   config.round_deadline = std::chrono::seconds(30);
@@ -388,6 +509,10 @@ TeamRun run_exchanges(const dataset::TeamInputs& inputs, const EstimatorOptions&
   for (int i = 0; i < robots; ++i) {
     sessions.push_back(std::make_unique<AssociationSession>(i, i, negotiation, members));
     team.exchanges[i]->set_association(sessions[i].get());
+    if (identities) {
+      team.exchanges[i]->set_record_signer(
+          std::make_shared<RecordSigner>(i, robot_identity(i), robot_keys(robots)));
+    }
   }
   team.connect_all();
   // spdlog makes its logger registry at first use, inside the library, which ThreadSanitizer does
@@ -590,6 +715,60 @@ TEST(DaemonAssociation, RecordsForgedForARobotOutsideTheMembersChangeNothing) {
     ASSERT_EQ(forged.objects[i].size(), honest.objects[i].size());
   }
   expect_same_partition(honest.objects, honest.team_ids, forged.team_ids);
+}
+
+TEST(DaemonAssociation, WithIdentitiesRecordsForgedForAMemberChangeNothing) {
+  // Robot 2 (a key holder with its own identity) adds to every negotiation message a record it
+  // made up for robot 0, a member, under ever higher versions, signed with its own key: links
+  // that would put robot 0's and robot 1's objects of the same private ids into one team each.
+  // Without identities robot 1 would take it as robot 0's newest record. With them robots 0 and
+  // 1 leave it out (counted) and the team ends as the same team without the forgery does: the
+  // same trajectories, objects and team ids; and honest records, signed and relayed, are all taken.
+  const int frames = kSanitized ? 60 : 80;
+  const NegotiatedInputs team = negotiated_inputs(frames);
+  const std::vector<int> members{0, 1, 2};
+  const TeamRun honest =
+      run_exchanges(team.inputs, team.options, team.negotiation, nullptr, members, true);
+  std::atomic<int> version{1000};
+  const TeamRun forged = run_exchanges(
+      team.inputs, team.options, team.negotiation,
+      [&version](int sender, v1::Envelope& e) {
+        if (sender != 2 || !e.has_landmark_set() || !e.landmark_set().has_negotiation()) return;
+        association::OwnerRecord record;
+        record.owner = 0;
+        record.version = ++version;  // newer each time: taken if not refused
+        for (LandmarkId id = 0; id < 20; ++id) {
+          record.links.push_back(association::ObjectLink::make(
+              association::object_key(0, id), association::object_key(1, id), 0.1));
+        }
+        record.signature = robot_identity(2)->sign(record_signing_bytes(record));
+        association::NegotiationMessage message;
+        message.records = {std::make_shared<const association::OwnerRecord>(record)};
+        v1::Negotiation wire;
+        to_wire(message, wire);
+        *e.mutable_landmark_set()->mutable_negotiation()->add_records() = wire.records(0);
+      },
+      members, true);
+  EXPECT_EQ(honest.timed_out, 0);
+  EXPECT_EQ(forged.timed_out, 0);
+  for (int i = 0; i < 3; ++i) {
+    EXPECT_EQ(honest.counters[i].records_unsigned, 0u) << "robot " << i;
+    EXPECT_EQ(forged.counters[i].negotiations_refused, 0u) << "robot " << i;
+    if (i < 2) {
+      EXPECT_GT(forged.counters[i].records_unsigned, 0u) << "robot " << i;
+    } else {
+      EXPECT_EQ(forged.counters[i].records_unsigned, 0u);
+    }
+    EXPECT_EQ(forged.frames[i], honest.frames[i]) << "robot " << i;
+    ASSERT_EQ(forged.trajectories[i].size(), honest.trajectories[i].size());
+    for (std::size_t k = 0; k < honest.trajectories[i].size(); ++k)
+      ASSERT_TRUE(forged.trajectories[i][k].isApprox(honest.trajectories[i][k], 1e-9))
+          << "robot " << i << " frame " << k;
+    ASSERT_EQ(forged.objects[i].size(), honest.objects[i].size());
+  }
+  expect_same_partition(honest.objects, honest.team_ids, forged.team_ids);
+  // The negotiation did its work with signed records: robots aligned and shared objects.
+  EXPECT_GT(honest.negotiation[0].links_accepted + honest.negotiation[1].links_accepted, 0);
 }
 
 /// Ports of this test process, below Linux's ephemeral range (as daemon_process_test.cc).

@@ -134,6 +134,39 @@ TEST(DaemonConfig, TrustAndBoundsAreChecked) {
 namespace concord::daemon {
 namespace {
 
+TEST(DaemonConfig, IdentitiesNeedTheRobotsKeyFileAndEveryMembersPublicKey) {
+  const std::string key0(64, 'a'), key1(64, 'B');
+  const std::string team = "team_key_file: k\nmembers: [0, 1]\nsource: {dataset: d}\n";
+  const DaemonConfig config =
+      parse_daemon_config(team + "identity_key_file: me.identity\nmember_keys: {0: " + key0 +
+                              ", 1: \"" + key1 + "\"}\n",
+                          "inline", "/base");
+  EXPECT_EQ(config.identity_key_file, std::filesystem::path("/base/me.identity"));
+  EXPECT_EQ(config.member_keys, (std::map<int, std::string>{{0, key0}, {1, key1}}));
+  EXPECT_EQ(problems_of(team + "identity_key_file: me\nmember_keys: {0: " + key0 + ", 1: " + key1 +
+                        "}\n"),
+            "");
+  const std::string no_file =
+      problems_of(team + "member_keys: {0: " + key0 + ", 1: " + key1 + "}\n");
+  EXPECT_NE(no_file.find("identity_key_file: required with member_keys"), std::string::npos)
+      << no_file;
+  const std::string no_keys = problems_of(team + "identity_key_file: me\n");
+  EXPECT_NE(no_keys.find("member_keys: required with identity_key_file"), std::string::npos)
+      << no_keys;
+  const std::string missing =
+      problems_of(team + "identity_key_file: me\nmember_keys: {0: " + key0 + "}\n");
+  EXPECT_NE(missing.find("no key for member 1"), std::string::npos) << missing;
+  const std::string short_key =
+      problems_of(team + "identity_key_file: me\nmember_keys: {0: " + key0 + ", 1: abc}\n");
+  EXPECT_NE(short_key.find("the key of robot 1 is not 64 hex digits"), std::string::npos)
+      << short_key;
+  const std::string not_a_map = problems_of(team + "identity_key_file: me\nmember_keys: [1, 2]\n");
+  EXPECT_NE(not_a_map.find("member_keys"), std::string::npos) << not_a_map;
+  const std::string bad_id =
+      problems_of(team + "identity_key_file: me\nmember_keys: {zero: " + key0 + "}\n");
+  EXPECT_NE(bad_id.find("a robot id"), std::string::npos) << bad_id;
+}
+
 TEST(DaemonConfig, ASimulatedRadioNeedsGroundTruthAndSaneLimits) {
   const DaemonConfig config = parse_daemon_config(
       "team_key_file: k\nmembers: [0, 1]\nsource: {dataset: d}\n"

@@ -69,10 +69,15 @@ std::vector<ChildProcess> start_team(const launch::LaunchOptions& options, int r
                                      std::vector<fs::path>* configs = nullptr) {
   fs::create_directories(options.out / "configs");
   launch::ensure_team_key(options);
+  // Per-robot identities, as concord launch gives them: the intruders below hold no robot's key.
+  const std::map<int, std::string> member_keys = options.identities
+                                                     ? launch::ensure_identities(options, robots)
+                                                     : std::map<int, std::string>{};
   std::vector<ChildProcess> daemons;
   for (int robot = 0; robot < robots; ++robot) {
     const fs::path config = options.out / "configs" / (dataset::robot_folder_name(robot) + ".yaml");
-    dataset::write_file_atomically(config, launch::daemon_config_yaml(options, robot, robots));
+    dataset::write_file_atomically(config,
+                                   launch::daemon_config_yaml(options, robot, robots, member_keys));
     if (configs) configs->push_back(config);
     std::vector<std::string> argv{kDaemon, "--config", config};
     if (const auto extra = options.extra_arguments.find(robot);
@@ -489,6 +494,25 @@ TEST(DaemonFault, StartUpAndOutputFailuresExitWithTheDocumentedCodes) {
     ASSERT_TRUE(daemon.wait_for(10s));
     EXPECT_EQ(daemon.exit_code(), 2);
     EXPECT_NE(read_text(out / "key.log").find("chmod 600"), std::string::npos);
+  }
+  // Robot 0 given robot 1's identity key file: exit 2 naming the mismatch (a robot cannot sign
+  // as another, and does not start as one by mistake).
+  {
+    auto signed_options = team_options(out / "impostor");
+    signed_options.frames = 5;
+    launch::ensure_team_key(signed_options);
+    std::map<int, std::string> keys = launch::ensure_identities(signed_options, 2);
+    fs::copy_file(launch::identity_key_path(signed_options, 1),
+                  launch::identity_key_path(signed_options, 0),
+                  fs::copy_options::overwrite_existing);
+    const fs::path config = out / "impostor.yaml";
+    dataset::write_file_atomically(config, launch::daemon_config_yaml(signed_options, 0, 2, keys));
+    ChildProcess daemon({kDaemon, "--config", config}, out / "impostor.log");
+    ASSERT_TRUE(daemon.wait_for(10s));
+    EXPECT_EQ(daemon.exit_code(), 2);
+    EXPECT_NE(read_text(out / "impostor.log").find("not this robot's identity key"),
+              std::string::npos)
+        << read_text(out / "impostor.log");
   }
 }
 

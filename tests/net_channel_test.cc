@@ -1,6 +1,7 @@
 // The authenticated channel (secure_channel.h) and the team key file, without sockets: mutual
 // proof of the key, encryption both ways, forged / replayed / reordered messages, another key,
-// reflected hellos, malformed handshake messages; key files readable by others are refused.
+// reflected hellos, malformed handshake messages; key files readable by others are refused; robot
+// identities: signatures, key files, the channel binding they sign.
 #include <gtest/gtest.h>
 #include <sys/stat.h>
 #include <unistd.h>
@@ -9,6 +10,7 @@
 #include <fstream>
 
 #include "concord/net/frame_codec.h"
+#include "concord/net/identity.h"
 #include "concord/net/log_limiter.h"
 #include "concord/net/secure_channel.h"
 #include "concord/net/team_key.h"
@@ -215,6 +217,81 @@ TEST_F(TeamKeyFile, AKeyOthersCanReadIsRefusedNamingThePath) {
   std::ofstream(malformed) << "concord-team-key-v1 zz\n";
   ::chmod(malformed.c_str(), 0600);
   EXPECT_THROW((void)load_team_key(malformed), TeamKeyError);
+}
+
+TEST(SecureChannel, BothEndsShareABindingThatIsFreshForEveryConnection) {
+  const TeamKey key = TeamKey::generate();
+  ChannelPair first(key, key);
+  EXPECT_THROW((void)first.initiator.binding(), std::logic_error);  // no peer hello yet
+  ASSERT_TRUE(first.handshake());
+  EXPECT_EQ(first.initiator.binding().size(), 32u);
+  EXPECT_EQ(first.initiator.binding(), first.responder.binding());
+  ChannelPair second(key, key);
+  ASSERT_TRUE(second.handshake());
+  EXPECT_EQ(second.initiator.binding(), second.responder.binding());
+  EXPECT_NE(second.initiator.binding(), first.initiator.binding());
+}
+
+TEST(RobotIdentity, SignaturesVerifyOnlyWithTheSignersKeyAndTheSignedBytes) {
+  const RobotIdentity alice = RobotIdentity::generate();
+  const RobotIdentity bob = RobotIdentity::generate();
+  EXPECT_FALSE(alice.public_key() == bob.public_key());
+  const std::string message = "owner record 7";
+  const std::string signature = alice.sign(message);
+  ASSERT_EQ(signature.size(), kSignatureBytes);
+  EXPECT_TRUE(alice.public_key().verify(message, signature));
+  EXPECT_FALSE(bob.public_key().verify(message, signature));
+  EXPECT_FALSE(alice.public_key().verify("owner record 8", signature));
+  std::string flipped = signature;
+  flipped[10] = static_cast<char>(flipped[10] ^ 1);
+  EXPECT_FALSE(alice.public_key().verify(message, flipped));
+  EXPECT_FALSE(alice.public_key().verify(message, signature.substr(0, 63)));
+  EXPECT_FALSE(alice.public_key().verify(message, ""));
+  EXPECT_THROW((void)RobotIdentity().sign(message), std::logic_error);
+}
+
+TEST(RobotIdentity, PublicKeysAndKeyTextsRoundTripAndMalformedOnesAreRefused) {
+  const RobotIdentity identity = RobotIdentity::generate();
+  const std::string hex = identity.public_key().hex();
+  EXPECT_EQ(hex.size(), 64u);
+  EXPECT_TRUE(PublicKey::parse(hex, "test") == identity.public_key());
+  EXPECT_THROW((void)PublicKey::parse(hex.substr(1), "test"), TeamKeyError);
+  EXPECT_THROW((void)PublicKey::parse(std::string(64, 'g'), "test"), TeamKeyError);
+  const RobotIdentity parsed = RobotIdentity::parse(identity.format(), "test");
+  EXPECT_TRUE(parsed.public_key() == identity.public_key());
+  EXPECT_TRUE(identity.public_key().verify("m", parsed.sign("m")));
+  EXPECT_THROW((void)RobotIdentity::parse("concord-team-key-v1 " + std::string(64, '0'), "test"),
+               TeamKeyError);  // a team key is not an identity
+  EXPECT_THROW((void)RobotIdentity::parse("concord-identity-key-v1 abc\n", "test"), TeamKeyError);
+}
+
+TEST(RobotIdentity, HelloSigningBytesTellRolesRobotsAndConnectionsApart) {
+  const std::string binding(32, 'b');
+  const std::string base = hello_signing_bytes(binding, true, 2);
+  EXPECT_NE(base, hello_signing_bytes(binding, false, 2));
+  EXPECT_NE(base, hello_signing_bytes(binding, true, 3));
+  EXPECT_NE(base, hello_signing_bytes(std::string(32, 'c'), true, 2));
+  EXPECT_EQ(base, hello_signing_bytes(binding, true, 2));
+}
+
+TEST_F(TeamKeyFile, IdentityKeysRoundTripWithMode0600AndOthersCannotReadThem) {
+  const auto path = folder_ / "robot.identity";
+  const RobotIdentity identity = RobotIdentity::generate();
+  write_identity(path, identity);
+  struct stat info {};
+  ASSERT_EQ(::stat(path.c_str(), &info), 0);
+  EXPECT_EQ(info.st_mode & 0777, 0600u);
+  EXPECT_TRUE(load_identity(path).public_key() == identity.public_key());
+  EXPECT_THROW(write_identity(path, RobotIdentity::generate()), TeamKeyError);
+  EXPECT_TRUE(load_identity(path).public_key() == identity.public_key());
+  ::chmod(path.c_str(), 0640);
+  try {
+    (void)load_identity(path);
+    FAIL() << "a group-readable identity key was accepted";
+  } catch (const TeamKeyError& error) {
+    EXPECT_NE(std::string(error.what()).find(path.string()), std::string::npos) << error.what();
+    EXPECT_NE(std::string(error.what()).find("0640"), std::string::npos) << error.what();
+  }
 }
 
 TEST(LogLimiter, AllowsABurstThenCountsWhatItHoldsBack) {

@@ -15,6 +15,7 @@
 #include <thread>
 
 #include "concord/net/frame_listener.h"
+#include "concord/net/identity.h"
 #include "concord/net/peer_network.h"
 #include "concord/net/reconnect_backoff.h"
 #include "concord/net/secure_channel.h"
@@ -260,6 +261,8 @@ class RawClient {
     return n;
   }
   bool closed() const { return closed_; }
+  /// The channel binding of this connection (after secure()).
+  std::string binding() const { return channel_->binding(); }
 
  private:
   std::string frame_of(const v1::Envelope& envelope) {
@@ -845,6 +848,115 @@ TEST(PeerNetwork, MembershipListRefusesOtherRobotIds) {
   EXPECT_TRUE(outsider.read_until_closed());
   EXPECT_EQ(a.totals().rejected_handshake, 1u);
   EXPECT_TRUE(a.network().peers().empty());
+}
+
+// ---------------------------------------------------------------------------------------------
+// Per-robot identities
+
+/// Robot `robot`'s identity in these tests.
+std::shared_ptr<const RobotIdentity> identity_of(int robot) {
+  return std::make_shared<const RobotIdentity>(
+      RobotIdentity::from_seed_for_tests("robot " + std::to_string(robot)));
+}
+
+/// test_options with identities: robots 1-3 are members, each with its key.
+PeerNetworkOptions signed_options(int robot) {
+  PeerNetworkOptions options = test_options(robot);
+  options.members = {1, 2, 3};
+  options.identity = identity_of(robot);
+  for (const int member : options.members)
+    options.member_keys.emplace(member, identity_of(member)->public_key());
+  return options;
+}
+
+/// A Hello of `robot` signed by `signer` over `binding` as the dialer.
+v1::Envelope signed_hello(int robot, const RobotIdentity& signer, const std::string& binding) {
+  v1::Envelope envelope = raw_hello(robot);
+  envelope.mutable_hello()->set_identity_signature(
+      signer.sign(hello_signing_bytes(binding, /*signer_dialed=*/true, robot)));
+  return envelope;
+}
+
+TEST(PeerNetworkOptions, MemberKeysNeedThisRobotsOwnIdentity) {
+  EXPECT_TRUE(signed_options(1).validate().empty());
+  auto problems_of = [](const PeerNetworkOptions& options) {
+    std::string all;
+    for (const std::string& problem : options.validate()) all += problem + "\n";
+    return all;
+  };
+  PeerNetworkOptions no_identity = signed_options(1);
+  no_identity.identity.reset();
+  EXPECT_NE(problems_of(no_identity).find("identity: required"), std::string::npos);
+  PeerNetworkOptions someone_else = signed_options(1);
+  someone_else.identity = identity_of(2);
+  EXPECT_NE(problems_of(someone_else).find("not this robot's identity key"), std::string::npos);
+  PeerNetworkOptions missing_member = signed_options(1);
+  missing_member.member_keys.erase(3);
+  EXPECT_NE(problems_of(missing_member).find("no key for member 3"), std::string::npos);
+}
+
+TEST(PeerNetwork, MembersWithIdentitiesConnectBySignedHellos) {
+  Waiter waiter;
+  Node a(signed_options(1), waiter);
+  a.start();
+  PeerNetworkOptions options = signed_options(2);
+  options.peers = {loopback(a.port())};
+  Node b(options, waiter);
+  b.start();
+  ASSERT_TRUE(waiter.until([&] { return a.is_up(2) && b.is_up(1); }));
+  EXPECT_EQ(a.totals().rejected_identity, 0u);
+  EXPECT_EQ(b.totals().rejected_identity, 0u);
+}
+
+TEST(PeerNetwork, AKeyHolderCannotTakeAnotherMembersId) {
+  Waiter waiter;
+  Node a(signed_options(1), waiter);
+  a.start();
+  const RobotIdentity robot3 = *identity_of(3);
+  // Robot 3 (a member with the team key) claims robot 2's id: signed with its own key, with none,
+  // and with robot 2's signature of another connection (replayed).
+  std::string other_binding;
+  {
+    RawClient first(a.port());
+    ASSERT_TRUE(first.secure(*test_key()));
+    other_binding = first.binding();
+    first.send(signed_hello(2, robot3, first.binding()));
+    EXPECT_TRUE(first.read_until_closed());
+  }
+  {
+    RawClient unsigned_hello(a.port());
+    ASSERT_TRUE(unsigned_hello.secure(*test_key()));
+    unsigned_hello.send(raw_hello(2));
+    EXPECT_TRUE(unsigned_hello.read_until_closed());
+  }
+  {
+    RawClient replay(a.port());
+    ASSERT_TRUE(replay.secure(*test_key()));
+    EXPECT_NE(replay.binding(), other_binding);  // fresh for every connection
+    replay.send(signed_hello(2, *identity_of(2), other_binding));
+    EXPECT_TRUE(replay.read_until_closed());
+  }
+  EXPECT_EQ(a.totals().rejected_identity, 3u);
+  EXPECT_EQ(a.totals().rejected_handshake, 3u);
+  EXPECT_TRUE(a.network().peers().empty());
+  // Under its own id, signed over this connection, robot 3 is admitted.
+  RawClient honest(a.port());
+  ASSERT_TRUE(honest.secure(*test_key()));
+  honest.send(signed_hello(3, robot3, honest.binding()));
+  ASSERT_TRUE(waiter.until([&] { return a.is_up(3); }));
+  EXPECT_EQ(a.totals().rejected_identity, 3u);
+}
+
+TEST(PeerNetwork, AMemberWithoutIdentitiesIsRefusedByOneThatRequiresThem) {
+  Waiter waiter;
+  Node a(signed_options(1), waiter);
+  a.start();
+  PeerNetworkOptions options = test_options(2);  // the team key, no identity
+  options.peers = {loopback(a.port())};
+  Node b(options, waiter);
+  b.start();
+  ASSERT_TRUE(waiter.until([&] { return a.totals().rejected_identity >= 1; }));
+  EXPECT_FALSE(a.is_up(2));
 }
 
 TEST(PeerNetwork, AdmissionCapClosesConnectionsBeyondThePendingHandshakes) {

@@ -17,7 +17,9 @@
 ///   concord frontend --input DIR --out DIR [--detections FILE] [--odometry FILE] [--frames N]
 ///                    [--detector-model FILE]
 ///   concord frontend-eval --dataset DIR [--world FILE]
-///   concord keygen --out FILE      (a new team key, mode 0600; never overwrites)
+///   concord keygen [--identity] --out FILE
+///                                  (a new team key, or a robot's identity key, mode 0600; never
+///                                  overwrites)
 ///   concord sim --robots N --out DIR [--seed S] [--frames F] [--objects M] [--points-per-frame P]
 ///               [--odometry-translation-noise T] [--odometry-rotation-noise R] [--pixel-noise S]
 ///               [--object-noise S]
@@ -45,8 +47,9 @@
 #include "concord/frontend/frontend.h"
 #include "concord/frontend/frontend_options_file.h"
 #include "concord/frontend/frontend_run.h"
-#include "evaluation/frontend_metrics.h"
+#include "concord/net/identity.h"
 #include "concord/net/team_key.h"
+#include "evaluation/frontend_metrics.h"
 #include "evaluation/line_plot.h"
 #include "evaluation/metrics.h"
 #include "evaluation/plot.h"
@@ -1139,6 +1142,9 @@ int main(int argc, char** argv) {
       ->add_option("--round-deadline-ms", launch_options.round_deadline_ms,
                    "consensus.round_deadline_ms of the daemons (default: theirs)")
       ->check(CLI::PositiveNumber);
+  bool launch_no_identities = false;
+  launch_command->add_flag("--no-identities", launch_no_identities,
+                           "The team key only: no per-robot signing keys (docs/network.md)");
 
   auto* plot_command =
       app.add_subcommand("plot", "Draw a line chart described in JSON as a PNG (bench charts)");
@@ -1248,9 +1254,21 @@ int main(int argc, char** argv) {
   std::string key_file;
   keygen_command->add_option("--out", key_file, "Key file to create (never overwritten)")
       ->required();
+  bool keygen_identity = false;
+  keygen_command->add_flag("--identity", keygen_identity,
+                           "A robot's identity (signing) key instead; prints its public key for "
+                           "the members' member_keys");
 
   CLI11_PARSE(app, argc, argv);
   try {
+    if (keygen_command->parsed() && keygen_identity) {
+      const net::RobotIdentity identity = net::RobotIdentity::generate();
+      net::write_identity(key_file, identity);
+      std::cout << "identity key: " << key_file << " (mode 0600; keep it on this robot only and "
+                << "point identity_key_file at it)\npublic key: " << identity.public_key().hex()
+                << " (list it under member_keys in every robot's config)\n";
+      return 0;
+    }
     if (keygen_command->parsed()) {
       net::write_team_key(key_file, net::TeamKey::generate());
       std::cout << "team key: " << key_file << " (mode 0600; copy it to every robot of the team "
@@ -1269,6 +1287,7 @@ int main(int argc, char** argv) {
       }
       launch_options.mode = launch_async ? "async" : launch_separate ? "off" : "lockstep";
       launch_options.point_features = !no_point_features;
+      launch_options.identities = !launch_no_identities;
       if (!launch_config.empty()) launch_options.estimator_config = launch_config;
       if (!concordd_path.empty()) launch_options.concordd = concordd_path;
       for (const std::string& failpoint : launch_failpoints) {

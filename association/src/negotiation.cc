@@ -87,7 +87,7 @@ lie::Matrix6d FrameEdge::full_covariance(bool omit_a, bool omit_b) const {
 }
 
 std::size_t OwnerRecord::wire_size() const {
-  std::size_t size = 12 + 20 * links.size() + 324 * frame_edges.size();
+  std::size_t size = 12 + 20 * links.size() + 324 * frame_edges.size() + signature.size();
   for (const FrameEdge& edge : frame_edges) size += 144 * edge.corrections.size();
   return size;
 }
@@ -109,7 +109,7 @@ Negotiator::Negotiator(int robot, int start_frame, NegotiationOptions options)
       agreement_bound_(
           UpdaterHelper::chi2_quantile(options_.transform_agreement_chi2_probability, 6)),
       team_ids_(robot) {
-  records_[robot_] = std::make_shared<const OwnerRecord>(OwnerRecord{robot_, 0, {}, {}});
+  records_[robot_] = std::make_shared<const OwnerRecord>(OwnerRecord{robot_, 0, {}, {}, {}});
 }
 
 void Negotiator::set_own_map(MapDescription map, int round) {

@@ -3,6 +3,7 @@
 #include <yaml-cpp/yaml.h>
 
 #include <algorithm>
+#include <cctype>
 #include <limits>
 #include <map>
 #include <set>
@@ -84,6 +85,27 @@ std::vector<std::string> DaemonConfig::validate() const {
   }
   for (const int member : members)
     if (member < 0) problems.push_back("members: " + std::to_string(member) + " is negative");
+  if (!member_keys.empty() && identity_key_file.empty())
+    problems.push_back(
+        "identity_key_file: required with member_keys (create one with `concord keygen "
+        "--identity --out FILE`)");
+  if (member_keys.empty() && !identity_key_file.empty())
+    problems.push_back("member_keys: required with identity_key_file (every member's public key)");
+  if (!member_keys.empty()) {
+    for (const int member : members)
+      if (member_keys.find(member) == member_keys.end())
+        problems.push_back("member_keys: no key for member " + std::to_string(member));
+    for (const auto& [robot, key] : member_keys) {
+      const bool hex = key.size() == 64 && std::all_of(key.begin(), key.end(), [](char c) {
+                         return std::isxdigit(static_cast<unsigned char>(c)) != 0;
+                       });
+      if (robot < 0)
+        problems.push_back("member_keys: robot id " + std::to_string(robot) + " is negative");
+      if (!hex)
+        problems.push_back("member_keys: the key of robot " + std::to_string(robot) +
+                           " is not 64 hex digits");
+    }
+  }
   if (source.kind == SourceKind::kIngest) {
     const std::string& address = source.ingest_address;
     const bool loopback =
@@ -210,6 +232,23 @@ DaemonConfig parse_daemon_config(const std::string& yaml_text, const std::string
   top.read_size("queue_capacity", config.queue_capacity);
   top.read("team_key_file", config.team_key_file, base_directory);
   top.read_ints("members", config.members);
+  top.read("identity_key_file", config.identity_key_file, base_directory);
+  if (const YAML::Node keys = top.child("member_keys"); keys && !keys.IsNull()) {
+    if (!keys.IsMap()) {
+      top.problem(keys, "member_keys", "a map of robot id to public key");
+    } else {
+      for (const auto& entry : keys) {
+        int robot = -1;
+        std::string key;
+        if (top.read_value(entry.first, "member_keys", robot, "a robot id") &&
+            top.read_value(entry.second, "member_keys." + entry.first.Scalar(), key,
+                           "a public key (64 hex digits)") &&
+            !config.member_keys.emplace(robot, key).second)
+          problems.push_back(line_of(entry.first) + "member_keys: robot " + std::to_string(robot) +
+                             " given twice");
+      }
+    }
+  }
 
   // estimator: a file name, or the options inline.
   const YAML::Node estimator = top.child("estimator");

@@ -9,6 +9,7 @@
 #include "concord/dataset/dataset.h"
 #include "concord/frontend/frontend_options_file.h"
 #include "concord/net/host_port.h"
+#include "concord/net/identity.h"
 #include "concord/net/team_key.h"
 
 namespace concord::daemon {
@@ -60,6 +61,21 @@ std::vector<std::string> check_config_files(const DaemonConfig& config) {
       (void)net::load_team_key(config.team_key_file);
     } catch (const std::exception& error) {
       add(std::string("team_key_file: ") + error.what());
+    }
+  }
+  // The identity key: readable by its owner only, well formed, and the one the members list for
+  // this robot.
+  if (config.consensus.mode != ConsensusMode::kOff && !config.member_keys.empty()) {
+    try {
+      const net::RobotIdentity identity = net::load_identity(config.identity_key_file);
+      const auto listed = config.member_keys.find(config.robot_id);
+      if (listed != config.member_keys.end() &&
+          !(net::PublicKey::parse(listed->second, "member_keys") == identity.public_key()))
+        add("member_keys: the key listed for robot " + std::to_string(config.robot_id) +
+            " is not this robot's identity key (its public key is " + identity.public_key().hex() +
+            ")");
+    } catch (const std::exception& error) {
+      add(std::string("identity_key_file: ") + error.what());
     }
   }
   // 2. Static peers: host:port each.

@@ -190,6 +190,11 @@ void ConsensusExchange::set_association(AssociationSession* session) {
   association_ = session;
 }
 
+void ConsensusExchange::set_record_signer(std::shared_ptr<const RecordSigner> signer) {
+  std::lock_guard lock(mutex_);
+  record_signer_ = std::move(signer);
+}
+
 void ConsensusExchange::on_peer(int robot, bool up) {
   std::lock_guard lock(mutex_);
   auto& slot = peers_[robot];
@@ -274,7 +279,8 @@ void ConsensusExchange::on_message(int robot, const v1::Envelope& envelope) {
       if (association_ && message.has_negotiation()) {
         std::string error;
         const double decode_start = thread_cpu_seconds();
-        negotiation = from_wire(message.negotiation(), robot, config_.negotiation_limits, error);
+        negotiation = from_wire(message.negotiation(), robot, config_.negotiation_limits, error,
+                                record_signer_.get(), &counters_.records_unsigned);
         count_negotiation_seconds(&ExchangeCounters::negotiation_decode_seconds,
                                   thread_cpu_seconds() - decode_start);
         if (!negotiation) {
@@ -505,7 +511,7 @@ void ConsensusExchange::send_landmark_sets(const std::vector<int>& robots, std::
       }
       v1::Negotiation* out = envelopes[n].mutable_landmark_set()->mutable_negotiation();
       to_wire(negotiation, negotiation.map ? *wired_map_ : v1::MapDescription::default_instance(),
-              *out);
+              *out, record_signer_.get());
       bytes += out->ByteSizeLong();
     }
     const double seconds = thread_cpu_seconds() - negotiation_start;

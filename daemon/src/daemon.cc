@@ -25,6 +25,7 @@
 #include "concord/config/options_file.h"
 #include "concord/daemon/association_session.h"
 #include "concord/daemon/consensus_exchange.h"
+#include "concord/daemon/negotiation_wire.h"
 #include "concord/daemon/wire.h"
 #include "concord/dataset/dataset.h"
 #include "concord/dataset/radio.h"
@@ -34,6 +35,7 @@
 #include "concord/frontend/frontend_options_file.h"
 #include "concord/frontend/track_statistics.h"
 #include "concord/net/frame_listener.h"
+#include "concord/net/identity.h"
 #include "concord/net/log_limiter.h"
 #include "concord/net/peer_network.h"
 #include "concord/net/team_key.h"
@@ -430,6 +432,19 @@ bool Daemon::Impl::start_services() {
       net::PeerNetworkOptions options;
       options.team_key = team_key_;
       options.members = config_.members;
+      std::shared_ptr<RecordSigner> record_signer;
+      if (!config_.member_keys.empty()) {
+        options.identity = std::make_shared<const net::RobotIdentity>(
+            net::load_identity(config_.identity_key_file));
+        for (const auto& [robot, hex] : config_.member_keys)
+          options.member_keys.emplace(
+              robot, net::PublicKey::parse(hex, "member_keys of robot " + std::to_string(robot)));
+        record_signer =
+            std::make_shared<RecordSigner>(config_.robot_id, options.identity, options.member_keys);
+        spdlog::info("identity key read from {} (public key {}); {} member keys",
+                     config_.identity_key_file.string(), options.identity->public_key().hex(),
+                     options.member_keys.size());
+      }
       options.max_pending_handshakes = config_.network.max_pending_handshakes;
       options.receive_bytes_per_second = config_.network.receive_bytes_per_second;
       options.receive_messages_per_second = config_.network.receive_messages_per_second;
@@ -464,6 +479,7 @@ bool Daemon::Impl::start_services() {
           ExchangeFailpoints{config_.failpoints.marginal_silence,
                              config_.failpoints.marginal_garbage});
       if (association_) exchange_->set_association(association_.get());
+      if (record_signer) exchange_->set_record_signer(std::move(record_signer));
       if (config_.consensus.graph == ConsensusGraph::kRing)
         exchange_->restrict_to(ring_neighbours(config_.robot_id, config_.members));
       if (const RadioConfig& radio = config_.consensus.radio; radio.any()) set_up_radio(radio);
@@ -1180,6 +1196,7 @@ json Daemon::Impl::stats_json() const {
                               {"relabel", c.negotiation_relabel_seconds}}},
                             {"negotiations_refused", c.negotiations_refused},
                             {"relabellings_refused", c.relabellings_refused},
+                            {"records_unsigned", c.records_unsigned},
                             {"frame", live_.alignment.frame}};
   }
   if (exchange_) {
@@ -1208,6 +1225,7 @@ json Daemon::Impl::stats_json() const {
                         {"rejected_garbage", totals.rejected_garbage},
                         {"rejected_handshake", totals.rejected_handshake},
                         {"rejected_unauthenticated", totals.rejected_unauthenticated},
+                        {"rejected_identity", totals.rejected_identity},
                         {"rejected_admission", totals.rejected_admission}};
     std::uint64_t reconnects = 0;
     for (const net::PeerStats& peer : network_->peers()) reconnects += peer.reconnects;
@@ -1504,6 +1522,9 @@ void Daemon::Impl::register_routes() {
       text.counter("concord_association_negotiations_refused_total",
                    "Peers' negotiation messages refused (malformed or over the bounds)", robot,
                    static_cast<double>(c.negotiations_refused));
+      text.counter("concord_association_records_unsigned_total",
+                   "Owner records left out because their owner did not sign them", robot,
+                   static_cast<double>(c.records_unsigned));
       text.counter("concord_association_relabellings_refused_total",
                    "Peers' marginals without usable receiver ids (negotiated association)", robot,
                    static_cast<double>(c.relabellings_refused));
@@ -1547,6 +1568,9 @@ void Daemon::Impl::register_routes() {
       text.counter("concord_network_unauthenticated_total",
                    "Connections that failed the team-key handshake or message authentication",
                    robot, static_cast<double>(totals.rejected_unauthenticated));
+      text.counter("concord_network_identity_refused_total",
+                   "Connections whose Hello was not signed by the robot it claims to be", robot,
+                   static_cast<double>(totals.rejected_identity));
       text.counter("concord_network_admission_refused_total",
                    "Connections refused by the admission cap", robot,
                    static_cast<double>(totals.rejected_admission));

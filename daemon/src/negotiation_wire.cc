@@ -4,6 +4,7 @@
 #include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <limits>
 
 #include "concord/estimator/symmetric3.h"
@@ -178,8 +179,14 @@ bool read_record(const v1::OwnerRecord& message, const NegotiationLimits& limits
             std::to_string(message.frame_edges_size()) + " frame edges, above the limits";
     return false;
   }
+  if (!message.signature().empty() && message.signature().size() != net::kSignatureBytes) {
+    error = what + ": signature of " + std::to_string(message.signature().size()) +
+            " bytes (expected " + std::to_string(net::kSignatureBytes) + ")";
+    return false;
+  }
   record.owner = static_cast<int>(message.owner());
   record.version = static_cast<int>(message.version());
+  record.signature = message.signature();
   for (const v1::ObjectLink& link : message.links()) {
     // An owner links one of its own objects with another robot's, the smaller key first.
     const bool ours = association::robot_of(link.a()) == record.owner ||
@@ -267,7 +274,8 @@ void to_wire(const association::MapDescription& map, v1::MapDescription& out) {
 namespace {
 
 /// Everything of `message` but its map description: the frame, the held versions, the records.
-void write_all_but_map(const association::NegotiationMessage& message, v1::Negotiation& out) {
+void write_all_but_map(const association::NegotiationMessage& message, v1::Negotiation& out,
+                       const RecordSigner* signer) {
   out.set_frame(message.frame);
   for (const auto& [owner, version] : message.held) {
     v1::RecordVersion* entry = out.add_held();
@@ -280,6 +288,10 @@ void write_all_but_map(const association::NegotiationMessage& message, v1::Negot
     v1::OwnerRecord* entry = out.add_records();
     entry->set_owner(static_cast<std::uint32_t>(record.owner));
     entry->set_version(static_cast<std::uint32_t>(record.version));
+    if (signer)
+      entry->set_signature(signer->signature_of(record));
+    else if (!record.signature.empty())
+      entry->set_signature(record.signature);
     for (const association::ObjectLink& link : record.links) {
       v1::ObjectLink* l = entry->add_links();
       l->set_a(link.a);
@@ -313,20 +325,23 @@ void write_all_but_map(const association::NegotiationMessage& message, v1::Negot
 
 }  // namespace
 
-void to_wire(const association::NegotiationMessage& message, v1::Negotiation& out) {
+void to_wire(const association::NegotiationMessage& message, v1::Negotiation& out,
+             const RecordSigner* signer) {
   if (message.map) to_wire(*message.map, *out.mutable_map());
-  write_all_but_map(message, out);
+  write_all_but_map(message, out, signer);
 }
 
 void to_wire(const association::NegotiationMessage& message, const v1::MapDescription& map,
-             v1::Negotiation& out) {
+             v1::Negotiation& out, const RecordSigner* signer) {
   if (message.map) *out.mutable_map() = map;
-  write_all_but_map(message, out);
+  write_all_but_map(message, out, signer);
 }
 
 std::optional<association::NegotiationMessage> from_wire(const v1::Negotiation& message, int sender,
                                                          const NegotiationLimits& limits,
-                                                         std::string& error) {
+                                                         std::string& error,
+                                                         const RecordSigner* signer,
+                                                         std::uint64_t* records_unsigned) {
   association::NegotiationMessage out;
   out.sender = sender;
   out.frame = message.frame();
@@ -358,6 +373,10 @@ std::optional<association::NegotiationMessage> from_wire(const v1::Negotiation& 
       error = "negotiation: " + error;
       return std::nullopt;
     }
+    if (signer && !signer->verifies(entry)) {  // forged, altered or unsigned: not taken
+      if (records_unsigned) ++*records_unsigned;
+      continue;
+    }
     out.records.push_back(std::make_shared<const association::OwnerRecord>(std::move(entry)));
   }
   // One held version an owner at most, as many as records may come.
@@ -375,6 +394,104 @@ std::optional<association::NegotiationMessage> from_wire(const v1::Negotiation& 
     out.held.emplace_back(static_cast<int>(held.owner()), static_cast<int>(held.version()));
   }
   return out;
+}
+
+namespace {
+
+/// Big-endian, fixed-width appends of the signed bytes.
+class SignedBytes {
+ public:
+  explicit SignedBytes(std::string_view tag) : bytes_(tag) {}
+  void u32(std::uint32_t value) {
+    for (int shift = 24; shift >= 0; shift -= 8)
+      bytes_.push_back(static_cast<char>(value >> shift));
+  }
+  void i32(int value) { u32(static_cast<std::uint32_t>(value)); }
+  void i64(std::int64_t value) {
+    const auto bits = static_cast<std::uint64_t>(value);
+    for (int shift = 56; shift >= 0; shift -= 8) bytes_.push_back(static_cast<char>(bits >> shift));
+  }
+  void f64(double value) {
+    std::uint64_t bits = 0;
+    std::memcpy(&bits, &value, sizeof bits);
+    i64(static_cast<std::int64_t>(bits));
+  }
+  void rigid(const Eigen::Isometry3d& T) {  // as add_rigid writes it
+    for (int row = 0; row < 3; ++row) {
+      for (int column = 0; column < 3; ++column) f64(T.linear()(row, column));
+      f64(T.translation()(row));
+    }
+  }
+  void upper(const Eigen::Matrix<double, 6, 6>& matrix) {  // as add_upper writes it
+    for (int row = 0; row < 6; ++row)
+      for (int column = row; column < 6; ++column) f64(matrix(row, column));
+  }
+  std::string take() { return std::move(bytes_); }
+
+ private:
+  std::string bytes_;
+};
+
+/// Own signatures kept (a neighbour that missed a version gets the newest, not an old one).
+constexpr std::size_t kOwnSignaturesKept = 4;
+
+}  // namespace
+
+std::string record_signing_bytes(const association::OwnerRecord& record) {
+  SignedBytes out("concord-owner-record-v1");
+  out.i32(record.owner);
+  out.i32(record.version);
+  out.u32(static_cast<std::uint32_t>(record.links.size()));
+  for (const association::ObjectLink& link : record.links) {
+    out.i64(link.a);
+    out.i64(link.b);
+    out.f64(link.mahalanobis_squared);
+  }
+  out.u32(static_cast<std::uint32_t>(record.frame_edges.size()));
+  for (const association::FrameEdge& edge : record.frame_edges) {
+    out.i32(edge.frame_a);
+    out.i32(edge.frame_b);
+    out.rigid(edge.T_a_b);
+    out.upper(edge.covariance);
+    out.i32(edge.round);
+    out.i32(edge.owner);
+    out.i32(edge.robot_b);
+    out.upper(edge.drift_a);
+    out.upper(edge.drift_b);
+    out.i32(edge.pose_frame_a);
+    out.i32(edge.pose_frame_b);
+    out.u32(static_cast<std::uint32_t>(edge.corrections.size()));
+    for (const association::FrameCorrection& correction : edge.corrections) {
+      out.i32(correction.frame);
+      out.u32(correction.moves_b_side ? 1 : 0);
+      out.rigid(correction.T);
+      out.upper(correction.covariance);
+      out.i32(correction.round);
+    }
+  }
+  return out.take();
+}
+
+RecordSigner::RecordSigner(int robot, std::shared_ptr<const net::RobotIdentity> identity,
+                           net::MemberKeys member_keys)
+    : robot_(robot), identity_(std::move(identity)), member_keys_(std::move(member_keys)) {}
+
+std::string RecordSigner::signature_of(const association::OwnerRecord& record) const {
+  if (!record.signature.empty() || record.owner != robot_ || !identity_) return record.signature;
+  std::lock_guard lock(mutex_);
+  const auto known = own_signatures_.find(record.version);
+  if (known != own_signatures_.end()) return known->second;
+  std::string signature = identity_->sign(record_signing_bytes(record));
+  own_signatures_[record.version] = signature;
+  while (own_signatures_.size() > kOwnSignaturesKept)
+    own_signatures_.erase(own_signatures_.begin());
+  return signature;
+}
+
+bool RecordSigner::verifies(const association::OwnerRecord& record) const {
+  const auto key = member_keys_.find(record.owner);
+  return key != member_keys_.end() &&
+         key->second.verify(record_signing_bytes(record), record.signature);
 }
 
 }  // namespace concord::daemon

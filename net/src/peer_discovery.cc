@@ -39,7 +39,7 @@ void PeerNetwork::Impl::arm_beacon() {
   if (stopping_) return;
   if (!beacon_in_flight_) {
     // Sealed with the team key: an outsider learns nothing from a beacon.
-    beacon_out_ = seal_beacon(*options_.team_key, make_hello().SerializeAsString());
+    beacon_out_ = seal_beacon(*options_.team_key, make_hello(nullptr).SerializeAsString());
     beacon_in_flight_ = true;
     discovery_socket_.async_send_to(
         asio::buffer(beacon_out_), beacon_destination_,

@@ -149,7 +149,7 @@ void PeerNetwork::Impl::on_session_closed(const std::shared_ptr<Session>& sessio
 // ---------------------------------------------------------------------------------------------
 // Impl: messages
 
-v1::Envelope PeerNetwork::Impl::make_hello() const {
+v1::Envelope PeerNetwork::Impl::make_hello(const SecureChannel* channel) const {
   v1::Envelope envelope;
   stamp(envelope);
   v1::Hello& hello = *envelope.mutable_hello();
@@ -163,6 +163,11 @@ v1::Envelope PeerNetwork::Impl::make_hello() const {
   if (options_.http_port != 0) {
     hello.set_http_address(options_.http_address);
     hello.set_http_port(options_.http_port);
+  }
+  if (options_.identity && channel) {
+    hello.set_identity_signature(options_.identity->sign(
+        hello_signing_bytes(channel->binding(), channel->role() == SecureChannel::Role::kInitiator,
+                            options_.robot_id)));
   }
   return envelope;
 }
@@ -272,6 +277,24 @@ void PeerNetwork::Impl::handle_hello(const std::shared_ptr<Session>& session,
       std::find(options_.members.begin(), options_.members.end(), robot) == options_.members.end())
     return reject_handshake(session,
                             "robot id " + std::to_string(robot) + " is not in the membership list");
+  if (robot != options_.robot_id && !options_.member_keys.empty()) {
+    // The id it claims must be its own: signed with that robot's identity key over this
+    // connection's binding (the peer dialed if we accepted).
+    const auto key = options_.member_keys.find(robot);
+    const bool signed_by_robot =
+        key != options_.member_keys.end() &&
+        key->second.verify(hello_signing_bytes(session->channel().binding(),
+                                               session->origin == Origin::kAccepted, robot),
+                           hello.identity_signature());
+    if (!signed_by_robot) {
+      update_counters([](NetworkCounters& counters) { ++counters.rejected_identity; });
+      return reject_handshake(
+          session,
+          key == options_.member_keys.end()
+              ? "robot " + std::to_string(robot) + " has no key in member_keys"
+              : "Hello of robot " + std::to_string(robot) + " is not signed with its identity key");
+    }
+  }
   if (robot == options_.robot_id) {
     if (hello.instance() == instance_ && session->origin == Origin::kDialed) {
       const auto target = targets_.find(session->dial_key);

@@ -22,6 +22,24 @@ std::vector<std::string> PeerNetworkOptions::validate() const {
   if (team.empty()) problem("team: must not be empty");
   for (const int member : members)
     if (member < 0) problem("members: robot id " + std::to_string(member) + " is negative");
+  if (!member_keys.empty()) {
+    if (!identity) {
+      problem("identity: required with member_keys (this robot signs its Hello)");
+    } else {
+      const auto own = member_keys.find(robot_id);
+      if (own == member_keys.end())
+        problem("member_keys: no key for this robot's id " + std::to_string(robot_id));
+      else if (!(own->second == identity->public_key()))
+        problem("member_keys: the key listed for robot " + std::to_string(robot_id) +
+                " is not this robot's identity key (its public key is " +
+                identity->public_key().hex() + ")");
+    }
+    for (const int member : members)
+      if (member_keys.find(member) == member_keys.end())
+        problem("member_keys: no key for member " + std::to_string(member));
+    for (const auto& [robot, key] : member_keys)
+      if (robot < 0) problem("member_keys: robot id " + std::to_string(robot) + " is negative");
+  }
   if (max_pending_handshakes == 0) problem("max_pending_handshakes: must be at least 1");
   if (receive_bytes_per_second < max_frame_bytes / 2)
     problem("receive_bytes_per_second: " + std::to_string(receive_bytes_per_second) +

@@ -139,7 +139,9 @@ class PeerNetwork::Impl : public std::enable_shared_from_this<PeerNetwork::Impl>
   PeerHandler peer_handler;
 
   // Called by sessions, on the strand.
-  v1::Envelope make_hello() const;
+  /// Our Hello: on a connection whose channel is established, signed with our identity if any;
+  /// in a discovery beacon (no channel), unsigned.
+  v1::Envelope make_hello(const SecureChannel* channel) const;
   void fill_heartbeat(const Session& session, v1::Envelope& envelope) const;
   void on_connected(Session& session);
   void on_bytes_in(const Session& session, std::size_t bytes);
@@ -444,6 +446,8 @@ class PeerNetwork::Impl::Session : public std::enable_shared_from_this<Session> 
   std::uint64_t peer_heartbeat_ns = 0;  // time_ns of its last heartbeat (0: none yet)
   Clock::time_point peer_heartbeat_received;
 
+  const SecureChannel& channel() const { return channel_; }
+
  private:
   void do_read() {
     socket_.async_read_some(asio::buffer(read_buffer_),
@@ -502,7 +506,9 @@ class PeerNetwork::Impl::Session : public std::enable_shared_from_this<Session> 
     }
     if (!channel_.accept_proof(payload_, error)) return network_->on_channel_failed(self, error);
     // 3. The peer proved the key: now the (encrypted) Hello.
-    enqueue({Outgoing::Kind::kControl, std::make_shared<v1::Envelope>(network_->make_hello()), {}});
+    enqueue({Outgoing::Kind::kControl,
+             std::make_shared<v1::Envelope>(network_->make_hello(&channel_)),
+             {}});
   }
 
   /// Takes `bytes` and `frames` from the token buckets; how long to pause reading (<= 0: none).

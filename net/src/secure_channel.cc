@@ -45,8 +45,10 @@ struct SecureChannel::Secrets {
   crypto_secretstream_xchacha20poly1305_state pull{};
   Key peer_rx{};  // kx receive key until the peer's header arrives
   std::string transcript;
+  Key binding{};  // channel binding (binding()), set with the transcript
 
   ~Secrets() {
+    sodium_memzero(binding.data(), binding.size());
     sodium_memzero(auth_key.data(), auth_key.size());
     sodium_memzero(stream_key.data(), stream_key.size());
     sodium_memzero(secret_key.data(), secret_key.size());
@@ -124,6 +126,21 @@ std::optional<std::string> SecureChannel::accept_hello(std::string_view peer_hel
     sodium_memzero(&state, sizeof state);
     return out;
   };
+  // The channel binding a robot's identity signs (identity.h): the transcript and both session
+  // keys, so only the two ends of this connection can compute it.
+  {
+    const Key& dialer_to_acceptor = role_ == Role::kInitiator ? tx : rx;
+    const Key& acceptor_to_dialer = role_ == Role::kInitiator ? rx : tx;
+    static constexpr std::string_view kBindingTag = "concord-channel-binding-v1";
+    crypto_generichash_state state;
+    crypto_generichash_init(&state, nullptr, 0, secrets_->binding.size());
+    crypto_generichash_update(&state, bytes(kBindingTag), kBindingTag.size());
+    crypto_generichash_update(&state, dialer_to_acceptor.data(), dialer_to_acceptor.size());
+    crypto_generichash_update(&state, acceptor_to_dialer.data(), acceptor_to_dialer.size());
+    crypto_generichash_update(&state, bytes(secrets_->transcript), secrets_->transcript.size());
+    crypto_generichash_final(&state, secrets_->binding.data(), secrets_->binding.size());
+    sodium_memzero(&state, sizeof state);
+  }
   Key push_key = direction_key(tx);
   secrets_->peer_rx = direction_key(rx);
   sodium_memzero(rx.data(), rx.size());
@@ -214,6 +231,12 @@ bool SecureChannel::open(std::string_view ciphertext, std::string& plaintext, st
   }
   plaintext.resize(static_cast<std::size_t>(length));
   return true;
+}
+
+std::string SecureChannel::binding() const {
+  if (stage_ != Stage::kAwaitingProof && stage_ != Stage::kEstablished)
+    throw std::logic_error("SecureChannel::binding: the peer's hello has not been accepted");
+  return {reinterpret_cast<const char*>(secrets_->binding.data()), secrets_->binding.size()};
 }
 
 std::string seal_beacon(const TeamKey& key, std::string_view plaintext) {

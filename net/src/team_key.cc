@@ -9,6 +9,8 @@
 #include <cstring>
 #include <string_view>
 
+#include "secret_file.h"
+
 namespace concord::net {
 
 namespace {
@@ -74,6 +76,26 @@ std::string TeamKey::format() const {
 
 TeamKey load_team_key(const std::filesystem::path& path) {
   const std::string name = "team key " + path.string();
+  std::string text = detail::read_secret_file(path, name);
+  TeamKey key = TeamKey::parse(text, name);
+  sodium_memzero(text.data(), text.size());
+  return key;
+}
+
+void write_team_key(const std::filesystem::path& path, const TeamKey& key) {
+  std::string text = key.format();
+  try {
+    detail::write_secret_file(path, "team key " + path.string(), text);
+  } catch (...) {
+    sodium_memzero(text.data(), text.size());
+    throw;
+  }
+  sodium_memzero(text.data(), text.size());
+}
+
+namespace detail {
+
+std::string read_secret_file(const std::filesystem::path& path, const std::string& name) {
   const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC | O_NOFOLLOW);
   if (fd < 0) throw TeamKeyError(name + ": cannot open: " + std::strerror(errno));
   struct stat info {};
@@ -93,24 +115,22 @@ TeamKey load_team_key(const std::filesystem::path& path) {
   ::close(fd);
   if (bytes < 0) throw TeamKeyError(name + ": cannot read: " + std::strerror(errno));
   text.resize(static_cast<std::size_t>(bytes));
-  TeamKey key = TeamKey::parse(text, name);
-  sodium_memzero(text.data(), text.size());
-  return key;
+  return text;
 }
 
-void write_team_key(const std::filesystem::path& path, const TeamKey& key) {
-  const std::string name = "team key " + path.string();
+void write_secret_file(const std::filesystem::path& path, const std::string& name,
+                       const std::string& text) {
   const int fd = ::open(path.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC | O_NOFOLLOW, 0600);
   if (fd < 0) throw TeamKeyError(name + ": cannot create: " + std::strerror(errno));
-  std::string text = key.format();
   const ssize_t written = ::write(fd, text.data(), text.size());
-  sodium_memzero(text.data(), text.size());
   const bool synced = ::fsync(fd) == 0;
   ::close(fd);
-  if (written != static_cast<ssize_t>(2 * TeamKey::kBytes + 21) || !synced) {
+  if (written != static_cast<ssize_t>(text.size()) || !synced) {
     ::unlink(path.c_str());
     throw TeamKeyError(name + ": cannot write");
   }
 }
+
+}  // namespace detail
 
 }  // namespace concord::net

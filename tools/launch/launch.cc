@@ -16,6 +16,7 @@
 #include <thread>
 
 #include "concord/dataset/result_io.h"
+#include "concord/net/identity.h"
 #include "concord/net/team_key.h"
 #include "launch/process.h"
 
@@ -111,7 +112,25 @@ std::filesystem::path ensure_team_key(const LaunchOptions& options) {
   return path;
 }
 
-std::string daemon_config_yaml(const LaunchOptions& options, int robot, int robots) {
+std::filesystem::path identity_key_path(const LaunchOptions& options, int robot) {
+  return options.out / "keys" / (dataset::robot_folder_name(robot) + ".identity");
+}
+
+std::map<int, std::string> ensure_identities(const LaunchOptions& options, int robots) {
+  std::map<int, std::string> keys;
+  for (int robot = 0; robot < robots; ++robot) {
+    const std::filesystem::path path = identity_key_path(options, robot);
+    if (!std::filesystem::exists(path)) {
+      std::filesystem::create_directories(path.parent_path());
+      net::write_identity(path, net::RobotIdentity::generate());
+    }
+    keys[robot] = net::load_identity(path).public_key().hex();
+  }
+  return keys;
+}
+
+std::string daemon_config_yaml(const LaunchOptions& options, int robot, int robots,
+                               const std::map<int, std::string>& member_keys) {
   const std::filesystem::path dataset = std::filesystem::absolute(options.dataset);
   const std::filesystem::path out = std::filesystem::absolute(options.out);
   YAML::Emitter yaml;
@@ -126,6 +145,14 @@ std::string daemon_config_yaml(const LaunchOptions& options, int robot, int robo
   yaml << YAML::Key << "members" << YAML::Value << YAML::Flow << YAML::BeginSeq;
   for (int member = 0; member < robots; ++member) yaml << member;
   yaml << YAML::EndSeq;
+  if (!member_keys.empty()) {
+    yaml << YAML::Key << "identity_key_file" << YAML::Value << YAML::DoubleQuoted
+         << std::filesystem::absolute(identity_key_path(options, robot)).string();
+    yaml << YAML::Key << "member_keys" << YAML::Value << YAML::BeginMap;
+    for (const auto& [member, key] : member_keys)
+      yaml << YAML::Key << member << YAML::Value << YAML::DoubleQuoted << key;
+    yaml << YAML::EndMap;
+  }
   if (!options.estimator_config.empty()) {
     yaml << YAML::Key << "estimator" << YAML::Value << YAML::DoubleQuoted
          << std::filesystem::absolute(options.estimator_config).string();
@@ -187,12 +214,14 @@ LaunchResult launch_team(const LaunchOptions& options, int robots, std::ostream*
   std::filesystem::create_directories(configs);
   std::filesystem::create_directories(logs);
   ensure_team_key(options);
+  const std::map<int, std::string> member_keys =
+      options.identities ? ensure_identities(options, robots) : std::map<int, std::string>{};
 
   std::vector<ChildProcess> daemons;
   daemons.reserve(static_cast<std::size_t>(robots));
   for (int robot = 0; robot < robots; ++robot) {
     const auto config = configs / (dataset::robot_folder_name(robot) + ".yaml");
-    dataset::write_file_atomically(config, daemon_config_yaml(options, robot, robots));
+    dataset::write_file_atomically(config, daemon_config_yaml(options, robot, robots, member_keys));
     const auto log = logs / (dataset::robot_folder_name(robot) + ".log");
     std::filesystem::remove(log);
     std::vector<std::string> argv{options.concordd.string(), "--config", config.string()};

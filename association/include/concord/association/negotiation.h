@@ -123,10 +123,14 @@ struct OwnerRecord {
   int version = 0;
   std::vector<ObjectLink> links;  ///< ascending by (a, b) as the owner makes them
   std::vector<FrameEdge> frame_edges;
+  /// The owner's signature of the record, opaque here: a daemon with per-robot identities signs
+  /// its own records and checks others' as they cross the wire (daemon/negotiation_wire.h);
+  /// relayed unchanged. Empty in concord replay.
+  std::string signature;
 
   /// Bytes in a fixed-width encoding: 12 bytes of header, 20 per link (two keys, a float), 324
   /// per frame edge (frames, round, owner, the other robot, two pose frames, 12 + 3 x 21 floats)
-  /// and 144 per correction (frame, side, round, 12 + 21 floats).
+  /// and 144 per correction (frame, side, round, 12 + 21 floats), and the signature's.
   std::size_t wire_size() const;
 };
 

@@ -8,6 +8,7 @@
 #include <chrono>
 #include <cstdint>
 #include <filesystem>
+#include <map>
 #include <optional>
 #include <string>
 #include <vector>
@@ -244,6 +245,12 @@ struct DaemonConfig {
   std::filesystem::path team_key_file;
   /// members: robot ids of the team (the membership list). Required when consensus is on.
   std::vector<int> members;
+  /// Per-robot identities (docs/network.md, "Identities"), both or neither:
+  /// identity_key_file: this robot's signing key (`concord keygen --identity`); mode 0600.
+  std::filesystem::path identity_key_file;
+  /// member_keys: every member's public key (64 hex digits), by robot id. With them a peer must
+  /// sign its Hello and its owner records with the key of the id it claims.
+  std::map<int, std::string> member_keys;
   /// Estimator options (a file in the format of configs/sensors/*.yaml, or inline keys).
   EstimatorOptions estimator;
   std::filesystem::path estimator_file;  ///< where they came from ("" = inline/defaults)

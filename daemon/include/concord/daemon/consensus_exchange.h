@@ -60,6 +60,7 @@ class LogLimiter;
 namespace concord::daemon {
 
 class AssociationSession;
+class RecordSigner;  // negotiation_wire.h
 
 /// What one round did.
 struct RoundReport {
@@ -110,6 +111,9 @@ struct ExchangeCounters {
   /// bytes of this robot's negotiation messages.
   std::uint64_t negotiations_refused = 0;
   std::uint64_t relabellings_refused = 0;
+  /// Per-robot identities: owner records left out of peers' negotiation messages because their
+  /// owner did not sign them (forged, altered or unsigned).
+  std::uint64_t records_unsigned = 0;
   std::uint64_t negotiation_bytes = 0;
   /// Negotiated association: CPU seconds of the threads doing it (not wall-clock: on a busy
   /// machine that counts other processes' turns), as concord replay's negotiation phase plus the
@@ -189,6 +193,9 @@ class ConsensusExchange {
   /// Negotiated association (lockstep): the session that rides on the rounds (LandmarkSets carry
   /// its messages, consensus runs over team ids). Call before the network starts; not owned.
   void set_association(AssociationSession* session);
+  /// Per-robot identities: own owner records go out signed, and a negotiation carrying a record
+  /// its owner did not sign is left out (records_unsigned). Call before the network starts.
+  void set_record_signer(std::shared_ptr<const RecordSigner> signer);
 
   /// Consensus only with these peers (others stay connected, and are not sent landmark sets or
   /// marginals); call before the network starts. Default: every live peer.
@@ -268,6 +275,7 @@ class ConsensusExchange {
 
   ConsensusConfig config_;
   AssociationSession* association_ = nullptr;
+  std::shared_ptr<const RecordSigner> record_signer_;  ///< set_record_signer()
   std::optional<std::set<int>> allowed_;  ///< restrict_to()
   std::function<std::set<int>(std::uint64_t)> radio_;  ///< set_radio()
   Send send_;

@@ -19,6 +19,7 @@
 
 #include "concord/net/frame_codec.h"
 #include "concord/net/host_port.h"
+#include "concord/net/identity.h"
 #include "concord/net/team_key.h"
 
 namespace boost::asio {
@@ -77,6 +78,13 @@ struct PeerNetworkOptions {
   /// The membership list: robot ids allowed in the team. A Hello with another id is refused
   /// (counted in rejected_handshake). Empty = any id (tests; a daemon always sets it).
   std::vector<int> members;
+  /// Per-robot identities (identity.h). With member_keys set, every Hello must carry its robot's
+  /// signature of the channel binding, verified with that robot's key here: a robot without a
+  /// key, or whose signature does not verify, is refused (rejected_identity). identity (required
+  /// then, its public key the one listed for robot_id) signs this daemon's Hello. Empty = the
+  /// team key alone admits any member id.
+  std::shared_ptr<const RobotIdentity> identity;
+  MemberKeys member_keys;
   /// Admission cap: connections not yet through the handshake, at most; a further connection is
   /// closed at once (counted in rejected_admission).
   std::size_t max_pending_handshakes = 16;
@@ -136,6 +144,9 @@ struct NetworkCounters {
   /// Connections whose peer failed the channel handshake (no key, wrong key, not Concord v2) or
   /// sent a message that failed authentication. Also counted in rejected_handshake/garbage.
   std::uint64_t rejected_unauthenticated = 0;
+  /// Connections whose Hello was not signed by the identity key of the robot id it claims
+  /// (member_keys set). Also counted in rejected_handshake.
+  std::uint64_t rejected_identity = 0;
   /// Times reading from a connection paused because it was over its receive budget.
   std::uint64_t budget_pauses = 0;
   /// Log lines held back by the per-peer, per-kind rate limit.

@@ -75,6 +75,11 @@ class SecureChannel {
   /// set, and `plaintext` unspecified, where the other form returns std::nullopt.
   [[nodiscard]] bool open(std::string_view ciphertext, std::string& plaintext, std::string& error);
 
+  /// 32 bytes that only the two ends of this connection can compute (a hash of both hellos and
+  /// both session keys), once the peer's hello was accepted (std::logic_error before): a robot's
+  /// identity signs it in its Hello (identity.h), which binds the signature to this connection.
+  [[nodiscard]] std::string binding() const;
+
   Stage stage() const { return stage_; }
   bool established() const { return stage_ == Stage::kEstablished; }
   Role role() const { return role_; }
