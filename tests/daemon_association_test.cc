@@ -670,6 +670,20 @@ TEST(DaemonAssociation, MalformedDescriptionsAreCountedAndNeverStallTheRound) {
     EXPECT_EQ(run.trajectories[i].size(), static_cast<std::size_t>(frames));
 }
 
+/// The forged run ended as the honest one: the same frames, trajectories, objects and teams.
+void expect_same_run(const TeamRun& honest, const TeamRun& forged) {
+  ASSERT_EQ(forged.trajectories.size(), honest.trajectories.size());
+  for (std::size_t i = 0; i < honest.trajectories.size(); ++i) {
+    EXPECT_EQ(forged.frames[i], honest.frames[i]) << "robot " << i;
+    ASSERT_EQ(forged.trajectories[i].size(), honest.trajectories[i].size());
+    for (std::size_t k = 0; k < honest.trajectories[i].size(); ++k)
+      ASSERT_TRUE(forged.trajectories[i][k].isApprox(honest.trajectories[i][k], 1e-9))
+          << "robot " << i << " frame " << k;
+    ASSERT_EQ(forged.objects[i].size(), honest.objects[i].size());
+  }
+  expect_same_partition(honest.objects, honest.team_ids, forged.team_ids);
+}
+
 TEST(DaemonAssociation, RecordsForgedForARobotOutsideTheMembersChangeNothing) {
   // Robot 2 (a key holder) adds to every negotiation message a record it made up for robot 9,
   // which is not in the team: links that would put robot 0's and robot 1's objects of the same
@@ -707,14 +721,8 @@ TEST(DaemonAssociation, RecordsForgedForARobotOutsideTheMembersChangeNothing) {
     } else {
       EXPECT_EQ(forged.negotiation[i].records_refused, 0);
     }
-    EXPECT_EQ(forged.frames[i], honest.frames[i]) << "robot " << i;
-    ASSERT_EQ(forged.trajectories[i].size(), honest.trajectories[i].size());
-    for (std::size_t k = 0; k < honest.trajectories[i].size(); ++k)
-      ASSERT_TRUE(forged.trajectories[i][k].isApprox(honest.trajectories[i][k], 1e-9))
-          << "robot " << i << " frame " << k;
-    ASSERT_EQ(forged.objects[i].size(), honest.objects[i].size());
   }
-  expect_same_partition(honest.objects, honest.team_ids, forged.team_ids);
+  expect_same_run(honest, forged);
 }
 
 TEST(DaemonAssociation, WithIdentitiesRecordsForgedForAMemberChangeNothing) {
@@ -759,14 +767,8 @@ TEST(DaemonAssociation, WithIdentitiesRecordsForgedForAMemberChangeNothing) {
     } else {
       EXPECT_EQ(forged.counters[i].records_unsigned, 0u);
     }
-    EXPECT_EQ(forged.frames[i], honest.frames[i]) << "robot " << i;
-    ASSERT_EQ(forged.trajectories[i].size(), honest.trajectories[i].size());
-    for (std::size_t k = 0; k < honest.trajectories[i].size(); ++k)
-      ASSERT_TRUE(forged.trajectories[i][k].isApprox(honest.trajectories[i][k], 1e-9))
-          << "robot " << i << " frame " << k;
-    ASSERT_EQ(forged.objects[i].size(), honest.objects[i].size());
   }
-  expect_same_partition(honest.objects, honest.team_ids, forged.team_ids);
+  expect_same_run(honest, forged);
   // The negotiation did its work with signed records: robots aligned and shared objects.
   EXPECT_GT(honest.negotiation[0].links_accepted + honest.negotiation[1].links_accepted, 0);
 }

@@ -114,6 +114,37 @@ TEST(Package, DebHoldsTheDaemonAndItsInstalledConfigStartsToReadiness) {
                               (root / "etc/concord/team.key").string()},
                              out / "keygen.log");
   ASSERT_EQ(code, 0) << text;
+  // Per-robot identities as docs/field.md sets them up: an identity key per robot (robots 1 and
+  // 2's made here too, for their public keys), the printed public keys under member_keys.
+  std::vector<std::string> public_keys;
+  for (int robot = 0; robot < 3; ++robot) {
+    const fs::path key = robot == 0 ? root / "etc/concord/robot.identity"
+                                    : out / ("robot_" + std::to_string(robot) + ".identity");
+    std::tie(code, text) =
+        run({(root / "usr/bin/concord").string(), "keygen", "--identity", "--out", key.string()},
+            out / "keygen-identity.log");
+    ASSERT_EQ(code, 0) << text;
+    std::smatch printed;
+    ASSERT_TRUE(std::regex_search(text, printed, std::regex("public key: ([0-9a-f]{64})"))) << text;
+    public_keys.push_back(printed[1]);
+  }
+  const std::string identities =
+      "identity_key_file: " + (root / "etc/concord/robot.identity").string() +
+      "\nmember_keys: {0: " + public_keys[0] + ", 1: " + public_keys[1] + ", 2: " + public_keys[2] +
+      "}\n";
+  // Robot 1's public key listed for robot 0: refused before anything starts.
+  const fs::path wrong_config = out / "wrong-identity.yaml";
+  dataset::write_file_atomically(
+      wrong_config, config +
+                        "identity_key_file: " + (root / "etc/concord/robot.identity").string() +
+                        "\nmember_keys: {0: " + public_keys[1] + ", 1: " + public_keys[1] +
+                        ", 2: " + public_keys[2] + "}\n");
+  std::tie(code, text) =
+      run({concordd.string(), "--check-config", wrong_config.string()}, out / "check-wrong.log");
+  EXPECT_EQ(code, 2) << text;
+  EXPECT_NE(text.find("not this robot's identity key"), std::string::npos) << text;
+  config += identities;
+  dataset::write_file_atomically(installed_config, config);
   std::tie(code, text) =
       run({concordd.string(), "--check-config", installed_config.string()}, out / "check.log");
   EXPECT_EQ(code, 0) << text;
@@ -138,6 +169,8 @@ TEST(Package, DebHoldsTheDaemonAndItsInstalledConfigStartsToReadiness) {
   const auto status = launch::http_get("127.0.0.1", http, "/status", 2000ms);
   ASSERT_TRUE(status) << read_text(out / "daemon.log");
   EXPECT_NE(status->find("\"team\":\"field\""), std::string::npos) << *status;
+  EXPECT_NE(read_text(out / "daemon.log").find("3 member keys"), std::string::npos)
+      << read_text(out / "daemon.log");
   daemon->signal(SIGTERM);
   ASSERT_TRUE(daemon->wait_for(10s));
   EXPECT_EQ(daemon->exit_code(), 0) << read_text(out / "daemon.log");

@@ -402,19 +402,13 @@ namespace {
 class SignedBytes {
  public:
   explicit SignedBytes(std::string_view tag) : bytes_(tag) {}
-  void u32(std::uint32_t value) {
-    for (int shift = 24; shift >= 0; shift -= 8)
-      bytes_.push_back(static_cast<char>(value >> shift));
-  }
-  void i32(int value) { u32(static_cast<std::uint32_t>(value)); }
-  void i64(std::int64_t value) {
-    const auto bits = static_cast<std::uint64_t>(value);
-    for (int shift = 56; shift >= 0; shift -= 8) bytes_.push_back(static_cast<char>(bits >> shift));
-  }
+  void u32(std::uint32_t value) { big_endian(value); }
+  void i32(int value) { big_endian(static_cast<std::uint32_t>(value)); }
+  void i64(std::int64_t value) { big_endian(static_cast<std::uint64_t>(value)); }
   void f64(double value) {
     std::uint64_t bits = 0;
     std::memcpy(&bits, &value, sizeof bits);
-    i64(static_cast<std::int64_t>(bits));
+    big_endian(bits);
   }
   void rigid(const Eigen::Isometry3d& T) {  // as add_rigid writes it
     for (int row = 0; row < 3; ++row) {
@@ -429,6 +423,11 @@ class SignedBytes {
   std::string take() { return std::move(bytes_); }
 
  private:
+  template <typename Unsigned>
+  void big_endian(Unsigned value) {
+    for (int shift = 8 * static_cast<int>(sizeof value) - 8; shift >= 0; shift -= 8)
+      bytes_.push_back(static_cast<char>(value >> shift));
+  }
   std::string bytes_;
 };
 
