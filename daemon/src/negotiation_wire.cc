@@ -288,10 +288,9 @@ void write_all_but_map(const association::NegotiationMessage& message, v1::Negot
     v1::OwnerRecord* entry = out.add_records();
     entry->set_owner(static_cast<std::uint32_t>(record.owner));
     entry->set_version(static_cast<std::uint32_t>(record.version));
-    if (signer)
-      entry->set_signature(signer->signature_of(record));
-    else if (!record.signature.empty())
-      entry->set_signature(record.signature);
+    // The owner's signature as received, or this robot's of its own record.
+    const std::string signature = signer ? signer->signature_of(record) : record.signature;
+    if (!signature.empty()) entry->set_signature(signature);
     for (const association::ObjectLink& link : record.links) {
       v1::ObjectLink* l = entry->add_links();
       l->set_a(link.a);

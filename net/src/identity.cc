@@ -13,37 +13,18 @@ namespace {
 constexpr std::string_view kHeader = "concord-identity-key-v1 ";
 constexpr std::string_view kHelloTag = "concord-hello-identity-v1";
 
-/// Decodes exactly `size` bytes from `hex` (surrounding whitespace allowed); false otherwise.
-bool decode_hex(std::string_view hex, unsigned char* out, std::size_t size) {
-  while (!hex.empty() && (hex.back() == '\n' || hex.back() == '\r' || hex.back() == ' '))
-    hex.remove_suffix(1);
-  while (!hex.empty() && hex.front() == ' ') hex.remove_prefix(1);
-  std::size_t decoded = 0;
-  const char* end = nullptr;
-  return hex.size() == 2 * size &&
-         sodium_hex2bin(out, size, hex.data(), hex.size(), nullptr, &decoded, &end) == 0 &&
-         decoded == size;
-}
-
-std::string encode_hex(const unsigned char* bytes, std::size_t size) {
-  std::string hex(2 * size + 1, '\0');
-  sodium_bin2hex(hex.data(), hex.size(), bytes, size);
-  hex.pop_back();
-  return hex;
-}
-
 }  // namespace
 
 PublicKey PublicKey::parse(std::string_view hex, const std::string& source_name) {
   ensure_sodium();
   PublicKey key;
-  if (!decode_hex(hex, key.bytes.data(), kBytes))
+  if (!detail::decode_hex(hex, key.bytes.data(), kBytes))
     throw TeamKeyError(source_name + ": malformed public key (expected " +
                        std::to_string(2 * kBytes) + " hex digits)");
   return key;
 }
 
-std::string PublicKey::hex() const { return encode_hex(bytes.data(), bytes.size()); }
+std::string PublicKey::hex() const { return detail::encode_hex(bytes.data(), bytes.size()); }
 
 bool PublicKey::verify(std::string_view message, std::string_view signature) const {
   if (signature.size() != kSignatureBytes) return false;
@@ -95,7 +76,7 @@ RobotIdentity RobotIdentity::parse(const std::string& text, const std::string& s
                        ": not a Concord identity key (expected a line starting with '" +
                        std::string(kHeader) + "')");
   std::array<unsigned char, 32> seed{};
-  if (!decode_hex(view.substr(kHeader.size()), seed.data(), seed.size())) {
+  if (!detail::decode_hex(view.substr(kHeader.size()), seed.data(), seed.size())) {
     sodium_memzero(seed.data(), seed.size());
     throw TeamKeyError(source_name + ": malformed identity key (expected 64 hex digits)");
   }
@@ -107,9 +88,9 @@ RobotIdentity RobotIdentity::parse(const std::string& text, const std::string& s
 
 std::string RobotIdentity::format() const {
   if (!valid_) throw std::logic_error("RobotIdentity::format: no key");
-  std::string hex = encode_hex(seed_.data(), seed_.size());
+  std::string hex = detail::encode_hex(seed_.data(), seed_.size());
   std::string text = std::string(kHeader) + hex + "\n";
-  sodium_memzero(hex.data(), hex.size());
+  detail::wipe(hex);
   return text;
 }
 
@@ -124,26 +105,13 @@ std::string RobotIdentity::sign(std::string_view message) const {
 
 RobotIdentity load_identity(const std::filesystem::path& path) {
   const std::string name = "identity key " + path.string();
-  std::string text = detail::read_secret_file(path, name);
-  try {
-    RobotIdentity identity = RobotIdentity::parse(text, name);
-    sodium_memzero(text.data(), text.size());
-    return identity;
-  } catch (...) {
-    sodium_memzero(text.data(), text.size());
-    throw;
-  }
+  return detail::parse_secret_file(
+      path, name, [&](const std::string& text) { return RobotIdentity::parse(text, name); });
 }
 
 void write_identity(const std::filesystem::path& path, const RobotIdentity& identity) {
   std::string text = identity.format();
-  try {
-    detail::write_secret_file(path, "identity key " + path.string(), text);
-  } catch (...) {
-    sodium_memzero(text.data(), text.size());
-    throw;
-  }
-  sodium_memzero(text.data(), text.size());
+  detail::write_secret_file(path, "identity key " + path.string(), text);
 }
 
 std::string hello_signing_bytes(std::string_view binding, bool signer_dialed, int robot) {

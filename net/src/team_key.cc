@@ -51,46 +51,29 @@ TeamKey TeamKey::parse(const std::string& text, const std::string& source_name) 
     throw TeamKeyError(source_name + ": not a Concord team key (expected a line starting with '" +
                        std::string(kHeader) + "')");
   rest.remove_prefix(kHeader.size());
-  while (!rest.empty() && (rest.back() == '\n' || rest.back() == '\r' || rest.back() == ' '))
-    rest.remove_suffix(1);
   TeamKey key;
-  std::size_t decoded = 0;
-  const char* end = nullptr;
-  if (rest.size() != 2 * kBytes ||
-      sodium_hex2bin(key.bytes_.data(), key.bytes_.size(), rest.data(), rest.size(), nullptr,
-                     &decoded, &end) != 0 ||
-      decoded != kBytes)
+  if (!detail::decode_hex(rest, key.bytes_.data(), key.bytes_.size()))
     throw TeamKeyError(source_name + ": malformed team key (expected " +
                        std::to_string(2 * kBytes) + " hex digits)");
   return key;
 }
 
 std::string TeamKey::format() const {
-  std::string hex(2 * kBytes + 1, '\0');
-  sodium_bin2hex(hex.data(), hex.size(), bytes_.data(), bytes_.size());
-  hex.pop_back();
+  std::string hex = detail::encode_hex(bytes_.data(), bytes_.size());
   std::string text = std::string(kHeader) + hex + "\n";
-  sodium_memzero(hex.data(), hex.size());
+  detail::wipe(hex);
   return text;
 }
 
 TeamKey load_team_key(const std::filesystem::path& path) {
   const std::string name = "team key " + path.string();
-  std::string text = detail::read_secret_file(path, name);
-  TeamKey key = TeamKey::parse(text, name);
-  sodium_memzero(text.data(), text.size());
-  return key;
+  return detail::parse_secret_file(
+      path, name, [&](const std::string& text) { return TeamKey::parse(text, name); });
 }
 
 void write_team_key(const std::filesystem::path& path, const TeamKey& key) {
   std::string text = key.format();
-  try {
-    detail::write_secret_file(path, "team key " + path.string(), text);
-  } catch (...) {
-    sodium_memzero(text.data(), text.size());
-    throw;
-  }
-  sodium_memzero(text.data(), text.size());
+  detail::write_secret_file(path, "team key " + path.string(), text);
 }
 
 namespace detail {
@@ -119,7 +102,8 @@ std::string read_secret_file(const std::filesystem::path& path, const std::strin
 }
 
 void write_secret_file(const std::filesystem::path& path, const std::string& name,
-                       const std::string& text) {
+                       std::string& text) {
+  const WipeOnExit wipe_text{text};
   const int fd = ::open(path.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC | O_NOFOLLOW, 0600);
   if (fd < 0) throw TeamKeyError(name + ": cannot create: " + std::strerror(errno));
   const ssize_t written = ::write(fd, text.data(), text.size());
@@ -129,6 +113,25 @@ void write_secret_file(const std::filesystem::path& path, const std::string& nam
     ::unlink(path.c_str());
     throw TeamKeyError(name + ": cannot write");
   }
+}
+
+void wipe(std::string& text) { sodium_memzero(text.data(), text.size()); }
+
+bool decode_hex(std::string_view hex, unsigned char* out, std::size_t size) {
+  while (!hex.empty() && (hex.back() == '\n' || hex.back() == '\r' || hex.back() == ' '))
+    hex.remove_suffix(1);
+  std::size_t decoded = 0;
+  const char* end = nullptr;
+  return hex.size() == 2 * size &&
+         sodium_hex2bin(out, size, hex.data(), hex.size(), nullptr, &decoded, &end) == 0 &&
+         decoded == size;
+}
+
+std::string encode_hex(const unsigned char* bytes, std::size_t size) {
+  std::string hex(2 * size + 1, '\0');
+  sodium_bin2hex(hex.data(), hex.size(), bytes, size);
+  hex.pop_back();
+  return hex;
 }
 
 }  // namespace detail
