@@ -3,12 +3,14 @@
 // robot 2's message, into robot 0's Negotiator for five describing rounds (robot 0 describing a
 // map of its own each time, as a daemon does), so that descriptions, owner records, frame
 // edges and their corrections reach the searches (robot 0 owns the pair with robot 2), the
-// confirmations, the union-find of team ids and the moves into
-// the team frame. Never crash or hang, and whatever the negotiator decides stays usable: a move of
-// the state it asks for is a finite rigid motion with a finite, symmetric covariance (the daemon
-// applies it to its estimator), its own frame's transform stays finite, and each of robot 0's
-// objects is shared with a neighbour once at most. Half the inputs meet a negotiator that knows
-// the team's members: it relays no record of any other owner.
+// confirmations, the union-find of team ids and the moves into the team frame. Records that
+// decide robot 0's objects or frame come from robot 1, relayed by robot 2 (robot 1 owns its
+// pair with robot 0): robot 2's own on that pair are refused (records_not_owned). Never crash or
+// hang, and whatever the negotiator decides stays usable: a move of the state it asks for is a
+// finite rigid motion with a finite, symmetric covariance (the daemon applies it to its estimator),
+// its own frame's transform stays finite, and each of robot 0's objects is shared with a neighbour
+// once at most. Half the inputs meet a negotiator that knows the team's members: it relays no
+// record of any other owner.
 #include <Eigen/Geometry>
 #include <cstddef>
 #include <cstdint>

@@ -1,6 +1,7 @@
 #!/usr/bin/env python3
 """Writes the seed corpora of fuzz_negotiation and fuzz_consensus (protoc --encode of text-format
-messages): robot 2's Negotiations to robot 0, whose own map fuzz_negotiation.cc fixes, and a
+messages): robot 2's Negotiations to robot 0 (with robot 1's records, relayed), whose own map
+fuzz_negotiation.cc fixes, and a
 neighbour's Marginals of the objects fuzz_consensus.cc gives the robot (100-103 in its joint
 state, 104-105 archived). Run from the repository root."""
 import math
@@ -13,7 +14,7 @@ XYZ = [(4.9, -4.2, 2.0), (1.1, 0.4, 1.1), (0.9, 0.1, 0.1), (6.5, -5.2, 0.3), (6.
        (9.6, -1.5, 1.6), (0.9, -5.3, 0.6)]
 ANGLE, SHIFT = math.radians(30.0), (3.0, -2.0, 0.0)
 C, S = math.cos(ANGLE), math.sin(ANGLE)
-ROBOT2 = 2 << 40  # object keys: robot * 2^40 + private id
+ROBOT1, ROBOT2 = 1 << 40, 2 << 40  # object keys: robot * 2^40 + private id
 
 
 def in_frame_2(p):
@@ -34,20 +35,28 @@ T_0_2 = numbers([v for r in range(3) for v in (*R_INV[r], T_INV[r])])
 MAP = "map { frame: 2 " + " ".join(
     f"objects {{ id: {200 + i} object_class: {i % 2} observations: 20 "
     f"position: {numbers(in_frame_2(p))} {COV3} }}" for i, p in enumerate(XYZ)) + " }"
-LINKS = " ".join(f"links {{ a: {100 + i} b: {ROBOT2 + 200 + i} mahalanobis_squared: 0.5 }}"
-                 for i in range(len(XYZ)))
+def links(robot_key):
+    return " ".join(f"links {{ a: {100 + i} b: {robot_key + 200 + i} mahalanobis_squared: 0.5 }}"
+                    for i in range(len(XYZ)))
+
+
 NEGOTIATION_SEEDS = {
     # A description only: robot 0's searches and confirmations.
     "seed_map": f"frame: 2 {MAP}",
-    # Robot 2's own record: links to robot 0's objects and the edge between their frames.
-    "seed_record": f"frame: 2 {MAP} records {{ owner: 2 version: 1 {LINKS} frame_edges {{ "
-                   f"frame_a: 0 frame_b: 2 T_a_b: {T_0_2} covariance: {COV6} round: 5 owner: 2 }} }} "
-                   "held { owner: 2 version: 1 }",
-    # An edge between robot 0's frame and the world frame, corrected once: robot 0 moves.
-    "seed_world_edge": f"frame: 2 records {{ owner: 2 version: 3 frame_edges {{ frame_a: -1 frame_b: 0 "
-                       f"T_a_b: {T_0_2} covariance: {COV6} round: 10 owner: 2 corrections {{ "
-                       f"frame: -1 moves_b_side: true T: {T_0_2} covariance: {COV6} round: 15 }} }} }} "
-                       "held { owner: 2 version: 3 }",
+    # Robot 1's record, relayed by robot 2 (robot 1 owns its pair with robot 0): links of robot
+    # 0's objects with robot 1's and an edge between their frames.
+    "seed_record": f"frame: 2 {MAP} records {{ owner: 1 version: 1 {links(ROBOT1)} frame_edges {{ "
+                   f"frame_a: 0 frame_b: 1 T_a_b: {T_0_2} covariance: {COV6} round: 5 owner: 1 "
+                   "robot_b: 0 } } held { owner: 1 version: 1 }",
+    # Robot 2's own record deciding the pair robot 0 owns (refused whole, records_not_owned).
+    "seed_record_not_owned": f"frame: 2 {MAP} records {{ owner: 2 version: 1 {links(ROBOT2)} "
+                             f"frame_edges {{ frame_a: 0 frame_b: 2 T_a_b: {T_0_2} covariance: "
+                             f"{COV6} round: 5 owner: 2 }} }} held {{ owner: 2 version: 1 }}",
+    # Robot 1's edge between robot 0's frame and the world frame, corrected once: robot 0 moves.
+    "seed_world_edge": f"frame: 2 records {{ owner: 1 version: 3 frame_edges {{ frame_a: -1 frame_b: 0 "
+                       f"T_a_b: {T_0_2} covariance: {COV6} round: 10 owner: 1 robot_b: 0 "
+                       f"corrections {{ frame: -1 moves_b_side: true T: {T_0_2} covariance: {COV6} "
+                       "round: 15 } } } held { owner: 1 version: 3 }",
 }
 
 CONSENSUS_XYZ = {100: (4.0, 1.0, 0.5), 101: (5.5, -2.0, 1.0), 102: (7.0, 0.5, 0.2),

@@ -1466,6 +1466,62 @@ TEST(NegotiationTest, RecordsOfOwnersOutsideTheMembershipAreRefused) {
   EXPECT_EQ(owners_relayed(false), std::make_pair(std::set<int>{1, 7}, 0LL));
 }
 
+TEST(NegotiationTest, RecordsDecidingPairsTheirOwnerDoesNotOwnAreRefused) {
+  // Robot 2 owns its pair with robot 1 (2 + 1 is odd: the higher index) and not the one with
+  // robot 0 (2 + 0 is even: the lower). A record of robot 2 may decide the first only: a link of
+  // robot 2's object with robot 0's, a link between robots 0's and 1's objects, or a frame edge
+  // with robot 0, would overrule the pairs' owners; robot 0 drops any record holding one, whole.
+  ASSERT_TRUE(owns_pair(2, 1));
+  ASSERT_FALSE(owns_pair(2, 0));
+  FrameEdge edge_with_1;
+  edge_with_1.frame_a = 2;
+  edge_with_1.frame_b = 1;
+  edge_with_1.owner = 2;
+  edge_with_1.robot_b = 1;
+  const OwnerRecord honest{
+      2, 1, {ObjectLink::make(object_key(2, 1), object_key(1, 4), 0.5)}, {edge_with_1}, {}};
+  OwnerRecord with_0 = honest;
+  with_0.links.push_back(ObjectLink::make(object_key(0, 5), object_key(2, 3), 0.5));
+  OwnerRecord between_others = honest;
+  between_others.links.push_back(ObjectLink::make(object_key(0, 5), object_key(1, 4), 0.5));
+  OwnerRecord edge_with_0 = honest;
+  edge_with_0.frame_edges.push_back(edge_with_1);
+  edge_with_0.frame_edges.back().robot_b = 0;
+  edge_with_0.frame_edges.back().frame_b = 0;
+  OwnerRecord edge_of_another = honest;
+  edge_of_another.frame_edges[0].owner = 1;
+  OwnerRecord with_outsider = honest;  // robot 4 is no member here
+  with_outsider.links.push_back(ObjectLink::make(object_key(2, 6), object_key(4, 6), 0.5));
+  ASSERT_TRUE(owns_pair(2, 4));
+
+  EXPECT_TRUE(decides_own_pairs_only(honest));
+  EXPECT_TRUE(decides_own_pairs_only(with_outsider));
+  for (const OwnerRecord* forged : {&with_0, &between_others, &edge_with_0, &edge_of_another})
+    EXPECT_FALSE(decides_own_pairs_only(*forged));
+
+  // What robot 0 holds and relays to robot 3, and its own object 5's team id.
+  auto received = [](const OwnerRecord& record) {
+    NegotiationOptions options;
+    options.relay_delay = 0;
+    Negotiator robot_0(0, kWorldFrame, options);
+    robot_0.set_members({0, 1, 2, 3});
+    NegotiationMessage message;
+    message.sender = 2;
+    message.frame = kWorldFrame;
+    message.records = {std::make_shared<const OwnerRecord>(record)};
+    robot_0.receive(message, 1);
+    robot_0.finish_round(1);
+    const NegotiationMessage to_3 = robot_0.message_for(3, 2);
+    return std::make_tuple(to_3.records.size(), robot_0.counters().records_not_owned,
+                           robot_0.team_id(5));
+  };
+  EXPECT_EQ(received(honest), std::make_tuple(std::size_t{1}, 0LL, ObjectKey{-1}));
+  for (const OwnerRecord* forged :
+       {&with_0, &between_others, &edge_with_0, &edge_of_another, &with_outsider}) {
+    EXPECT_EQ(received(*forged), std::make_tuple(std::size_t{0}, 1LL, ObjectKey{-1}));
+  }
+}
+
 TEST(NegotiationTest, CorrectionsOfEdgesNoLongerInAnyRecordAreForgotten) {
   // A key holder sends a new version of its record every round, each with a made-up edge of a
   // new round carrying three corrections: every version's corrections are new (counted), but a
@@ -1480,7 +1536,7 @@ TEST(NegotiationTest, CorrectionsOfEdgesNoLongerInAnyRecordAreForgotten) {
     edge.frame_b = 2;
     edge.round = round;
     edge.owner = 1;
-    edge.robot_b = 2;
+    edge.robot_b = 3;  // a pair robot 1 owns
     FrameCorrection correction;
     correction.frame = 5;  // another team frame: it moves nobody here
     edge.corrections.assign(3, correction);

@@ -611,6 +611,7 @@ void expect_exchanges_reproduce_the_replay(const association::NegotiationOptions
   EXPECT_GT(shared, 10);
   EXPECT_GT(run.counters[0].marginals_fused, 20u);
   frame_corrections = reference.statistics.frame_corrections;
+  EXPECT_EQ(reference.statistics.records_not_owned, 0);  // honest owners decide their own pairs
 }
 
 TEST(DaemonAssociation, ExchangesReproduceTheNegotiatedReplay) {
@@ -771,6 +772,76 @@ TEST(DaemonAssociation, WithIdentitiesRecordsForgedForAMemberChangeNothing) {
   expect_same_run(honest, forged);
   // The negotiation did its work with signed records: robots aligned and shared objects.
   EXPECT_GT(honest.negotiation[0].links_accepted + honest.negotiation[1].links_accepted, 0);
+}
+
+/// Robot 2's own owner records in its negotiation messages: left out (forge false), or with
+/// links of its objects 0-19 with robot 0's objects of the same ids, signed with robot 2's key
+/// (forge true). Robot 0 owns the pair (2 + 0 is even: the lower index), so those links are its
+/// decisions, not robot 2's.
+std::function<void(int, v1::Envelope&)> change_robot_2s_records(bool forge) {
+  return [forge](int sender, v1::Envelope& e) {
+    if (sender != 2 || !e.has_landmark_set() || !e.landmark_set().has_negotiation()) return;
+    v1::Negotiation& negotiation = *e.mutable_landmark_set()->mutable_negotiation();
+    google::protobuf::RepeatedPtrField<v1::OwnerRecord> kept;
+    for (const v1::OwnerRecord& wire : negotiation.records()) {
+      if (wire.owner() != 2) {
+        *kept.Add() = wire;
+        continue;
+      }
+      if (!forge) continue;
+      v1::Negotiation one;
+      *one.add_records() = wire;
+      std::string error;
+      const auto parsed = from_wire(one, 2, {}, error);
+      ASSERT_TRUE(parsed && parsed->records.size() == 1) << error;
+      association::OwnerRecord record = *parsed->records[0];
+      for (LandmarkId id = 0; id < 20; ++id) {
+        record.links.push_back(association::ObjectLink::make(association::object_key(0, id),
+                                                             association::object_key(2, id), 0.1));
+      }
+      std::sort(record.links.begin(), record.links.end(),
+                [](const association::ObjectLink& x, const association::ObjectLink& y) {
+                  return x.a != y.a ? x.a < y.a : x.b < y.b;
+                });
+      record.signature = robot_identity(2)->sign(record_signing_bytes(record));
+      association::NegotiationMessage message;
+      message.records = {std::make_shared<const association::OwnerRecord>(std::move(record))};
+      v1::Negotiation rewritten;
+      to_wire(message, rewritten);
+      *kept.Add() = rewritten.records(0);
+    }
+    negotiation.mutable_records()->Swap(&kept);
+  };
+}
+
+TEST(DaemonAssociation, RecordsDecidingAnotherOwnersPairsChangeNothing) {
+  // Robot 2, a member with its own identity, puts into every record of its own links that are
+  // robot 0's to decide, and signs them: the signature is good, the decisions are not robot 2's.
+  // Robots 0 and 1 drop those records whole (counted), and the team ends as the team in which
+  // robot 2's records never reach the others does: the same trajectories, objects and team ids.
+  ASSERT_FALSE(association::owns_pair(2, 0));
+  const int frames = kSanitized ? 60 : 80;
+  const NegotiatedInputs team = negotiated_inputs(frames);
+  const std::vector<int> members{0, 1, 2};
+  const TeamRun withheld = run_exchanges(team.inputs, team.options, team.negotiation,
+                                         change_robot_2s_records(false), members, true);
+  const TeamRun forged = run_exchanges(team.inputs, team.options, team.negotiation,
+                                       change_robot_2s_records(true), members, true);
+  EXPECT_EQ(withheld.timed_out, 0);
+  EXPECT_EQ(forged.timed_out, 0);
+  for (int i = 0; i < 3; ++i) {
+    EXPECT_EQ(withheld.negotiation[i].records_not_owned, 0) << "robot " << i;
+    EXPECT_EQ(forged.counters[i].records_unsigned, 0u) << "robot " << i;  // signed by its owner
+    EXPECT_EQ(forged.counters[i].negotiations_refused, 0u) << "robot " << i;
+    if (i < 2) {
+      EXPECT_GT(forged.negotiation[i].records_not_owned, 0) << "robot " << i;
+    } else {
+      EXPECT_EQ(forged.negotiation[i].records_not_owned, 0);
+    }
+  }
+  expect_same_run(withheld, forged);
+  // Robots 0 and 1 still negotiate their own pair.
+  EXPECT_GT(withheld.negotiation[0].links_accepted + withheld.negotiation[1].links_accepted, 0);
 }
 
 /// Ports of this test process, below Linux's ephemeral range (as daemon_process_test.cc).

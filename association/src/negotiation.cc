@@ -99,6 +99,20 @@ std::size_t NegotiationMessage::wire_size() const {
   return size;
 }
 
+bool decides_own_pairs_only(const OwnerRecord& record) {
+  const int owner = record.owner;
+  const auto owned = [owner](int other) { return other != owner && owns_pair(owner, other); };
+  for (const ObjectLink& link : record.links) {
+    const int a = robot_of(link.a);
+    const int b = robot_of(link.b);
+    if (a == b || (a != owner && b != owner) || !owned(a == owner ? b : a)) return false;
+  }
+  for (const FrameEdge& edge : record.frame_edges) {
+    if (edge.owner != owner || !owned(edge.robot_b)) return false;
+  }
+  return true;
+}
+
 Negotiator::Negotiator(int robot, int start_frame, NegotiationOptions options)
     : robot_(robot),
       start_frame_(start_frame),
@@ -171,6 +185,18 @@ bool Negotiator::member(int owner) const {
   return members_.empty() || std::binary_search(members_.begin(), members_.end(), owner);
 }
 
+bool Negotiator::decides_for_members(const OwnerRecord& record) const {
+  if (!decides_own_pairs_only(record)) return false;
+  for (const ObjectLink& link : record.links) {
+    const int other = robot_of(link.a) == record.owner ? robot_of(link.b) : robot_of(link.a);
+    if (!member(other)) return false;
+  }
+  for (const FrameEdge& edge : record.frame_edges) {
+    if (!member(edge.robot_b)) return false;
+  }
+  return true;
+}
+
 void Negotiator::receive(const NegotiationMessage& message, int round) {
   neighbour_frames_[message.sender] = message.frame;
   if (message.map) neighbour_maps_[message.sender] = {round, message.map};
@@ -178,6 +204,10 @@ void Negotiator::receive(const NegotiationMessage& message, int round) {
     if (!record || record->owner == robot_) continue;  // its own decisions are authoritative here
     if (!member(record->owner)) {
       ++counters_.records_refused;
+      continue;
+    }
+    if (!decides_for_members(*record)) {
+      ++counters_.records_not_owned;
       continue;
     }
     auto it = records_.find(record->owner);

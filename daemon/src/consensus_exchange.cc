@@ -1003,13 +1003,20 @@ void ConsensusExchange::negotiate(std::uint64_t round, Estimator& estimator,
     }
   }
   for (const auto& message : messages) {
-    const long long refused = association_->counters().records_refused;
+    const association::NegotiationCounters before = association_->counters();
     association_->receive(message, round);
-    if (const long long now = association_->counters().records_refused; now != refused) {
+    const association::NegotiationCounters& after = association_->counters();
+    if (after.records_refused != before.records_refused) {
       warn_limited(*log_limiter_, message.sender, "records",
                    "association: robot {} round {}: {} owner records of robots outside this "
                    "robot's members refused (does every robot list the same members?)",
-                   message.sender, round, now - refused);
+                   message.sender, round, after.records_refused - before.records_refused);
+    }
+    if (after.records_not_owned != before.records_not_owned) {
+      warn_limited(*log_limiter_, message.sender, "records_not_owned",
+                   "association: robot {} round {}: {} owner records refused for deciding pairs "
+                   "their owner does not own, or with robots outside this robot's members",
+                   message.sender, round, after.records_not_owned - before.records_not_owned);
     }
   }
   for (int robot : candidates) {

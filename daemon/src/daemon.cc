@@ -1180,6 +1180,7 @@ json Daemon::Impl::stats_json() const {
                             {"in_frame_aligned", n.in_frame_aligned},
                             {"records_redundant", n.records_redundant},
                             {"records_refused", n.records_refused},
+                            {"records_not_owned", n.records_not_owned},
                             {"frame_corrections", n.frame_corrections},
                             {"reanchorings", n.reanchorings},
                             {"links_accepted", n.links_accepted},
@@ -1467,6 +1468,9 @@ void Daemon::Impl::register_routes() {
       text.counter("concord_association_records_refused_total",
                    "Peers' owner records of robots outside the membership list, dropped", robot,
                    static_cast<double>(live_.negotiation.records_refused));
+      text.counter("concord_association_records_not_owned_total",
+                   "Members' owner records deciding pairs their owner does not own, dropped", robot,
+                   static_cast<double>(live_.negotiation.records_not_owned));
       text.gauge("concord_frame_latency_p50_seconds", "Median frame latency (update + round)",
                  robot, 1e-3 * percentile(live_.latencies_ms, 50));
       text.gauge("concord_frame_latency_p99_seconds", "99th percentile frame latency", robot,

@@ -499,6 +499,7 @@ ReplayResult run_team(const dataset::TeamInputs& dataset, const EstimatorOptions
       statistics.revisits += counters.revisits;
       statistics.revisits_ambiguous += counters.revisits_ambiguous;
       statistics.records_redundant += counters.records_redundant;
+      statistics.records_not_owned += counters.records_not_owned;
       statistics.frame_corrections += counters.frame_corrections;
       statistics.reanchorings += counters.reanchorings;
       statistics.links_accepted += counters.links_accepted;

@@ -157,6 +157,9 @@ struct ReplayStatistics {
   long long revisits_ambiguous = 0;
   /// Owner records received that the receiver already held (NegotiationCounters).
   long long records_redundant = 0;
+  /// Owner records dropped for deciding pairs their owner does not own (NegotiationCounters): 0
+  /// in a replay, whose robots are all honest.
+  long long records_not_owned = 0;
   long long frame_corrections = 0;
   long long reanchorings = 0;
   long long links_accepted = 0;

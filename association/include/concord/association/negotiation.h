@@ -193,6 +193,12 @@ struct NegotiationCounters {
   /// Owner records received whose owner is not a team member (set_members): dropped, neither
   /// held, relayed nor counted as held by their sender.
   long long records_refused = 0;
+  /// Owner records received from a member that decide a pair their owner does not own (a link
+  /// or frame edge with another robot for which owns_pair is false, or with a robot outside the
+  /// members): dropped whole, neither held, relayed nor used. An honest owner never makes one; a
+  /// member could otherwise overrule the owner of a pair it belongs to, or join another
+  /// robot's objects into its teams against that robot's own decisions.
+  long long records_not_owned = 0;
   long long frame_corrections = 0;  ///< accepted transforms corrected (as owner)
   long long reanchorings = 0;       ///< moves of its own state into another frame
   long long links_accepted = 0;     ///< correspondences accepted (as owner)
@@ -234,6 +240,11 @@ constexpr bool owns_pair(int robot, int other) {
   return ((robot + other) % 2 == 0) == (robot < other);
 }
 
+/// Whether every decision in `record` is one its owner makes: each link joins one of the owner's
+/// objects with one of another robot's, each frame edge is the owner's with another robot, and
+/// the owner owns each of those pairs (owns_pair). An honest owner's record always is.
+bool decides_own_pairs_only(const OwnerRecord& record);
+
 class Negotiator {
  public:
   /// A robot starting in frame start_frame (its own index for an unknown start, kWorldFrame for a
@@ -250,7 +261,8 @@ class Negotiator {
   void set_own_map(MapDescription map, int round);
   /// The message to a neighbour in this round (records it has not had are marked as sent).
   NegotiationMessage message_for(int neighbour, int round);
-  /// A neighbour's message of this round.
+  /// A neighbour's message of this round. Owner records that decide pairs their owner does not
+  /// own are dropped (decides_for_members; counters().records_not_owned).
   void receive(const NegotiationMessage& message, int round);
   /// The neighbour may not have had what was sent to it (it missed a round, or reconnected): every
   /// owner record goes to it again (receivers ignore versions they have).
@@ -332,6 +344,8 @@ class Negotiator {
 
   /// Whether owner records of `owner` are taken (set_members).
   bool member(int owner) const;
+  /// decides_own_pairs_only, and every other robot of its decisions a member.
+  bool decides_for_members(const OwnerRecord& record) const;
   /// Owner work for one neighbour; true when the robot's record changed.
   bool process_pair(int neighbour, const MapDescription& theirs, int round);
   /// The own map of the round, prepared for align_maps once for all the pairs searched.
